@@ -1,0 +1,55 @@
+"""Equation (4) of the paper: the composed noise estimate of one denoising step."""
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+
+@dataclass(frozen=True)
+class CompositionWeights:
+    """w_s, w_h and w_z of eq. (4); w_z is shared by every recorded failure."""
+
+    w_s: float
+    w_h: float
+    w_z: float
+
+    def uses_unconditional(self, n_failures: Tensor) -> bool:
+        """Whether eps_a carries weight for any row: its coefficient is 1 - w_s - w_h - w_z * N_row."""
+        coefficient = 1.0 - self.w_s - self.w_h - self.w_z * n_failures.to(torch.float32)
+        return bool((coefficient.abs() > 1e-9).any())
+
+
+def compose_eps(
+    weights: CompositionWeights,
+    eps_a: Tensor | None,
+    eps_s: Tensor | None,
+    eps_h: Tensor | None = None,
+    eps_z: Tensor | None = None,
+    z_mask: Tensor | None = None,
+) -> Tensor:
+    """eps = eps_a + w_s (eps_s - eps_a) + w_h (eps_h - eps_a) + sum_i w_z (eps_z(z_i) - eps_a).   (eq. 4)
+
+    Shapes: eps_a, eps_s, eps_h are (B, horizon, action_dim); eps_z is (B, N, horizon, action_dim), one slot
+    per remembered failure, with `z_mask` (B, N) marking the slots that hold a failure (rows remember
+    different numbers of failures). A term whose weight is zero may be passed as None; eps_a may be None
+    only when its total coefficient is zero for every row (see `CompositionWeights.uses_unconditional`).
+    """
+    if eps_a is None:
+        # Only valid when eps_a's total coefficient is zero: its contributions below then cancel exactly.
+        eps_a = torch.zeros_like(_require(eps_s if eps_s is not None else eps_h, "eps_s or eps_h"))
+    eps = eps_a
+    if weights.w_s:
+        eps = eps + weights.w_s * (_require(eps_s, "eps_s") - eps_a)
+    if weights.w_h:
+        eps = eps + weights.w_h * (_require(eps_h, "eps_h") - eps_a)
+    if weights.w_z and eps_z is not None:
+        mask = _require(z_mask, "z_mask").to(eps_z.dtype)[..., None, None]  # (B, N, 1, 1)
+        eps = eps + weights.w_z * ((eps_z - eps_a[:, None]) * mask).sum(dim=1)
+    return eps
+
+
+def _require(term: Tensor | None, name: str) -> Tensor:
+    if term is None:
+        raise ValueError(f"eq. (4) gives {name} a non-zero weight but it was not evaluated.")
+    return term

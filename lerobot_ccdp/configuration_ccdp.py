@@ -1,0 +1,233 @@
+"""Configuration of the CCDP policy: LeRobot's diffusion settings plus the composition of eq. (4)."""
+
+from dataclasses import dataclass, field
+
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
+from lerobot.optim.optimizers import AdamConfig
+from lerobot.optim.schedulers import DiffuserSchedulerConfig
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+RECOVERY_MODES = ("ccdp", "dp", "dp_star")
+FAILURE_FEATURES = ("final_state", "action", "primitive")
+TRAINING_STAGES = ("base", "recovery")
+# Column holding the failure feature z in recovery datasets, and the policy input it becomes.
+FAILURE_FEATURE_KEY = "observation.failure_feature"
+# Observation key an env uses to flag a failed attempt (DESIGN section 5).
+FAILURE_FLAG_KEY = "observation.failure"
+
+
+@PreTrainedConfig.register_subclass("ccdp")
+@dataclass
+class CCDPConfig(PreTrainedConfig):
+    """CCDP = LeRobot's diffusion policy composed at sampling time with failure-conditioned recovery heads.
+
+    The base UNet is trained once with condition dropout so that one network yields the unconditional
+    (eps_a), state-conditioned (eps_s) and history-conditioned (eps_h) noise estimates; the recovery head
+    (eps_z) is trained in a second stage on a synthesised recovery dataset. Both stages use this config:
+    `training_stage` selects what `forward()` trains.
+
+    Defaults are sized for low-dimensional tasks on a 2-core CPU (a 1.1 M-parameter UNet, DDIM with 10
+    inference steps, a learning rate and warm-up that converge in a few thousand steps).
+    """
+
+    # Diffusion (same meaning as in LeRobot's DiffusionConfig).
+    n_obs_steps: int = 1
+    horizon: int = 16
+    n_action_steps: int = 8
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.MEAN_STD,
+            "STATE": NormalizationMode.MIN_MAX,
+            "ENV": NormalizationMode.MIN_MAX,
+            "ACTION": NormalizationMode.MIN_MAX,
+        }
+    )
+    down_dims: tuple[int, ...] = (32, 64, 128)
+    kernel_size: int = 5
+    n_groups: int = 8
+    diffusion_step_embed_dim: int = 32
+    use_film_scale_modulation: bool = True
+    noise_scheduler_type: str = "DDIM"
+    num_train_timesteps: int = 100
+    num_inference_steps: int | None = 10
+    beta_schedule: str = "squaredcos_cap_v2"
+    beta_start: float = 0.0001
+    beta_end: float = 0.02
+    prediction_type: str = "epsilon"
+    clip_sample: bool = True
+    clip_sample_range: float = 1.0
+    do_mask_loss_for_padding: bool = False
+
+    # Composition weights of eq. (4). A zero weight skips that term's network rows.
+    w_s: float = 1.0
+    w_h: float = 0.0
+    w_z: float = 1.0
+    # History h_t^H: the H states and actions before the current observation window.
+    history_length: int = 2
+    # Condition dropout while training the base network (independent per condition): dropping both
+    # conditions trains eps_a, dropping one trains eps_s or eps_h.
+    p_drop_state: float = 0.3
+    p_drop_history: float = 0.5
+
+    # Recovery.
+    recovery_mode: str = "ccdp"
+    failure_feature: str = "final_state"
+    # final_state: which observation and which of its dims form z (empty = all dims).
+    failure_state_key: str = OBS_STATE
+    failure_state_dims: list[int] = field(default_factory=list)
+    # action: which steps of the attempt's first chunk form z (empty = all steps).
+    failure_action_steps: list[int] = field(default_factory=list)
+    # primitive: the dataset column holding the per-frame primitive label, and how many labels exist.
+    primitive_key: str = "primitive"
+    num_primitives: int = 0
+    # Most failures remembered per batch row; the oldest is forgotten beyond it.
+    max_failures: int = 8
+    # DP*: candidates drawn per plan, and the squared distance in z under which a candidate repeats a failure.
+    delta_z: float = 0.1
+    dp_star_candidates: int = 16
+    # Demonstrated chunks kept to look up the outcome (final state, primitive) of a sampled chunk.
+    outcome_index_size: int = 20000
+    # Recovery head: a small residual MLP denoiser over the flattened chunk, conditioned on z.
+    recovery_hidden_dim: int = 256
+    recovery_num_blocks: int = 3
+
+    training_stage: str = "base"
+
+    # Training presets.
+    optimizer_lr: float = 1e-3
+    optimizer_betas: tuple = (0.95, 0.999)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 1e-6
+    scheduler_name: str = "cosine"
+    scheduler_warmup_steps: int = 100
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.prediction_type != "epsilon":
+            raise ValueError(
+                f"CCDP composes noise estimates (eq. 4), so `prediction_type` must be 'epsilon'; got "
+                f"{self.prediction_type!r}. Remove --policy.prediction_type or set it to epsilon."
+            )
+        for name in ("w_s", "w_h", "w_z"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(self, name)}.")
+        for name in ("p_drop_state", "p_drop_history"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise ValueError(f"`{name}` must be in [0, 1); got {getattr(self, name)}.")
+        self._check_choice("recovery_mode", RECOVERY_MODES)
+        self._check_choice("failure_feature", FAILURE_FEATURES)
+        self._check_choice("training_stage", TRAINING_STAGES)
+        self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
+        if self.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
+            raise ValueError(
+                f"`failure_state_key` must be {OBS_STATE!r} or {OBS_ENV_STATE!r}; got {self.failure_state_key!r}."
+            )
+        if self.failure_feature == "primitive" and self.num_primitives < 2:
+            raise ValueError(
+                "failure_feature='primitive' needs `num_primitives` >= 2 (the number of distinct labels in "
+                f"the dataset column {self.primitive_key!r}); got {self.num_primitives}."
+            )
+        bad_steps = [s for s in self.failure_action_steps if not 0 <= s < self.horizon]
+        if bad_steps:
+            raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon}).")
+        if self.max_failures < 1 or self.dp_star_candidates < 1 or self.history_length < 0:
+            raise ValueError("`max_failures` and `dp_star_candidates` must be >= 1, `history_length` >= 0.")
+        if self.horizon % 2 ** len(self.down_dims) != 0:
+            raise ValueError(
+                f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = {2 ** len(self.down_dims)}."
+            )
+        if self.n_action_steps > self.horizon - self.n_obs_steps + 1:
+            raise ValueError(
+                f"`n_action_steps` ({self.n_action_steps}) must be <= horizon - n_obs_steps + 1 "
+                f"({self.horizon - self.n_obs_steps + 1})."
+            )
+
+    def _check_choice(self, name: str, allowed: tuple[str, ...]) -> None:
+        if getattr(self, name) not in allowed:
+            raise ValueError(f"Unknown `{name}` {getattr(self, name)!r}; choose one of {list(allowed)}.")
+
+    def validate_features(self) -> None:
+        """Check the dataset/env features against what the policy needs, and declare the z input."""
+        if self.robot_state_feature is None:
+            raise ValueError(
+                f"CCDP needs {OBS_STATE!r} among the input features; the dataset or env has "
+                f"{sorted(self.input_features)}. Record the robot state as {OBS_STATE!r}."
+            )
+        if self.image_features:
+            raise ValueError(
+                f"CCDP is state-only; drop the image features {sorted(self.image_features)} "
+                "(e.g. with --policy.input_features or a state-only dataset)."
+            )
+        if self.action_feature is None:
+            raise ValueError(f"CCDP needs an {ACTION!r} output feature; the dataset has none.")
+        if len(self.action_feature.shape) == 2:
+            # Recovery datasets store one chunk per frame: (horizon, action_dim). The policy acts per step.
+            self.output_features[ACTION] = PolicyFeature(FeatureType.ACTION, self.action_feature.shape[-1:])
+        if self.failure_feature == "final_state":
+            source = self.input_features.get(self.failure_state_key)
+            if source is None:
+                raise ValueError(
+                    f"failure_feature='final_state' reads {self.failure_state_key!r}, which the dataset lacks; "
+                    f"choose --policy.failure_state_key among {sorted(self.input_features)}."
+                )
+            bad = [d for d in self.failure_state_dims if not 0 <= d < source.shape[0]]
+            if bad:
+                raise ValueError(
+                    f"`failure_state_dims` {bad} do not exist in {self.failure_state_key!r} "
+                    f"(shape {tuple(source.shape)})."
+                )
+        self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(FeatureType.STATE, (self.failure_feature_dim,))
+
+    @property
+    def state_dim(self) -> int:
+        """Size of one observation frame as the networks see it (robot state + environment state)."""
+        env = self.env_state_feature.shape[0] if self.env_state_feature else 0
+        return self.robot_state_feature.shape[0] + env
+
+    @property
+    def action_dim(self) -> int:
+        return self.action_feature.shape[-1]
+
+    @property
+    def failure_feature_dim(self) -> int:
+        if self.failure_feature == "final_state":
+            return len(self.failure_state_dims) or self.input_features[self.failure_state_key].shape[0]
+        if self.failure_feature == "action":
+            return (len(self.failure_action_steps) or self.horizon) * self.action_dim
+        return self.num_primitives
+
+    @property
+    def drop_n_last_frames(self) -> int:
+        """Frames at an episode's end that cannot start a full chunk (base stage); recovery rows are whole."""
+        if self.training_stage == "recovery":
+            return 0
+        return self.horizon - self.n_action_steps - self.n_obs_steps + 1
+
+    @property
+    def observation_delta_indices(self) -> list | None:
+        if self.training_stage == "recovery":
+            return None
+        return list(range(1 - self.n_obs_steps - self.history_length, 1))
+
+    @property
+    def action_delta_indices(self) -> list | None:
+        if self.training_stage == "recovery":
+            return None
+        start = 1 - self.n_obs_steps - self.history_length
+        return list(range(start, 1 - self.n_obs_steps + self.horizon))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    def get_optimizer_preset(self) -> AdamConfig:
+        return AdamConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+        )
+
+    def get_scheduler_preset(self) -> DiffuserSchedulerConfig:
+        return DiffuserSchedulerConfig(name=self.scheduler_name, num_warmup_steps=self.scheduler_warmup_steps)

@@ -1,0 +1,84 @@
+"""The two noise-prediction networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z)."""
+
+import contextlib
+from collections.abc import Iterator
+
+import torch
+from lerobot.policies.diffusion.modeling_diffusion import DiffusionConditionalUnet1d, DiffusionSinusoidalPosEmb
+from torch import Tensor, nn
+
+from lerobot_ccdp.configuration_ccdp import CCDPConfig
+
+
+class BaseDenoiser(nn.Module):
+    """LeRobot's diffusion UNet with two droppable conditions, so one network gives eps_a, eps_s and eps_h.
+
+    The global condition is [state * keep_s, keep_s, history * keep_h, keep_h]: a dropped condition is zeroed
+    and its keep flag tells the network it is absent (condition dropout, as in classifier-free guidance).
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        self.state_cond_dim = config.n_obs_steps * config.state_dim
+        self.history_cond_dim = config.history_length * (config.state_dim + config.action_dim)
+        self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=self.state_cond_dim + self.history_cond_dim + 2)
+
+    def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, keep_s: Tensor, history: Tensor, keep_h: Tensor) -> Tensor:
+        """noisy (R, horizon, A); state (R, state_cond_dim); history (R, history_cond_dim); keep_* (R, 1)."""
+        cond = torch.cat([state * keep_s, keep_s, history * keep_h, keep_h], dim=-1)
+        with _small_batch_convolutions(noisy):
+            return self.unet(noisy, timestep, global_cond=cond)
+
+
+class RecoveryDenoiser(nn.Module):
+    """eps_z(a, z, k): a residual MLP over the flattened chunk, FiLM-conditioned on z and the diffusion step.
+
+    It is evaluated once per remembered failure at every denoising step, so it is kept far cheaper than
+    the UNet: with N failures the step costs one UNet call plus one small batched MLP call.
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        width, chunk = config.recovery_hidden_dim, config.horizon * config.action_dim
+        self.step_embedding = nn.Sequential(
+            DiffusionSinusoidalPosEmb(config.diffusion_step_embed_dim),
+            nn.Linear(config.diffusion_step_embed_dim, width),
+            nn.Mish(),
+        )
+        self.z_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish())
+        self.inp = nn.Linear(chunk, width)
+        self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(config.recovery_num_blocks))
+        self.out = nn.Linear(width, chunk)
+
+    def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor) -> Tensor:
+        """noisy (R, horizon, A); timestep (R,); z (R, z_dim) -> predicted noise (R, horizon, A)."""
+        cond = self.step_embedding(timestep) + self.z_embedding(z)
+        h = self.inp(noisy.flatten(start_dim=1))
+        for block in self.blocks:
+            h = block(h, cond)
+        return self.out(h).view_as(noisy)
+
+
+class _FiLMBlock(nn.Module):
+    def __init__(self, width: int):
+        super().__init__()
+        self.norm = nn.LayerNorm(width)
+        self.film = nn.Linear(width, 2 * width)
+        self.mlp = nn.Sequential(nn.Linear(width, width), nn.Mish(), nn.Linear(width, width))
+
+    def forward(self, h: Tensor, cond: Tensor) -> Tensor:
+        scale, shift = self.film(cond).chunk(2, dim=-1)
+        return h + self.mlp(self.norm(h) * (1 + scale) + shift)
+
+
+@contextlib.contextmanager
+def _small_batch_convolutions(x: Tensor) -> Iterator[None]:
+    """On CPU, oneDNN's convolution is 1.5-2x slower than ATen's for this UNet at 2-4 rows (measured with
+    benchmarks/bench_policy.py); composed sampling runs exactly such small batches."""
+    previous = torch.backends.mkldnn.enabled
+    if x.device.type == "cpu" and 1 < x.shape[0] <= 4:
+        torch.backends.mkldnn.enabled = False
+    try:
+        yield
+    finally:
+        torch.backends.mkldnn.enabled = previous

@@ -1,0 +1,306 @@
+"""CCDPPolicy: LeRobot's diffusion policy composed at every denoising step with failure-recovery heads."""
+
+import logging
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from torch import Tensor
+
+from lerobot_ccdp.composition import CompositionWeights, compose_eps
+from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
+from lerobot_ccdp.denoisers import BaseDenoiser, RecoveryDenoiser
+from lerobot_ccdp.failure_buffer import FailureBuffer
+from lerobot_ccdp.failure_features import FailureFeature
+from lerobot_ccdp.outcome_index import OutcomeIndex
+from lerobot_ccdp.outcome_table import build_outcome_table
+from lerobot_ccdp.rollout_memory import RolloutMemory
+
+logger = logging.getLogger(__name__)
+
+
+class CCDPPolicy(PreTrainedPolicy):
+    """Composition of Conditional Diffusion Policies (Razmjoo et al., IROS 2025).
+
+    After a failed attempt (flagged by the env as `observation.failure`, or reported with
+    `report_failure`), the row's failure feature z joins its failure buffer and every later sample of that
+    row is drawn from eq. (4), which pushes samples away from what already failed. `recovery_mode` picks
+    CCDP, plain DP (ignore failures) or DP* (reject candidates near a failure), all on the same weights.
+    """
+
+    config_class = CCDPConfig
+    name = "ccdp"
+
+    def __init__(self, config: CCDPConfig, dataset_meta=None, dataset_stats=None, **kwargs):
+        super().__init__(config)
+        config.validate_features()
+        self.config = config
+        self.base = BaseDenoiser(config)
+        self.recovery = RecoveryDenoiser(config)
+        self.outcomes = OutcomeIndex()
+        # Whether eps_z has been trained; a base-only checkpoint composes nothing for failures.
+        self.register_buffer("recovery_trained", torch.zeros((), dtype=torch.bool))
+        self.noise_scheduler = _make_noise_scheduler(
+            config.noise_scheduler_type,
+            num_train_timesteps=config.num_train_timesteps,
+            beta_start=config.beta_start,
+            beta_end=config.beta_end,
+            beta_schedule=config.beta_schedule,
+            clip_sample=config.clip_sample,
+            clip_sample_range=config.clip_sample_range,
+            prediction_type=config.prediction_type,
+        )
+        self.feature = FailureFeature(config)
+        self.weights = CompositionWeights(config.w_s, config.w_h, config.w_z)
+        if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
+            self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
+        self._set_trainable()
+        self.reset()
+
+    # ----- training -------------------------------------------------------------------------------------
+
+    def _set_trainable(self) -> None:
+        """The recovery stage trains eps_z only: the base network is frozen."""
+        self.base.requires_grad_(self.config.training_stage == "base")
+        self.recovery.requires_grad_(self.config.training_stage == "recovery")
+
+    def get_optim_params(self) -> list:
+        return [p for p in self.parameters() if p.requires_grad]
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """Loss of the stage the config names: the base denoiser on demos, or eps_z on a recovery dataset."""
+        if self.config.training_stage == "recovery":
+            return self._recovery_loss(batch)
+        return self._base_loss(batch)
+
+    def _base_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        cfg = self.config
+        frames = self._frames(batch)
+        if frames.ndim != 3 or batch[ACTION].ndim != 3:
+            raise ValueError(
+                f"The base stage expects observation windows (B, {cfg.history_length + cfg.n_obs_steps}, D) and "
+                f"action chunks (B, {cfg.history_length + cfg.horizon}, A); got {tuple(frames.shape)} and "
+                f"{tuple(batch[ACTION].shape)}. Load the dataset with the policy's delta timestamps (lerobot-train does)."
+            )
+        h = cfg.history_length
+        actions, pad = batch[ACTION], batch.get("action_is_pad")
+        past_actions = actions[:, :h]
+        if pad is not None:
+            past_actions = past_actions * ~pad[:, :h, None]  # no action was taken before the episode began
+        history = torch.cat([frames[:, :h].flatten(start_dim=1), past_actions.flatten(start_dim=1)], dim=-1)
+        state = frames[:, h:].flatten(start_dim=1)
+        chunk = actions[:, h:]
+        b = chunk.shape[0]
+        keep_s = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_state).float()
+        keep_h = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_history).float() * float(h > 0)
+        noise, timesteps, noisy = self._noised(chunk)
+        loss = F.mse_loss(self.base(noisy, timesteps, state, keep_s, history, keep_h), noise, reduction="none")
+        if cfg.do_mask_loss_for_padding and pad is not None:
+            loss = loss * ~pad[:, h:, None]
+        return loss.mean(), {}
+
+    def _recovery_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        cfg = self.config
+        z = batch.get(FAILURE_FEATURE_KEY)
+        if z is None or z.shape[-1] != cfg.failure_feature_dim:
+            got = "no such column" if z is None else f"shape {tuple(z.shape)}"
+            raise ValueError(
+                f"The recovery stage trains on a recovery dataset with {FAILURE_FEATURE_KEY!r} of size "
+                f"{cfg.failure_feature_dim} ({cfg.failure_feature} feature); got {got}. Make one with "
+                "lerobot-ccdp-synthesize using the same failure feature."
+            )
+        chunk = batch[ACTION]
+        if chunk.ndim != 3 or chunk.shape[1] != cfg.horizon:
+            raise ValueError(
+                f"Recovery rows hold whole chunks (B, {cfg.horizon}, A) under {ACTION!r}; got {tuple(chunk.shape)}."
+            )
+        self.recovery_trained.fill_(True)
+        noise, timesteps, noisy = self._noised(chunk)
+        return F.mse_loss(self.recovery(noisy, timesteps, z), noise), {}
+
+    def _noised(self, chunk: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        noise = torch.randn_like(chunk)
+        timesteps = torch.randint(
+            0, self.noise_scheduler.config.num_train_timesteps, (chunk.shape[0],), device=chunk.device
+        )
+        return noise, timesteps, self.noise_scheduler.add_noise(chunk, noise, timesteps)
+
+    # ----- acting ---------------------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget everything about the rollout: windows, plans and every row's failures."""
+        self._memory: RolloutMemory | None = None
+        self._failures: FailureBuffer | None = None
+        self._warned_untrained = False
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """One action per row. Rows whose env flags `observation.failure` remember the failure and re-plan;
+        the other rows keep executing their current chunk."""
+        batch = dict(batch)
+        batch.pop(ACTION, None)
+        frame = self._frames(batch)
+        if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
+            frame = frame[:, -1]
+        self._ensure_memory(frame.shape[0], frame.device)
+        flag = batch.get(FAILURE_FLAG_KEY)
+        if flag is not None:
+            failed = flag.reshape(frame.shape[0], -1)[:, 0] > 0.5
+            if failed.any():
+                self._record_failures(failed)
+        self._memory.push_frame(frame)
+        rows = self._memory.needs_plan()
+        if rows.any():
+            self._memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
+        return self._memory.pop_action()
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures."""
+        frame = self._frames(batch)
+        frame = frame[:, -1] if frame.ndim == 3 else frame
+        self._ensure_memory(frame.shape[0], frame.device)
+        self._memory.push_frame(frame)
+        rows = torch.ones(frame.shape[0], dtype=torch.bool, device=frame.device)
+        start = self.config.n_obs_steps - 1
+        return self._sample(rows, noise)[:, start : start + self.config.n_action_steps]
+
+    def report_failure(self, rows: int | list[int] | Tensor | None = None, z: Tensor | None = None) -> None:
+        """Record a failed attempt from a custom control loop (e.g. a real robot's failure detector).
+
+        `rows` are the batch rows that failed (all rows if None). z defaults to the failure feature of the
+        latest observation and the attempt's chunk; pass `z` (len(rows), z_dim), normalised, to override it.
+        Those rows re-plan from their next observation, which should be the attempt's restored start pose.
+        """
+        if self._memory is None:
+            raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
+        mask = torch.zeros(self._memory.batch_size, dtype=torch.bool, device=self._memory.frames.device)
+        mask[slice(None) if rows is None else torch.as_tensor(rows, device=mask.device)] = True
+        self._record_failures(mask, z)
+
+    def failure_count(self) -> Tensor:
+        """How many failures each row currently remembers."""
+        return torch.zeros(0, dtype=torch.long) if self._failures is None else self._failures.count.clone()
+
+    def _ensure_memory(self, batch_size: int, device: torch.device) -> None:
+        if self._memory is None or self._memory.batch_size != batch_size:
+            self._memory = RolloutMemory(self.config, batch_size, device)
+            self._failures = FailureBuffer(batch_size, self.config.failure_feature_dim, self.config.max_failures, device)
+
+    def _record_failures(self, failed: Tensor, z: Tensor | None = None) -> None:
+        """Remember z_f for the failed rows and restart them at their next observation."""
+        memory, rows = self._memory, failed
+        if z is None:
+            unplanned = failed & ~memory.attempt_planned
+            if self.config.failure_feature != "final_state" and unplanned.any():
+                logger.warning("Row(s) %s failed before planning any chunk: no chunk to remember.",
+                               unplanned.nonzero().flatten().tolist())
+                rows = failed & memory.attempt_planned
+            z = self.feature.of_failure(memory.last_frame, memory.attempt_chunk, self.outcomes)
+        else:
+            z_full = torch.zeros(memory.batch_size, self.config.failure_feature_dim, device=z.device)
+            z_full[rows] = z.reshape(-1, self.config.failure_feature_dim).to(z_full.dtype)
+            z = z_full
+        self._failures.add(rows, z)
+        memory.restart_pending |= failed
+
+    # ----- sampling -------------------------------------------------------------------------------------
+
+    def _sample(self, rows: Tensor, noise: Tensor | None) -> Tensor:
+        """Chunks (R, horizon, A) for the selected rows, by the configured recovery mode."""
+        memory, cfg = self._memory, self.config
+        state, history = memory.state_condition(rows), memory.history_condition(rows)
+        z, z_mask = self._failures.padded(rows)
+        mode = cfg.recovery_mode
+        if mode == "ccdp" and z_mask.any() and not bool(self.recovery_trained):
+            if not self._warned_untrained:
+                logger.warning("recovery_mode=ccdp but eps_z is untrained (base-stage checkpoint): "
+                               "sampling as plain DP. Train the recovery stage to use failures.")
+                self._warned_untrained = True
+            mode = "dp"
+        if mode == "dp_star" and z_mask.any():
+            return self._sample_dp_star(state, history, z, z_mask)
+        if mode != "ccdp":
+            z, z_mask = z[:, :0], z_mask[:, :0]
+        shape = (state.shape[0], cfg.horizon, cfg.action_dim)
+        sample = noise[rows] if noise is not None else torch.randn(shape, device=state.device)
+        return self._denoise(sample, state, history, z, z_mask)
+
+    def _denoise(self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
+        """Reverse diffusion with eq. (4) at every step: one base call and at most one recovery call per step,
+        whatever the number of failures."""
+        r, n = sample.shape[0], z.shape[1]
+        terms = self._base_terms(z_mask.sum(dim=1))
+        ones, zeros = torch.ones(r, 1, device=sample.device), torch.zeros(r, 1, device=sample.device)
+        keep = {"a": (zeros, zeros), "s": (ones, zeros), "h": (zeros, ones)}
+        k = len(terms)
+        state_rows, history_rows = state.repeat(k, 1), history.repeat(k, 1)
+        keep_s = torch.cat([keep[t][0] for t in terms])
+        keep_h = torch.cat([keep[t][1] for t in terms])
+        z_rows = z.reshape(r * n, z.shape[-1])
+        self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
+        for t in self.noise_scheduler.timesteps:
+            step = torch.full((r * k,), int(t), dtype=torch.long, device=sample.device)
+            eps = self.base(sample.repeat(k, 1, 1), step, state_rows, keep_s, history_rows, keep_h)
+            by_term = dict(zip(terms, eps.split(r), strict=True))
+            eps_z = None
+            if n:
+                noisy = sample[:, None].expand(r, n, *sample.shape[1:]).reshape(r * n, *sample.shape[1:])
+                eps_z = self.recovery(noisy, step[:1].expand(r * n), z_rows).view(r, n, *sample.shape[1:])
+            composed = compose_eps(
+                self.weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask
+            )
+            sample = self.noise_scheduler.step(composed, t, sample).prev_sample
+        return sample
+
+    def _base_terms(self, n_failures: Tensor) -> list[str]:
+        """Which base-network outputs eq. (4) needs: zero-weight terms are not evaluated."""
+        terms = [name for name, w in (("s", self.weights.w_s), ("h", self.weights.w_h)) if w]
+        if self.weights.uses_unconditional(n_failures * bool(self.weights.w_z)) or not terms:
+            terms.insert(0, "a")
+        return terms
+
+    def _sample_dp_star(self, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
+        """DP*: draw candidates from the base composition and reject those whose z is within delta_z of a
+        recorded failure; if every candidate is rejected, keep the one farthest from all failures."""
+        cfg = self.config
+        r, m = state.shape[0], cfg.dp_star_candidates
+        none = z[:, :0].repeat_interleave(m, dim=0)
+        candidates = self._denoise(
+            torch.randn(r * m, cfg.horizon, cfg.action_dim, device=state.device),
+            state.repeat_interleave(m, dim=0),
+            history.repeat_interleave(m, dim=0),
+            none,
+            z_mask[:, :0].repeat_interleave(m, dim=0),
+        ).view(r, m, cfg.horizon, cfg.action_dim)
+        z_candidates = self.feature.from_chunk(candidates.flatten(end_dim=1), self.outcomes).view(r, m, -1)
+        distance = ((z_candidates[:, :, None] - z[:, None]) ** 2).sum(dim=-1)  # (R, M, N)
+        distance = distance.masked_fill(~z_mask[:, None], float("inf")).min(dim=-1).values  # nearest failure
+        accepted = distance > cfg.delta_z
+        # First accepted candidate (candidates are i.i.d., so this is a uniform pick), else the farthest one.
+        score = torch.where(accepted, m - torch.arange(m, device=state.device).float()[None], -1.0 / (1.0 + distance))
+        return candidates[torch.arange(r), score.argmax(dim=1)]
+
+    # ----- inputs ---------------------------------------------------------------------------------------
+
+    def _frames(self, batch: dict[str, Tensor]) -> Tensor:
+        """Robot state and env state concatenated on the last dim, after checking they are usable."""
+        cfg = self.config
+        keys = [OBS_STATE] + ([OBS_ENV_STATE] if cfg.env_state_feature else [])
+        parts = []
+        for key in keys:
+            if key not in batch:
+                raise KeyError(
+                    f"CCDP needs {key!r} in every batch (it was trained with inputs "
+                    f"{sorted(k for k in cfg.input_features if k != FAILURE_FEATURE_KEY)}); got keys {sorted(batch)}."
+                )
+            value = batch[key]
+            expected = cfg.input_features[key].shape[0]
+            if value.shape[-1] != expected:
+                raise ValueError(f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}.")
+            if torch.isnan(value).any():
+                raise ValueError(f"{key!r} contains NaN; fix the dataset or env observation before calling the policy.")
+            parts.append(value)
+        return torch.cat(parts, dim=-1)

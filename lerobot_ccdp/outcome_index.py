@@ -1,0 +1,80 @@
+"""Outcomes of demonstrated chunks, to give a sampled chunk the outcome of its nearest demonstrated one.
+
+A chunk drawn from the diffusion model has no outcome of its own: nothing executed it. Its final state
+and primitive are taken from the nearest demonstrated chunk (Euclidean distance in normalised action
+space). The policy keeps this table in its state dict so a checkpoint is self-contained.
+"""
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+
+class OutcomeIndex(nn.Module):
+    """Demonstrated chunks (M, horizon * action_dim) with their final states (M, z_dim) and primitives (M,)."""
+
+    def __init__(self):
+        super().__init__()
+        self.register_buffer("chunks", torch.zeros(0, 0))
+        self.register_buffer("final_states", torch.zeros(0, 0))
+        self.register_buffer("primitives", torch.zeros(0, dtype=torch.long))
+
+    def __len__(self) -> int:
+        return self.chunks.shape[0]
+
+    def fill(self, chunks: Tensor, final_states: Tensor, primitives: Tensor) -> None:
+        self.chunks = chunks.flatten(start_dim=1).float()
+        self.final_states = final_states.float()
+        self.primitives = primitives.long()
+
+    def nearest(self, chunk: Tensor) -> Tensor:
+        """Index of the nearest demonstrated chunk for each chunk in (B, horizon, action_dim)."""
+        if len(self) == 0:
+            raise RuntimeError(
+                "This policy holds no demonstrated outcomes, so a sampled chunk's final state or primitive is "
+                "unknown. Train the base stage from a dataset (lerobot-train builds the table), or use "
+                "--policy.failure_feature=action."
+            )
+        return torch.cdist(chunk.flatten(start_dim=1), self.chunks).argmin(dim=1)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # The table's size depends on the dataset it was built from: take the saved shapes.
+        for name in ("chunks", "final_states", "primitives"):
+            if prefix + name in state_dict:
+                setattr(self, name, torch.empty_like(state_dict[prefix + name]))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+def demo_chunks(episode_index: np.ndarray, actions: np.ndarray, start: int, horizon: int) -> np.ndarray:
+    """The chunk each frame starts, actions[t + start : t + start + horizon], clamped inside its episode.
+
+    This is how LeRobotDataset pads chunks at episode edges (copies of the edge frame), so the table holds
+    the same chunks the policy was trained on.
+    """
+    n = len(actions)
+    first, last = _episode_bounds(episode_index)
+    offsets = np.arange(n)[:, None] + start + np.arange(horizon)[None, :]
+    offsets = np.clip(offsets, first[:, None], last[:, None])
+    return actions[offsets]
+
+
+def segment_final_states(episode_index: np.ndarray, states: np.ndarray, primitives: np.ndarray | None) -> np.ndarray:
+    """The state each frame's attempt ends in: the last frame of its primitive segment within the episode.
+
+    A segment is a maximal run of one primitive label; without labels it is the whole episode. This is the
+    demonstrated counterpart of the state at failure, where a failed attempt ended.
+    """
+    labels = np.zeros(len(states)) if primitives is None else np.asarray(primitives).reshape(len(states))
+    boundary = np.ones(len(states), dtype=bool)
+    boundary[:-1] = (episode_index[1:] != episode_index[:-1]) | (labels[1:] != labels[:-1])
+    ends = np.flatnonzero(boundary)
+    return states[ends[np.searchsorted(ends, np.arange(len(states)))]]
+
+
+def _episode_bounds(episode_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First and last frame index of the episode each frame belongs to (frames sorted by episode)."""
+    change = np.flatnonzero(np.diff(episode_index)) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change - 1, [len(episode_index) - 1]])
+    which = np.searchsorted(starts, np.arange(len(episode_index)), side="right") - 1
+    return starts[which], ends[which]
