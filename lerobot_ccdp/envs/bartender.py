@@ -1,0 +1,104 @@
+"""Bartender: fill two cups one after the other; the nearest available cup is preferred; availability is hidden."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lerobot_ccdp.envs.base import CCDPTaskEnv, Outcome, OutcomeKind, Waypoint
+from lerobot_ccdp.envs.scene import mocap_cylinder
+
+CUPS_XY = np.array([[-0.22, 0.1], [-0.1, 0.1], [0.07, 0.1], [0.29, 0.1]])
+N_FILLS = 2
+POUR_RADIUS = 0.03
+POUR_HEIGHT = 0.1  # hold the bottle below this height over a cup ...
+POUR_STEPS = 3  # ... for this many steps to pour
+P_AVAILABLE = 0.65
+EMPTY_Z, FULL_Z = -0.05, 0.018
+
+
+class BartenderEnv(CCDPTaskEnv):
+    """Hold the bottle over a cup to pour; option i is cup i. Pouring into an unavailable cup is a failure.
+
+    hidden_param: bitmask of available cups (bit i for cup i; each available with probability 0.65, at least
+    two available). The demonstrator fills the nearest available empty cup from where it stands, twice.
+    """
+
+    name = "Bartender"
+    task_description = "Fill two available cups."
+    n_options = len(CUPS_XY)
+    env_state_dim = 3 * len(CUPS_XY)  # cups x, y; cups filled (0/1)
+    default_episode_steps = 250
+    home = (-0.32, -0.05, 0.15, 1.0)  # the gripper holds the bottle
+
+    def _task_bodies_xml(self) -> str:
+        cups = [mocap_cylinder(f"cup_{i}", (x, y, 0.02), 0.025, 0.02, "0.8 0.85 0.9 0.5") for i, (x, y) in enumerate(CUPS_XY)]
+        drinks = [mocap_cylinder(f"drink_{i}", (x, y, EMPTY_Z), 0.02, 0.016, "0.9 0.6 0.1 1") for i, (x, y) in enumerate(CUPS_XY)]
+        bottle = '<body name="bottle" mocap="true"><geom type="cylinder" size="0.015 0.03" pos="0 0 -0.03" rgba="0.2 0.5 0.25 1"/></body>'
+        return "\n".join(cups + drinks + [bottle])
+
+    def hidden_values(self) -> list[int]:
+        return [m for m in range(2 ** len(CUPS_XY)) if bin(m).count("1") >= N_FILLS]
+
+    def _sample_hidden(self) -> int:
+        while True:
+            available = self.np_random.random(len(CUPS_XY)) < P_AVAILABLE
+            code = int(sum(1 << i for i, a in enumerate(available) if a))
+            if code in self.hidden_values():
+                return code
+
+    def _reset_task(self) -> None:
+        self._cups = CUPS_XY + self.jitter(*CUPS_XY.shape)
+        for i, xy in enumerate(self._cups):
+            self.mocap(f"cup_{i}")[:2] = xy
+            self.mocap(f"drink_{i}")[:] = (*xy, EMPTY_Z)
+        self._filled = np.zeros(len(CUPS_XY), dtype=bool)
+        self._pouring_into, self._pour_steps = -1, 0
+        self._follow_bottle()
+
+    def _follow_bottle(self) -> None:
+        self.mocap("bottle")[:] = self.ee_pos
+
+    def _environment_state(self) -> np.ndarray:
+        return np.concatenate([self._cups.ravel(), self._filled.astype(np.float64)])
+
+    def preference_order(self) -> list[int]:
+        distances = np.linalg.norm(self._cups - self.attempt_start_pose[:2], axis=1)
+        return [int(i) for i in np.argsort(distances, kind="stable") if not self._filled[i]]
+
+    def feasible(self, option: int) -> bool:
+        return bool(self.hidden_param >> option & 1) and not self._filled[option]
+
+    def _update_task(self) -> Outcome | None:
+        self._follow_bottle()
+        ee = self.ee_pos
+        near = np.linalg.norm(self._cups - ee[:2], axis=1) < POUR_RADIUS
+        cup = int(np.argmax(near)) if near.any() and ee[2] < POUR_HEIGHT else -1
+        if cup != self._pouring_into:
+            # A new pour starts only after the bottle has left the cup it poured into (cup == -1 re-arms).
+            self._pouring_into, self._pour_steps = cup, 0
+        if cup < 0 or self._pour_steps < 0:
+            return None
+        self._pour_steps += 1
+        if self._pour_steps < POUR_STEPS:
+            return None
+        self._pour_steps = -1  # this pour is over
+        if not self.feasible(cup):
+            return Outcome(OutcomeKind.FAILURE, cup)
+        preferred = self.preferred_feasible_option()
+        self._filled[cup] = True
+        self.mocap(f"drink_{cup}")[2] = FULL_Z
+        kind = OutcomeKind.SUCCESS if self._filled.sum() == N_FILLS else OutcomeKind.STAGE_DONE
+        return Outcome(kind, cup, preferred=preferred)
+
+    def _on_failure(self, option: int) -> None:
+        self._pouring_into, self._pour_steps = -1, 0
+        self._follow_bottle()
+
+    def plan(self, option: int) -> list[Waypoint]:
+        ex, ey, _ = self.ee_pos
+        cx, cy = self._cups[option]
+        return [
+            Waypoint((ex, ey, 0.15, 1.0)),
+            Waypoint((cx, cy, 0.15, 1.0)),
+            Waypoint((cx, cy, 0.07, 1.0), dwell=POUR_STEPS + 1),
+        ]

@@ -1,0 +1,271 @@
+"""Shared machinery of the five CCDP tasks: robot control, attempts, failure restore, metrics and rendering.
+
+A task is a sequence of stages (one for door, button and manipulation; one per object or cup for packing and
+bartender). In each stage the robot commits to one *option* (door direction, button, pick/push, basket, cup).
+A committed option either fails (the hidden parameter rules it out), finishes the stage, or finishes the task.
+On a failure the env flags `failure`, puts the robot back to the pose it had when the attempt started (objects
+stay where they are unless the task says otherwise) and a new attempt begins from there.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from enum import Enum
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from lerobot_ccdp.envs.scene import FINGER_OPEN, TIMESTEP, WORKSPACE_HIGH, WORKSPACE_LOW, build_scene_xml
+
+CONTROL_FPS = 10
+ROBOT_JOINTS = ("ee_x", "ee_y", "ee_z", "finger_l", "finger_r")
+ACTION_DIM = 4  # end-effector target x, y, z (metres) and gripper closure in [0, 1]
+AGENT_POS_DIM = 4  # end-effector position x, y, z and measured gripper closure in [0, 1]
+
+
+class OutcomeKind(Enum):
+    FAILURE = "failure"
+    STAGE_DONE = "stage_done"
+    SUCCESS = "success"
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """The end of one attempt: which option was committed to, and (for successes) the option preferred then."""
+
+    kind: OutcomeKind
+    option: int
+    preferred: int | None = None
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """An end-effector target (x, y, z, grip) to reach in a straight line, then hold for `dwell` steps."""
+
+    target: tuple[float, float, float, float]
+    dwell: int = 0
+
+
+class CCDPTaskEnv(gym.Env, abc.ABC):
+    """Base class: subclasses describe the task's bodies, hidden parameter, rules, options and expert plans."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FPS}
+
+    name: str
+    task_description: str
+    n_options: int
+    env_state_dim: int
+    default_episode_steps: int
+    home: tuple[float, float, float, float]  # robot start pose (x, y, z, grip)
+
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        max_failures: int | None = None,
+        init_noise: float = 0.01,
+        layout_noise: float = 0.01,
+        render_width: int = 320,
+        render_height: int = 240,
+    ):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.render_mode = render_mode
+        self.max_failures = self.n_options if max_failures is None else max_failures
+        self.init_noise = init_noise
+        self.layout_noise = layout_noise
+        self.render_width, self.render_height = render_width, render_height
+
+        self.model = mujoco.MjModel.from_xml_string(build_scene_xml(self.name, self._task_bodies_xml()))
+        self.data = mujoco.MjData(self.model)
+        self._frame_skip = round(1.0 / (CONTROL_FPS * TIMESTEP))
+        self._qpos_idx = np.array([self.model.joint(j).qposadr[0] for j in ROBOT_JOINTS])
+        self._qvel_idx = np.array([self.model.joint(j).dofadr[0] for j in ROBOT_JOINTS])
+        self._renderer: mujoco.Renderer | None = None
+
+        self.action_space = spaces.Box(
+            low=np.array([*WORKSPACE_LOW, 0.0], dtype=np.float32),
+            high=np.array([*WORKSPACE_HIGH, 1.0], dtype=np.float32),
+            dtype=np.float32,
+        )
+        self.observation_space = spaces.Dict(
+            {
+                "agent_pos": spaces.Box(-1.0, 1.0, shape=(AGENT_POS_DIM,), dtype=np.float32),
+                "environment_state": spaces.Box(-1.0, 1.0, shape=(self.env_state_dim,), dtype=np.float32),
+                "failure": spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32),
+            }
+        )
+        self.hidden_param = 0
+        self.attempt_index = 0
+        self.attempt_start_pose = np.asarray(self.home, dtype=np.float64)
+
+    # ----------------------------------------------------------------------------------------------------
+    # What a task provides
+    @abc.abstractmethod
+    def _task_bodies_xml(self) -> str:
+        """MJCF body elements of the task's objects."""
+
+    @abc.abstractmethod
+    def hidden_values(self) -> list[int]:
+        """Every valid hidden parameter (an integer code; see each task for its meaning)."""
+
+    @abc.abstractmethod
+    def _sample_hidden(self) -> int:
+        """Draw the episode's hidden parameter from `self.np_random`."""
+
+    @abc.abstractmethod
+    def _reset_task(self) -> None:
+        """Lay the objects out (drawing layout noise from `self.np_random`) and clear the task's progress."""
+
+    @abc.abstractmethod
+    def _update_task(self) -> Outcome | None:
+        """Apply the task's rules after a control step; return an outcome when an attempt concludes."""
+
+    @abc.abstractmethod
+    def _environment_state(self) -> np.ndarray:
+        """Low-dimensional object state; it must not depend on the hidden parameter before an attempt."""
+
+    @abc.abstractmethod
+    def preference_order(self) -> list[int]:
+        """Options open in the current stage, demonstrator's preference first (uses no hidden information)."""
+
+    @abc.abstractmethod
+    def feasible(self, option: int) -> bool:
+        """Whether `option` succeeds in the current stage (uses the hidden parameter: for experts only)."""
+
+    @abc.abstractmethod
+    def plan(self, option: int) -> list[Waypoint]:
+        """Scripted motion that executes `option` for the current stage from the current state."""
+
+    def _on_failure(self, option: int) -> None:
+        """Undo what the failed attempt did to the objects (default: nothing; objects stay put)."""
+
+    # ----------------------------------------------------------------------------------------------------
+    # Helpers for tasks
+    @property
+    def ee_pos(self) -> np.ndarray:
+        return self.data.qpos[self._qpos_idx[:3]].copy()
+
+    @property
+    def grip(self) -> float:
+        """Measured gripper closure: 0 open, 1 closed."""
+        opening = self.data.qpos[self._qpos_idx[3:]].mean() / FINGER_OPEN
+        return float(np.clip(1.0 - opening, 0.0, 1.0))
+
+    def mocap(self, body: str) -> np.ndarray:
+        """Writable view of a mocap body's position."""
+        return self.data.mocap_pos[self.model.body(body).mocapid[0]]
+
+    def jitter(self, *shape: int) -> np.ndarray:
+        return self.np_random.uniform(-self.layout_noise, self.layout_noise, size=shape)
+
+    def preferred_feasible_option(self) -> int:
+        """The demonstrator's choice: the first option in preference order that works."""
+        for option in self.preference_order():
+            if self.feasible(option):
+                return option
+        raise RuntimeError(f"{self.name}: no feasible option in stage (hidden_param={self.hidden_param})")
+
+    def hidden_label(self) -> float:
+        return float(self.hidden_param)
+
+    # ----------------------------------------------------------------------------------------------------
+    # gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Reset; `options={"hidden_param": code}` forces the hidden parameter (tests, balanced recording)."""
+        super().reset(seed=seed)
+        mujoco.mj_resetData(self.model, self.data)
+        start = np.asarray(self.home, dtype=np.float64).copy()
+        start[:3] += self.np_random.uniform(-self.init_noise, self.init_noise, size=3)
+        self._set_robot(start)
+        self._reset_task()
+        # Drawn last, so the layout (and the first observation) never depends on it.
+        forced = (options or {}).get("hidden_param")
+        if forced is None:
+            self.hidden_param = self._sample_hidden()
+        else:
+            if int(forced) not in self.hidden_values():
+                raise ValueError(f"{self.name}: hidden_param {forced} not in {self.hidden_values()}")
+            self.hidden_param = int(forced)
+        self._attempts = self._failures = self._repeated_failures = 0
+        self._failed_options: set[int] = set()
+        self._last_option = -1
+        self._matched = True
+        self._success = False
+        self.attempt_index = -1
+        self._begin_attempt()
+        mujoco.mj_forward(self.model, self.data)
+        return self._observation(failure=False), self._info()
+
+    def step(self, action):
+        action = np.clip(np.asarray(action, dtype=np.float64), self.action_space.low, self.action_space.high)
+        self.data.ctrl[:3] = action[:3]
+        self.data.ctrl[3:5] = (1.0 - action[3]) * FINGER_OPEN
+        mujoco.mj_step(self.model, self.data, nstep=self._frame_skip)
+
+        failure = terminated = False
+        outcome = self._update_task()
+        if outcome is not None:
+            self._attempts += 1
+            self._last_option = outcome.option
+            if outcome.kind is OutcomeKind.FAILURE:
+                failure = True
+                self._failures += 1
+                self._repeated_failures += int(outcome.option in self._failed_options)
+                self._failed_options.add(outcome.option)
+                self._set_robot(self.attempt_start_pose)
+                self._on_failure(outcome.option)
+                terminated = self._failures >= self.max_failures
+            else:
+                self._matched &= outcome.option == outcome.preferred
+                self._success = outcome.kind is OutcomeKind.SUCCESS
+                terminated = self._success
+            self._begin_attempt()
+        mujoco.mj_forward(self.model, self.data)
+        reward = 1.0 if self._success else 0.0
+        return self._observation(failure), reward, terminated, False, self._info()
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.model, height=self.render_height, width=self.render_width)
+        self._renderer.update_scene(self.data, camera="front")
+        return self._renderer.render()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # ----------------------------------------------------------------------------------------------------
+    def _set_robot(self, pose: np.ndarray) -> None:
+        """Put the robot at `pose` (x, y, z, grip) at rest, with the actuators holding it there."""
+        qpos = np.array([*pose[:3], (1.0 - pose[3]) * FINGER_OPEN, (1.0 - pose[3]) * FINGER_OPEN])
+        self.data.qpos[self._qpos_idx] = qpos
+        self.data.qvel[self._qvel_idx] = 0.0
+        self.data.ctrl[:5] = qpos
+
+    def _begin_attempt(self) -> None:
+        self.attempt_index += 1
+        self.attempt_start_pose = np.array([*self.ee_pos, self.grip])
+
+    def _observation(self, failure: bool) -> dict[str, np.ndarray]:
+        return {
+            "agent_pos": np.array([*self.ee_pos, self.grip], dtype=np.float32),
+            "environment_state": self._environment_state().astype(np.float32),
+            "failure": np.array([1.0 if failure else 0.0], dtype=np.float32),
+        }
+
+    def _info(self) -> dict[str, Any]:
+        return {
+            "is_success": self._success,
+            "attempts": self._attempts,
+            "failures": self._failures,
+            "repeated_failures": self._repeated_failures,
+            "preference_matched": self._success and self._matched,
+            "option": self._last_option,
+        }

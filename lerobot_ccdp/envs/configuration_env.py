@@ -1,0 +1,64 @@
+"""The LeRobot `EnvConfig` of the CCDP tasks: `--env.type=ccdp --env.task=<Task>-v0`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+from lerobot_ccdp.envs.base import ACTION_DIM, AGENT_POS_DIM, CONTROL_FPS
+from lerobot_ccdp.envs.tasks import gym_id, task_class
+
+
+@EnvConfig.register_subclass("ccdp")
+@dataclass
+class CCDPEnvConfig(EnvConfig):
+    """State-only CCDP task. `episode_length` and `max_failures` default to the task's own values.
+
+    The env's `failure` observation is deliberately not a feature here: the policy side passes it through.
+    """
+
+    task: str | None = "DoorOpening-v0"
+    fps: int = CONTROL_FPS
+    episode_length: int | None = None
+    max_failures: int | None = None
+    render_mode: str = "rgb_array"
+    features: dict[str, PolicyFeature] = field(default_factory=dict)
+    features_map: dict[str, str] = field(
+        default_factory=lambda: {
+            ACTION: ACTION,
+            "agent_pos": OBS_STATE,
+            "environment_state": OBS_ENV_STATE,
+        }
+    )
+
+    def __post_init__(self):
+        if self.task is None:
+            raise ValueError("--env.task is required for --env.type=ccdp")
+        cls = task_class(self.task)
+        if self.fps != CONTROL_FPS:
+            raise ValueError(f"ccdp tasks run at a fixed {CONTROL_FPS} fps, got --env.fps={self.fps}")
+        if self.episode_length is None:
+            self.episode_length = cls.default_episode_steps
+        self.features = {
+            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(AGENT_POS_DIM,)),
+            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(cls.env_state_dim,)),
+        }
+
+    @property
+    def package_name(self) -> str:
+        return "lerobot_ccdp.envs"
+
+    @property
+    def gym_id(self) -> str:
+        return gym_id(self.task)
+
+    @property
+    def gym_kwargs(self) -> dict:
+        kwargs = {"render_mode": self.render_mode, "max_episode_steps": self.episode_length}
+        if self.max_failures is not None:
+            kwargs["max_failures"] = self.max_failures
+        return kwargs
