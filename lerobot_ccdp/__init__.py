@@ -1,6 +1,7 @@
 """CCDP for LeRobot: importing this package registers the `ccdp` policy type and the `ccdp` env type."""
 
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.envs import CCDPEnvConfig  # noqa: F401  (registers the `ccdp` env type and the gym ids)
 from lerobot_ccdp.failure_passthrough import install_failure_passthrough
 
 install_failure_passthrough()
