@@ -26,7 +26,9 @@ class BartenderEnv(CCDPTaskEnv):
     name = "Bartender"
     task_description = "Fill two available cups."
     n_options = len(CUPS_XY)
-    env_state_dim = 3 * len(CUPS_XY)  # cups x, y; cups filled (0/1)
+    env_state_names = tuple(f"cup{i}_{c}" for i in range(len(CUPS_XY)) for c in "xy") + tuple(
+        f"cup{i}_filled" for i in range(len(CUPS_XY))
+    )
     default_episode_steps = 250
     home = (-0.32, -0.05, 0.15, 1.0)  # the gripper holds the bottle
 

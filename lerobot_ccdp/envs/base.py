@@ -23,8 +23,9 @@ from lerobot_ccdp.envs.scene import FINGER_OPEN, TIMESTEP, WORKSPACE_HIGH, WORKS
 
 CONTROL_FPS = 10
 ROBOT_JOINTS = ("ee_x", "ee_y", "ee_z", "finger_l", "finger_r")
-ACTION_DIM = 4  # end-effector target x, y, z (metres) and gripper closure in [0, 1]
-AGENT_POS_DIM = 4  # end-effector position x, y, z and measured gripper closure in [0, 1]
+ACTION_NAMES = ("x", "y", "z", "grip")  # end-effector target (metres) and gripper closure in [0, 1]
+AGENT_POS_NAMES = ("x", "y", "z", "grip")  # end-effector position and measured gripper closure
+ACTION_DIM, AGENT_POS_DIM = len(ACTION_NAMES), len(AGENT_POS_NAMES)
 
 
 class OutcomeKind(Enum):
@@ -58,7 +59,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     name: str
     task_description: str
     n_options: int
-    env_state_dim: int
+    env_state_names: tuple[str, ...]  # one name per environment_state dimension
     default_episode_steps: int
     home: tuple[float, float, float, float]  # robot start pose (x, y, z, grip)
 
@@ -91,10 +92,11 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             high=np.array([*WORKSPACE_HIGH, 1.0], dtype=np.float32),
             dtype=np.float32,
         )
+        env_state_dim = len(self.env_state_names)
         self.observation_space = spaces.Dict(
             {
                 "agent_pos": spaces.Box(-1.0, 1.0, shape=(AGENT_POS_DIM,), dtype=np.float32),
-                "environment_state": spaces.Box(-1.0, 1.0, shape=(self.env_state_dim,), dtype=np.float32),
+                "environment_state": spaces.Box(-1.0, 1.0, shape=(env_state_dim,), dtype=np.float32),
                 "failure": spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32),
             }
         )

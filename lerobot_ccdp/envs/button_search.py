@@ -22,7 +22,7 @@ class ButtonSearchEnv(CCDPTaskEnv):
     name = "ButtonSearch"
     task_description = "Find and press the live button."
     n_options = len(BUTTONS_XY)
-    env_state_dim = 2 * len(BUTTONS_XY)  # buttons x, y
+    env_state_names = tuple(f"button{i}_{c}" for i in range(len(BUTTONS_XY)) for c in "xy")
     default_episode_steps = 200
     home = (-0.26, -0.12, 0.1, 0.0)
 

@@ -45,7 +45,7 @@ class CCDPEnvConfig(EnvConfig):
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,)),
             "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(AGENT_POS_DIM,)),
-            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(cls.env_state_dim,)),
+            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(len(cls.env_state_names),)),
         }
 
     @property

@@ -25,7 +25,7 @@ class DoorOpeningEnv(CCDPTaskEnv):
     name = "DoorOpening"
     task_description = "Open the sliding door."
     n_options = 2
-    env_state_dim = 3  # handle x, y, z
+    env_state_names = ("handle_x", "handle_y", "handle_z")
     default_episode_steps = 150
     home = (0.0, -0.15, 0.12, 0.0)
 

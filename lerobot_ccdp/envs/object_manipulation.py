@@ -25,7 +25,7 @@ class ObjectManipulationEnv(CCDPTaskEnv):
     name = "ObjectManipulation"
     task_description = "Bring the box to the target."
     n_options = 2
-    env_state_dim = 5  # box x, y, z, target x, y
+    env_state_names = ("box_x", "box_y", "box_z", "target_x", "target_y")
     default_episode_steps = 150
     home = (0.0, -0.15, 0.12, 0.0)
 

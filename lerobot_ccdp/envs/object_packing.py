@@ -49,7 +49,9 @@ class ObjectPackingEnv(CCDPTaskEnv):
     name = "ObjectPacking"
     task_description = "Pack both objects into baskets."
     n_options = len(BASKETS_XY)
-    env_state_dim = 3 * len(OBJECTS_XY) + 2 * len(BASKETS_XY)  # objects x, y, z; baskets x, y
+    env_state_names = tuple(f"object{i}_{c}" for i in range(len(OBJECTS_XY)) for c in "xyz") + tuple(
+        f"basket{i}_{c}" for i in range(len(BASKETS_XY)) for c in "xy"
+    )
     default_episode_steps = 300
     home = (0.0, -0.2, 0.12, 0.0)
 

@@ -1,0 +1,1 @@
+"""The jobs behind `datasets_recipes/`: demonstration recording (and, later, recovery synthesis)."""

@@ -1,0 +1,138 @@
+"""`lerobot-ccdp-record`: record scripted-expert demonstrations of a CCDP task as a local LeRobot dataset.
+
+The dataset is state only (`observation.state`, `observation.environment_state`, `action`) plus two
+per-frame labels: `primitive` (the option the expert executes in that frame) and `hidden_param` (the
+episode's hidden parameter, for analysis; no policy input reads it). Only successful episodes are kept.
+It is written to a temporary folder next to `--root` and renamed into place when complete, so an
+interrupted run leaves nothing half-written at `--root`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import yaml
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from tqdm import tqdm
+
+from lerobot_ccdp.envs.base import ACTION_NAMES, AGENT_POS_NAMES
+from lerobot_ccdp.envs.scripted import Episode, Expert, run_episode
+from lerobot_ccdp.envs.tasks import gym_id, task_class
+from lerobot_ccdp.recipes.recipe_file import RecordRecipe
+
+logger = logging.getLogger(__name__)
+
+PRIMITIVE = "primitive"
+HIDDEN_PARAM = "hidden_param"
+RECIPE_COPY = "meta/ccdp_record_recipe.yaml"
+
+
+def dataset_features(task: str) -> dict[str, dict]:
+    """LeRobot feature spec of a task's demo dataset."""
+    env_state_names = list(task_class(task).env_state_names)
+    return {
+        OBS_STATE: {"dtype": "float32", "shape": (len(AGENT_POS_NAMES),), "names": list(AGENT_POS_NAMES)},
+        OBS_ENV_STATE: {"dtype": "float32", "shape": (len(env_state_names),), "names": env_state_names},
+        ACTION: {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
+        PRIMITIVE: {"dtype": "int64", "shape": (1,), "names": None},
+        HIDDEN_PARAM: {"dtype": "float32", "shape": (1,), "names": None},
+    }
+
+
+def _add_episode(dataset: LeRobotDataset, episode: Episode, description: str) -> None:
+    hidden = np.array([episode.hidden_param], dtype=np.float32)
+    for observation, action, option in zip(episode.observations, episode.actions, episode.options, strict=True):
+        dataset.add_frame(
+            {
+                OBS_STATE: observation["agent_pos"],
+                OBS_ENV_STATE: observation["environment_state"],
+                ACTION: np.asarray(action, dtype=np.float32),
+                PRIMITIVE: np.array([option], dtype=np.int64),
+                HIDDEN_PARAM: hidden,
+                "task": description,
+            }
+        )
+    dataset.save_episode()
+
+
+def record_dataset(
+    recipe: RecordRecipe, repo_id: str, root: str | Path, overwrite: bool = False, progress: bool = True
+) -> Path:
+    """Record `recipe.n_episodes` expert successes into a LeRobot dataset at `root`; return `root`."""
+    root = Path(root)
+    if root.exists() and not overwrite:
+        raise FileExistsError(f"{root} already exists; pass --overwrite to replace it or choose another --root")
+    root.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".partial", dir=root.parent))
+    env = gym.make(gym_id(recipe.task), **_env_kwargs(recipe))
+    try:
+        description = recipe.task_description or env.unwrapped.task_description
+        dataset = LeRobotDataset.create(
+            repo_id=repo_id,
+            fps=recipe.fps,
+            features=dataset_features(recipe.task),
+            root=staging / "dataset",
+            robot_type="ccdp_cartesian_gripper",
+            use_videos=False,
+        )
+        expert = Expert(env)
+        seed, discarded = recipe.seed, 0
+        for _ in tqdm(range(recipe.n_episodes), desc=f"Recording {recipe.task}", disable=not progress):
+            while True:
+                episode = run_episode(env, expert, seed=seed)
+                seed += 1
+                if episode.success:
+                    break
+                discarded += 1
+                logger.warning("Expert failed on seed %d (hidden_param=%d); episode discarded", seed - 1, episode.hidden_param)
+                if discarded > recipe.n_episodes:
+                    raise RuntimeError(f"The {recipe.task} expert failed {discarded} times; giving up")
+            _add_episode(dataset, episode, description)
+        dataset.finalize()
+        (staging / "dataset" / RECIPE_COPY).write_text(yaml.safe_dump({"record": _as_dict(recipe)}, sort_keys=False))
+        if root.exists():
+            shutil.rmtree(root)
+        (staging / "dataset").rename(root)
+    finally:
+        env.close()
+        shutil.rmtree(staging, ignore_errors=True)
+    logger.info("Recorded %d episodes (%d discarded) of %s to %s", recipe.n_episodes, discarded, recipe.task, root)
+    return root
+
+
+def _env_kwargs(recipe: RecordRecipe) -> dict:
+    kwargs = dict(recipe.env_kwargs)
+    if recipe.max_episode_steps is not None:
+        kwargs["max_episode_steps"] = recipe.max_episode_steps
+    return kwargs
+
+
+def _as_dict(recipe: RecordRecipe) -> dict:
+    return {k: v for k, v in vars(recipe).items() if v is not None and v != {}}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("recipe", type=Path, help="recipe YAML with a `record:` section, e.g. datasets_recipes/door_opening.yaml")
+    parser.add_argument("--repo-id", required=True, help="dataset repo id, e.g. local/door_opening (never pushed)")
+    parser.add_argument("--root", required=True, type=Path, help="folder to write the dataset to (must not exist)")
+    parser.add_argument("--n-episodes", type=int, default=None, help="override record.n_episodes")
+    parser.add_argument("--overwrite", action="store_true", help="replace --root if it exists (once the new one is done)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    recipe = RecordRecipe.load(args.recipe).with_episodes(args.n_episodes)
+    start = time.perf_counter()
+    record_dataset(recipe, args.repo_id, args.root, overwrite=args.overwrite)
+    logger.info("Done in %.1f s", time.perf_counter() - start)
+
+
+if __name__ == "__main__":
+    main()
