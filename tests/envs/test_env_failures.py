@@ -1,0 +1,104 @@
+"""Failure flag, pose restore, attempt counting and preference labelling (DESIGN section 5 and 8)."""
+
+import numpy as np
+import pytest
+
+from lerobot_ccdp.envs.object_packing import encode_capacities
+from lerobot_ccdp.envs.scripted import Expert, NoRepeatOracle, run_episode
+
+from env_helpers import FixedOptions, make
+
+# (task, hidden_param, an option that fails in the first stage under that hidden_param)
+FAILING = [
+    ("DoorOpening-v0", 1, 0),
+    ("ButtonSearch-v0", 2, 0),
+    ("ObjectManipulation-v0", 1, 0),  # heavy box: picking slips
+    ("ObjectPacking-v0", encode_capacities([0, 2, 0]), 0),  # nearest basket has no room
+    ("Bartender-v0", 0b0110, 0),  # nearest cup unavailable
+]
+
+
+def _run_until_failure(env, agent, hidden_param):
+    obs, info = env.reset(seed=0, options={"hidden_param": hidden_param})
+    agent.reset()
+    reset_obs, history = obs, [obs]
+    for _ in range(200):
+        obs, _, terminated, truncated, info = env.step(agent.act(obs, info))
+        history.append(obs)
+        if obs["failure"][0] == 1.0:
+            return reset_obs, history, info
+        assert not (terminated or truncated), "episode ended without a failure"
+    raise AssertionError("no failure within 200 steps")
+
+
+@pytest.mark.parametrize(("task", "hidden", "option"), FAILING)
+def test_failure_is_flagged_once_and_robot_is_restored(task, hidden, option):
+    env = make(task)
+    agent = FixedOptions(env, [option])
+    reset_obs, history, info = _run_until_failure(env, agent, hidden)
+    failed = history[-1]
+    assert [o["failure"][0] for o in history[:-1]] == [0.0] * (len(history) - 1)
+    np.testing.assert_array_equal(failed["agent_pos"], reset_obs["agent_pos"])  # back at the attempt's start
+    assert not np.allclose(history[-2]["agent_pos"], reset_obs["agent_pos"], atol=1e-3)  # it had moved away
+    np.testing.assert_allclose(failed["environment_state"], reset_obs["environment_state"], atol=1e-6)
+    assert info["failures"] == 1 and info["attempts"] == 1 and info["repeated_failures"] == 0
+    assert info["option"] == option and info["is_success"] is False
+    obs, *_ = env.step(failed["agent_pos"])  # hold still
+    assert obs["failure"][0] == 0.0
+
+
+@pytest.mark.parametrize(("task", "hidden", "option"), FAILING)
+def test_repeating_a_failed_option_is_counted_and_ends_at_the_budget(task, hidden, option):
+    env = make(task, max_failures=3)
+    episode = run_episode(env, FixedOptions(env, [option]), seed=0, hidden_param=hidden)
+    assert episode.info["failures"] == 3
+    assert episode.info["repeated_failures"] == 2
+    assert episode.info["is_success"] is False
+    assert len(episode.actions) < env.spec.max_episode_steps  # terminated by the budget, not truncated
+
+
+@pytest.mark.parametrize(("task", "hidden", "option"), FAILING)
+def test_oracle_recovers_without_repeating(task, hidden, option):
+    env = make(task)
+    episode = run_episode(env, NoRepeatOracle(env), seed=0, hidden_param=hidden)
+    assert episode.success
+    assert episode.info["failures"] >= 1 and episode.info["repeated_failures"] == 0
+    assert episode.info["preference_matched"] is True  # it ended on the preferred feasible options
+
+
+@pytest.mark.parametrize(
+    ("task", "hidden", "options", "matched"),
+    [
+        ("ObjectManipulation-v0", 0, [0], True),  # light: pick, as demonstrated
+        ("ObjectManipulation-v0", 0, [1], False),  # light but pushed: works, not the preference
+        ("ObjectManipulation-v0", 1, [1], True),  # heavy: push is the only way
+        ("ObjectPacking-v0", encode_capacities([1, 1, 0]), [0, 1], True),
+        ("ObjectPacking-v0", encode_capacities([1, 1, 0]), [1, 0], False),  # skipped the nearest basket
+        ("Bartender-v0", 0b1111, [0, 1], True),
+        ("Bartender-v0", 0b1111, [1, 0], False),  # filled the farther cup first
+        ("ButtonSearch-v0", 3, [3], True),
+    ],
+)
+def test_preference_labelling(task, hidden, options, matched):
+    env = make(task)
+    episode = run_episode(env, FixedOptions(env, options), seed=0, hidden_param=hidden)
+    assert episode.success
+    assert episode.info["failures"] == 0
+    assert episode.info["preference_matched"] is matched
+
+
+def test_rejected_object_goes_back_and_full_basket_stays_full():
+    env = make("ObjectPacking-v0")
+    # Basket 0 takes one object: the second object into basket 0 is rejected, then basket 1 takes it.
+    episode = run_episode(env, FixedOptions(env, [0, 0, 1]), seed=0, hidden_param=encode_capacities([1, 1, 0]))
+    assert episode.success
+    assert episode.info["attempts"] == 3 and episode.info["failures"] == 1
+    assert episode.info["repeated_failures"] == 0  # basket 0 had not failed before
+    assert episode.info["preference_matched"] is True
+
+
+def test_expert_labels_are_options_and_follow_the_hidden_parameter():
+    env = make("DoorOpening-v0")
+    for hidden in (0, 1):
+        episode = run_episode(env, Expert(env), seed=0, hidden_param=hidden)
+        assert set(episode.options) == {hidden}
