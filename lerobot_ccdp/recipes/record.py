@@ -73,6 +73,7 @@ def record_dataset(
     root.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".partial", dir=root.parent))
     env = gym.make(gym_id(recipe.task), **_env_kwargs(recipe))
+    dataset: LeRobotDataset | None = None
     try:
         description = recipe.task_description or env.unwrapped.task_description
         dataset = LeRobotDataset.create(
@@ -97,12 +98,15 @@ def record_dataset(
                     raise RuntimeError(f"The {recipe.task} expert failed {discarded} times; giving up")
             _add_episode(dataset, episode, description)
         dataset.finalize()
+        dataset = None
         (staging / "dataset" / RECIPE_COPY).write_text(yaml.safe_dump({"record": _as_dict(recipe)}, sort_keys=False))
         if root.exists():
             shutil.rmtree(root)
         (staging / "dataset").rename(root)
     finally:
         env.close()
+        if dataset is not None:
+            dataset.finalize()  # close its writers now, or their destructors write into the deleted staging folder
         shutil.rmtree(staging, ignore_errors=True)
     logger.info("Recorded %d episodes (%d discarded) of %s to %s", recipe.n_episodes, discarded, recipe.task, root)
     return root

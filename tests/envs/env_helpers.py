@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import gymnasium as gym
+import pytest
 
 from lerobot_ccdp.envs import gym_id
 from lerobot_ccdp.envs.scripted import ScriptedAgent
@@ -27,3 +33,12 @@ class FixedOptions(ScriptedAgent):
         option = self.options[min(self._tries, len(self.options) - 1)]
         self._tries += 1
         return option
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    """Run a console script of this venv offline, failing the test with its output if it fails."""
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    result = subprocess.run([str(Path(sys.executable).parent / args[0]), *args[1:]], capture_output=True, text=True, env=env)
+    if result.returncode != 0:
+        pytest.fail(f"{' '.join(args)} failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}")
+    return result

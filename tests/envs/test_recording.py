@@ -1,0 +1,92 @@
+"""Recipes and `lerobot-ccdp-record`: a loadable state-only LeRobot dataset, written atomically."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+from lerobot_ccdp.envs import TASKS
+from lerobot_ccdp.recipes import record
+from lerobot_ccdp.recipes.recipe_file import RecordRecipe
+
+RECIPES = Path(__file__).parents[2] / "datasets_recipes"
+
+
+def _write(tmp_path: Path, content: dict) -> Path:
+    path = tmp_path / "recipe.yaml"
+    path.write_text(yaml.safe_dump(content))
+    return path
+
+
+def test_every_task_has_a_recipe():
+    recipes = {RecordRecipe.load(p).task for p in RECIPES.glob("*.yaml")}
+    assert recipes == set(TASKS)
+
+
+@pytest.mark.parametrize("task", list(TASKS))
+def test_recorded_dataset_loads_with_labels(task, tmp_path):
+    root = tmp_path / "demos"
+    recipe = RecordRecipe(task=task, n_episodes=3, seed=5)
+    record.record_dataset(recipe, "local/test", root, progress=False)
+    dataset = LeRobotDataset("local/test", root=root)
+    assert dataset.num_episodes == 3 and dataset.fps == 10
+    assert {"observation.state", "observation.environment_state", "action", "primitive", "hidden_param"} <= set(
+        dataset.features
+    )
+    assert not any("image" in k or "failure" in k for k in dataset.features)
+    assert dataset.meta.video_keys == []
+    frames = dataset.hf_dataset.with_format("numpy")[:]
+    n_options = TASKS[task].n_options
+    assert set(np.unique(frames["primitive"])) <= set(range(n_options))
+    for ep in range(3):
+        hidden = frames["hidden_param"][frames["episode_index"] == ep]
+        assert len(np.unique(hidden)) == 1  # one hidden parameter per episode
+    assert yaml.safe_load((root / record.RECIPE_COPY).read_text())["record"]["task"] == task
+    assert list(tmp_path.iterdir()) == [root]  # no staging folder left behind
+
+
+def test_cli_records_with_episode_override(tmp_path):
+    root = tmp_path / "door"
+    record.main([str(RECIPES / "door_opening.yaml"), "--repo-id", "local/door", "--root", str(root), "--n-episodes", "2"])
+    assert LeRobotDataset("local/door", root=root).num_episodes == 2
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        record.main([str(RECIPES / "door_opening.yaml"), "--repo-id", "local/door", "--root", str(root), "--n-episodes", "1"])
+    record.main(
+        [str(RECIPES / "door_opening.yaml"), "--repo-id", "local/door", "--root", str(root), "--n-episodes", "1", "--overwrite"]
+    )
+    assert LeRobotDataset("local/door", root=root).num_episodes == 1
+
+
+def test_crash_leaves_nothing_half_written(tmp_path, monkeypatch):
+    calls = []
+
+    def crash_on_third(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    real = record.run_episode
+    monkeypatch.setattr(record, "run_episode", crash_on_third)
+    with pytest.raises(KeyboardInterrupt):
+        record.record_dataset(RecordRecipe(task="ButtonSearch-v0", n_episodes=5, seed=0), "local/x", tmp_path / "ds")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_recipe_ignores_other_sections_and_names_problems(tmp_path):
+    recipe = RecordRecipe.load(
+        _write(tmp_path, {"record": {"task": "Bartender-v0", "n_episodes": 4, "seed": 1}, "recovery": {"sigma": 0.1}})
+    )
+    assert recipe == RecordRecipe(task="Bartender-v0", n_episodes=4, seed=1)
+    with pytest.raises(ValueError, match="missing required field.*seed"):
+        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-v0", "n_episodes": 4}}))
+    with pytest.raises(ValueError, match="unknown field.*n_epsiodes"):
+        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-v0", "n_epsiodes": 4, "seed": 0}}))
+    with pytest.raises(ValueError, match="known tasks: DoorOpening-v0"):
+        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bar-v0", "n_episodes": 4, "seed": 0}}))
+    with pytest.raises(ValueError, match="no top-level `record:` section"):
+        RecordRecipe.load(_write(tmp_path, {"recovery": {}}))
+    with pytest.raises(ValueError, match="n_episodes must be a positive integer"):
+        recipe.with_episodes(0)
