@@ -158,14 +158,15 @@ class CCDPPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
-        """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures."""
+        """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures; it becomes
+        the rows' plan, as the chunk a client executes next."""
         frame = self._frames(batch)
         frame = frame[:, -1] if frame.ndim == 3 else frame
         self._ensure_memory(frame.shape[0], frame.device)
         self._memory.push_frame(frame)
         rows = torch.ones(frame.shape[0], dtype=torch.bool, device=frame.device)
-        start = self.config.n_obs_steps - 1
-        return self._sample(rows, noise)[:, start : start + self.config.n_action_steps]
+        self._memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
+        return self._memory.plan.clone()
 
     def report_failure(self, rows: int | list[int] | Tensor | None = None, z: Tensor | None = None) -> None:
         """Record a failed attempt from a custom control loop (e.g. a real robot's failure detector).

@@ -1,0 +1,71 @@
+"""Bad configuration and bad input give errors that name the problem and the fix."""
+
+import pytest
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+
+from lerobot_ccdp.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+from policy_factory import make_policy
+
+
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        ({"w_z": -0.5}, "w_z"),
+        ({"recovery_mode": "greedy"}, "recovery_mode"),
+        ({"failure_feature": "colour"}, "failure_feature"),
+        ({"prediction_type": "sample"}, "epsilon"),
+        ({"training_stage": "finetune"}, "training_stage"),
+        ({"failure_feature": "primitive"}, "num_primitives"),
+        ({"failure_action_steps": [0, 99]}, "failure_action_steps"),
+        ({"horizon": 12}, "multiple"),
+    ],
+)
+def test_invalid_config_is_rejected(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        CCDPConfig(**overrides)
+
+
+def test_failure_state_dims_the_dataset_lacks_are_rejected():
+    with pytest.raises(ValueError, match=r"failure_state_dims.*\[5\]"):
+        make_policy(failure_feature="final_state", failure_state_dims=[0, 5])
+
+
+def test_missing_state_feature_is_rejected_at_construction():
+    config = CCDPConfig(
+        input_features={"observation.environment_state": PolicyFeature(FeatureType.ENV, (3,))},
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))},
+        device="cpu",
+    )
+    with pytest.raises(ValueError, match="observation.state"):
+        CCDPPolicy(config)
+
+
+def test_missing_observation_in_a_batch_names_the_key():
+    policy = make_policy()
+    with pytest.raises(KeyError, match="observation.state"):
+        policy.select_action({"observation.environment_state": torch.zeros(1, 2)})
+
+
+def test_nan_in_a_training_batch_is_reported():
+    policy = make_policy(history_length=0)
+    batch = {"observation.state": torch.zeros(4, 1, 2), "action": torch.zeros(4, 16, 2)}
+    batch["observation.state"][2, 0, 1] = float("nan")
+    with pytest.raises(ValueError, match="NaN"):
+        policy.forward(batch)
+
+
+def test_wrong_state_width_is_reported():
+    policy = make_policy()
+    with pytest.raises(ValueError, match="expects 2"):
+        policy.select_action({"observation.state": torch.zeros(1, 3)})
+
+
+def test_recovery_batch_with_wrong_failure_feature_is_reported():
+    policy = make_policy(training_stage="recovery", failure_feature="action", failure_action_steps=[0, 15])
+    batch = {"action": torch.zeros(4, 16, 2), "observation.failure_feature": torch.zeros(4, 7)}
+    with pytest.raises(ValueError, match="size 4"):
+        policy.forward(batch)
+    with pytest.raises(ValueError, match="lerobot-ccdp-synthesize"):
+        policy.forward({"action": torch.zeros(4, 16, 2)})

@@ -1,0 +1,34 @@
+"""DP* on a trained policy: after a failure, candidates whose failure feature repeats it are rejected."""
+
+import torch
+from lerobot.policies.factory import make_pre_post_processors
+
+from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+
+ROWS = 48
+
+
+def goal_shares(policy, pre, failed_goal: int | None) -> torch.Tensor:
+    """Share of sampled chunks per goal (their nearest demonstrated chunk's primitive)."""
+    torch.manual_seed(0)
+    policy.reset()
+    obs = pre({"observation.state": torch.zeros(ROWS, 2)})
+    policy.select_action(obs)
+    if failed_goal is not None:
+        policy.report_failure(z=policy.feature.one_hot(torch.full((ROWS,), failed_goal)))
+    policy.select_action(obs)
+    labels = policy.outcomes.primitives[policy.outcomes.nearest(policy._memory.attempt_chunk)]
+    return torch.bincount(labels, minlength=4).float() / ROWS
+
+
+def test_dp_star_rejects_the_failed_option_that_dp_repeats(checkpoint):
+    policy = CCDPPolicy.from_pretrained(checkpoint).eval()
+    pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+    policy.config.recovery_mode = "dp"
+    dp = goal_shares(policy, pre, failed_goal=0)
+    policy.config.recovery_mode = "dp_star"
+    policy.config.delta_z = 0.5  # one-hot z: a different primitive is at squared distance 2
+    dp_star = goal_shares(policy, pre, failed_goal=0)
+    assert dp[0] > 0.2, f"the base policy should prefer goal 0 often, got shares {dp.tolist()}"
+    assert dp_star[0] == 0.0, f"DP* repeated the failed goal: {dp_star.tolist()}"
+    assert abs(float(dp_star[1:].sum()) - 1.0) < 1e-6

@@ -1,0 +1,132 @@
+"""Composed sampling: analytic denoisers give the known composed distribution; network calls per step do
+not grow with the number of failures; failures re-plan only their own row."""
+
+import pytest
+import torch
+from torch import nn
+
+from policy_factory import make_policy
+
+HORIZON, ACTION_DIM, SPREAD = 16, 2, 0.05
+
+
+def optimal_eps(scheduler, noisy, timestep, mean):
+    """Exact noise estimate for data ~ N(mean, SPREAD^2 I) noised to `timestep`."""
+    ab = scheduler.alphas_cumprod[timestep.long()].view(-1, 1, 1)
+    return (1 - ab).sqrt() * (noisy - ab.sqrt() * mean) / (ab * SPREAD**2 + 1 - ab)
+
+
+class GaussianBase(nn.Module):
+    """eps_a, eps_s, eps_h of Gaussians with three known means, selected by the keep flags."""
+
+    def __init__(self, scheduler, means):
+        super().__init__()
+        self.scheduler, self.means = scheduler, means
+
+    def forward(self, noisy, timestep, state, keep_s, history, keep_h):
+        which = (keep_s + 2 * keep_h).long().view(-1)  # 0: a, 1: s, 2: h
+        return optimal_eps(self.scheduler, noisy, timestep, self.means[which])
+
+
+class GaussianRecovery(nn.Module):
+    """eps_z of a Gaussian centred on the chunk that z encodes (failure_feature=action)."""
+
+    def __init__(self, scheduler):
+        super().__init__()
+        self.scheduler = scheduler
+
+    def forward(self, noisy, timestep, z):
+        return optimal_eps(self.scheduler, noisy, timestep, z.view(-1, HORIZON, ACTION_DIM))
+
+
+def test_sampling_with_analytic_denoisers_reaches_the_composed_mean():
+    torch.manual_seed(0)
+    policy = make_policy(w_s=1.0, w_h=0.5, w_z=0.5, clip_sample=False, history_length=2)
+    means = torch.rand(3, HORIZON, ACTION_DIM) * 0.6 - 0.3
+    policy.base = GaussianBase(policy.noise_scheduler, means)
+    policy.recovery = GaussianRecovery(policy.noise_scheduler)
+    policy.recovery_trained.fill_(True)
+    rows = 256
+    obs = {"observation.state": torch.zeros(rows, 2)}
+    policy.predict_action_chunk(obs)
+    mu_z = torch.rand(2, HORIZON, ACTION_DIM) * 0.6 - 0.3
+    policy.report_failure(list(range(rows // 2)), mu_z[0].flatten().expand(rows // 2, -1))
+    policy.report_failure(list(range(rows // 4)), mu_z[1].flatten().expand(rows // 4, -1))
+    chunks = policy.predict_action_chunk(obs)
+
+    mu_a, mu_s, mu_h = means
+    base = mu_a + 1.0 * (mu_s - mu_a) + 0.5 * (mu_h - mu_a)
+    expected = {
+        "two failures": (slice(0, rows // 4), base + 0.5 * (mu_z[0] - mu_a) + 0.5 * (mu_z[1] - mu_a)),
+        "one failure": (slice(rows // 4, rows // 2), base + 0.5 * (mu_z[0] - mu_a)),
+        "no failure": (slice(rows // 2, rows), base),
+    }
+    steps = slice(0, policy.config.n_action_steps)
+    for name, (sel, mean) in expected.items():
+        got = chunks[sel].mean(dim=0)
+        assert torch.allclose(got, mean[steps], atol=0.03), f"{name}: max error {(got - mean[steps]).abs().max()}"
+
+
+@pytest.mark.parametrize("mode", ["ccdp", "dp"])
+def test_network_calls_per_step_do_not_grow_with_failures(mode):
+    policy = make_policy(recovery_mode=mode, w_h=0.5, max_failures=8)
+    policy.recovery_trained.fill_(True)
+    calls = {"base": 0, "recovery": 0}
+    policy.base.register_forward_hook(lambda *_: calls.__setitem__("base", calls["base"] + 1))
+    policy.recovery.register_forward_hook(lambda *_: calls.__setitem__("recovery", calls["recovery"] + 1))
+    obs = {"observation.state": torch.zeros(2, 2)}
+    steps = policy.config.num_inference_steps
+    counts = {}
+    for n in (0, 1, 2, 4, 8):
+        policy.reset()
+        policy.predict_action_chunk(obs)
+        for _ in range(n):
+            policy.report_failure()
+        calls.update(base=0, recovery=0)
+        policy.predict_action_chunk(obs)
+        counts[n] = (calls["base"], calls["recovery"])
+    assert all(base == steps for base, _ in counts.values()), counts
+    if mode == "ccdp":
+        assert counts[0][1] == 0 and all(counts[n][1] == steps for n in (1, 2, 4, 8)), counts
+    else:
+        assert all(rec == 0 for _, rec in counts.values()), counts
+
+
+def test_failure_flag_replans_only_the_failed_row_and_reset_forgets():
+    torch.manual_seed(0)
+    policy = make_policy(n_action_steps=8)
+    obs = {"observation.state": torch.randn(3, 2)}
+    first = [policy.select_action(obs) for _ in range(3)]
+    assert policy._memory.plan_pos.tolist() == [3, 3, 3]
+    plan_before = policy._memory.plan.clone()
+    flagged = {**obs, "observation.failure": torch.tensor([[0.0], [1.0], [0.0]])}
+    action = policy.select_action(flagged)
+    assert policy.failure_count().tolist() == [0, 1, 0]
+    assert policy._memory.plan_pos.tolist() == [4, 1, 4]  # row 1 started a fresh chunk
+    torch.testing.assert_close(action[[0, 2]], plan_before[[0, 2], 3])
+    assert not torch.equal(policy._memory.plan[1], plan_before[1])
+    # The failed row restarted its windows at the current frame, as at an episode start.
+    torch.testing.assert_close(policy._memory.frames[1], obs["observation.state"][1].expand_as(policy._memory.frames[1]))
+    assert len(first) == 3
+    policy.reset()
+    policy.select_action(obs)
+    assert policy.failure_count().tolist() == [0, 0, 0]
+
+
+def test_failure_feature_of_a_flagged_failure_is_the_state_before_it():
+    policy = make_policy(failure_feature="final_state", failure_state_dims=[1])
+    before = torch.tensor([[0.1, 0.7], [0.2, -0.4]])
+    policy.select_action({"observation.state": before})
+    policy.select_action({"observation.state": torch.zeros(2, 2), "observation.failure": torch.tensor([[1.0], [1.0]])})
+    z, mask = policy._failures.padded()
+    assert mask.all() and z[:, 0, 0].tolist() == pytest.approx([0.7, -0.4])
+
+
+def test_untrained_recovery_head_falls_back_to_dp_with_a_warning(caplog):
+    policy = make_policy()
+    obs = {"observation.state": torch.zeros(1, 2)}
+    policy.select_action(obs)
+    policy.report_failure()
+    with caplog.at_level("WARNING"):
+        policy.select_action(obs)
+    assert "untrained" in caplog.text
