@@ -86,6 +86,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         self._qpos_idx = np.array([self.model.joint(j).qposadr[0] for j in ROBOT_JOINTS])
         self._qvel_idx = np.array([self.model.joint(j).dofadr[0] for j in ROBOT_JOINTS])
         self._renderer: mujoco.Renderer | None = None
+        self._mocap_ids: dict[str, int] = {}
 
         self.action_space = spaces.Box(
             low=np.array([*WORKSPACE_LOW, 0.0], dtype=np.float32),
@@ -159,7 +160,9 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
 
     def mocap(self, body: str) -> np.ndarray:
         """Writable view of a mocap body's position."""
-        return self.data.mocap_pos[self.model.body(body).mocapid[0]]
+        if body not in self._mocap_ids:
+            self._mocap_ids[body] = self.model.body(body).mocapid[0]
+        return self.data.mocap_pos[self._mocap_ids[body]]
 
     def jitter(self, *shape: int) -> np.ndarray:
         return self.np_random.uniform(-self.layout_noise, self.layout_noise, size=shape)
