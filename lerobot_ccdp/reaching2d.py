@@ -6,6 +6,8 @@ policy that remembers the failure must then pick among the other three in their 
 Used by the tests, the benchmarks and the README's train-on-a-local-dataset example.
 """
 
+import argparse
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -57,3 +59,20 @@ def record_reaching_dataset(root: str | Path, repo_id: str = "local/reaching2d",
         dataset.save_episode()
     dataset.finalize()
     return dataset
+
+
+def main() -> None:
+    """`python -m lerobot_ccdp.reaching2d --root data/reaching2d`: write the demo dataset for local training."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--root", type=Path, required=True, help="where to write the dataset (must not exist)")
+    parser.add_argument("--repo-id", default="local/reaching2d")
+    parser.add_argument("--n-episodes", type=int, default=60)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO)
+    dataset = record_reaching_dataset(args.root, args.repo_id, args.n_episodes, args.seed)
+    logging.info("Wrote %d episodes (%d frames) to %s", dataset.num_episodes, dataset.num_frames, args.root)
+
+
+if __name__ == "__main__":
+    main()

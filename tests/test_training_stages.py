@@ -1,0 +1,42 @@
+"""forward() trains the stage the config names; the recovery stage leaves the base network untouched."""
+
+import torch
+
+from policy_factory import make_policy
+
+
+def test_base_stage_trains_the_base_network_only():
+    policy = make_policy(history_length=2).train()
+    batch = {
+        "observation.state": torch.randn(8, 3, 2),
+        "action": torch.randn(8, 18, 2).clamp(-1, 1),
+        "action_is_pad": torch.zeros(8, 18, dtype=torch.bool),
+    }
+    loss, _ = policy.forward(batch)
+    loss.backward()
+    assert all(p.grad is not None for p in policy.base.parameters())
+    assert all(p.grad is None for p in policy.recovery.parameters())
+    assert {id(p) for p in policy.get_optim_params()} == {id(p) for p in policy.base.parameters()}
+
+
+def test_recovery_stage_freezes_the_base_and_learns_eps_z():
+    torch.manual_seed(0)
+    policy = make_policy(training_stage="recovery", failure_feature="action", failure_action_steps=[15]).train()
+    base_before = {k: v.clone() for k, v in policy.base.state_dict().items()}
+    optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
+    # Two failure features, each paired with its own chunk: eps_z must learn the pairing.
+    chunks = torch.stack([torch.full((16, 2), 0.5), torch.full((16, 2), -0.5)])
+    z = torch.tensor([[0.5, 0.5], [-0.5, -0.5]])
+    losses = []
+    for _ in range(150):
+        pick = torch.randint(0, 2, (32,))
+        loss, _ = policy.forward({"action": chunks[pick], "observation.failure_feature": z[pick]})
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    assert bool(policy.recovery_trained)
+    assert sum(losses[-20:]) / 20 < 0.5 * sum(losses[:20]) / 20
+    for key, value in policy.base.state_dict().items():
+        torch.testing.assert_close(value, base_before[key], msg=key)
+    assert all(not p.requires_grad for p in policy.base.parameters())
