@@ -33,9 +33,13 @@ class BartenderEnv(CCDPTaskEnv):
     home = (-0.32, -0.05, 0.15, 1.0)  # the gripper holds the bottle
 
     def _task_bodies_xml(self) -> str:
-        cups = [mocap_cylinder(f"cup_{i}", (x, y, 0.02), 0.025, 0.02, "0.8 0.85 0.9 0.5") for i, (x, y) in enumerate(CUPS_XY)]
-        drinks = [mocap_cylinder(f"drink_{i}", (x, y, EMPTY_Z), 0.02, 0.016, "0.9 0.6 0.1 1") for i, (x, y) in enumerate(CUPS_XY)]
-        bottle = '<body name="bottle" mocap="true"><geom type="cylinder" size="0.015 0.03" pos="0 0 -0.03" rgba="0.2 0.5 0.25 1"/></body>'
+        glass, drink = "0.8 0.85 0.9 0.5", "0.9 0.6 0.1 1"
+        cups = [mocap_cylinder(f"cup_{i}", (x, y, 0.02), 0.025, 0.02, glass) for i, (x, y) in enumerate(CUPS_XY)]
+        drinks = [mocap_cylinder(f"drink_{i}", (x, y, EMPTY_Z), 0.02, 0.016, drink) for i, (x, y) in enumerate(CUPS_XY)]
+        bottle = (
+            '<body name="bottle" mocap="true">'
+            '<geom type="cylinder" size="0.015 0.03" pos="0 0 -0.03" rgba="0.2 0.5 0.25 1"/></body>'
+        )
         return "\n".join(cups + drinks + [bottle])
 
     def hidden_values(self) -> list[int]:
