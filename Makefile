@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export HF_HUB_OFFLINE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: install test test-slow bench clean
+.PHONY: install test test-slow train-local clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,3 +23,10 @@ test-slow: install
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache
+
+train-local: install
+	test -d data/reaching2d || $(PY) -m lerobot_ccdp.reaching2d --root data/reaching2d
+	$(VENV)/bin/lerobot-train --policy.type=ccdp --policy.failure_feature=primitive --policy.num_primitives=4 \
+		--dataset.repo_id=local/reaching2d --dataset.root=data/reaching2d \
+		--output_dir=outputs/train/reaching2d-$$(date +%Y%m%d-%H%M%S) --steps=2000 --batch_size=64 \
+		--policy.push_to_hub=false --num_workers=0 --wandb.enable=false
