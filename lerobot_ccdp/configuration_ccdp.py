@@ -89,7 +89,7 @@ class CCDPConfig(PreTrainedConfig):
     # Demonstrated chunks kept to look up the outcome (final state, primitive) of a sampled chunk.
     outcome_index_size: int = 20000
     # Recovery head: a small residual MLP denoiser over the flattened chunk, conditioned on z.
-    recovery_hidden_dim: int = 256
+    recovery_hidden_dim: int = 128
     recovery_num_blocks: int = 3
 
     training_stage: str = "base"

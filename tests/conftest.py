@@ -43,9 +43,9 @@ def reaching_root(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def trained_run(reaching_root, tmp_path_factory) -> Path:
-    """A base-stage ccdp run of 400 steps, checkpointed at 200 and 400 (for the resume test)."""
+    """A base-stage ccdp run of 1000 steps (about 4 min on 2 cores), checkpointed at 500 and 1000."""
     out = tmp_path_factory.mktemp("runs") / "base"
-    run_cli(*train_args(reaching_root, out, 400, "--save_freq=200"))
+    run_cli(*train_args(reaching_root, out, 1000, "--save_freq=500"))
     return out
 
 
