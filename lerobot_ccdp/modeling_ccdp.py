@@ -139,19 +139,7 @@ class CCDPPolicy(PreTrainedPolicy):
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
         """One action per row. Rows whose env flags `observation.failure` remember the failure and re-plan;
         the other rows keep executing their current chunk."""
-        batch = dict(batch)
-        batch.pop(ACTION, None)
-        frame = self._frames(batch)
-        if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
-            frame = frame[:, -1]
-        self._ensure_memory(frame.shape[0], frame.device)
-        flag = batch.get(FAILURE_FLAG_KEY)
-        if flag is not None:
-            failed = flag.reshape(frame.shape[0], -1)[:, 0] > 0.5
-            if failed.any():
-                self._record_failures(failed)
-        self._memory.push_frame(frame)
-        rows = self._memory.needs_plan()
+        rows = self._observe(batch).needs_plan()
         if rows.any():
             self._memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
         return self._memory.pop_action()
@@ -160,13 +148,10 @@ class CCDPPolicy(PreTrainedPolicy):
     def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
         """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures; it becomes
         the rows' plan, as the chunk a client executes next."""
-        frame = self._frames(batch)
-        frame = frame[:, -1] if frame.ndim == 3 else frame
-        self._ensure_memory(frame.shape[0], frame.device)
-        self._memory.push_frame(frame)
-        rows = torch.ones(frame.shape[0], dtype=torch.bool, device=frame.device)
-        self._memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
-        return self._memory.plan.clone()
+        memory = self._observe(batch)
+        rows = torch.ones(memory.batch_size, dtype=torch.bool, device=memory.frames.device)
+        memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
+        return memory.plan.clone()
 
     def report_failure(self, rows: int | list[int] | Tensor | None = None, z: Tensor | None = None) -> None:
         """Record a failed attempt from a custom control loop (e.g. a real robot's failure detector).
@@ -185,10 +170,22 @@ class CCDPPolicy(PreTrainedPolicy):
         """How many failures each row currently remembers."""
         return torch.zeros(0, dtype=torch.long) if self._failures is None else self._failures.count.clone()
 
-    def _ensure_memory(self, batch_size: int, device: torch.device) -> None:
-        if self._memory is None or self._memory.batch_size != batch_size:
-            self._memory = RolloutMemory(self.config, batch_size, device)
-            self._failures = FailureBuffer(batch_size, self.config.failure_feature_dim, self.config.max_failures, device)
+    def _observe(self, batch: dict[str, Tensor]) -> RolloutMemory:
+        """Take in one observation per row: remember flagged failures, then push the frame."""
+        frame = self._frames(batch)
+        if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
+            frame = frame[:, -1]
+        if self._memory is None or self._memory.batch_size != frame.shape[0]:
+            cfg = self.config
+            self._memory = RolloutMemory(cfg, frame.shape[0], frame.device)
+            self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, cfg.max_failures, frame.device)
+        flag = batch.get(FAILURE_FLAG_KEY)
+        if flag is not None:
+            failed = flag.reshape(frame.shape[0], -1)[:, 0] > 0.5
+            if failed.any():
+                self._record_failures(failed)
+        self._memory.push_frame(frame)
+        return self._memory
 
     def _record_failures(self, failed: Tensor, z: Tensor | None = None) -> None:
         """Remember z_f for the failed rows and restart them at their next observation."""

@@ -59,10 +59,10 @@ class RolloutMemory:
         """Store a freshly sampled chunk (R, horizon, A) for `rows`; the first chunk of an attempt is kept."""
         self.plan[rows] = chunk[:, start : start + self.plan.shape[1]]
         self.plan_pos[rows] = 0
-        first = rows.clone()
-        first[rows] = ~self.attempt_planned[rows]
-        self.attempt_chunk[first] = chunk[~self.attempt_planned[rows]]
-        self.attempt_planned[rows] = True
+        index = rows.nonzero().flatten()
+        fresh = ~self.attempt_planned[index]
+        self.attempt_chunk[index[fresh]] = chunk[fresh]
+        self.attempt_planned[index] = True
 
     def pop_action(self) -> Tensor:
         action = self.plan[torch.arange(self.batch_size, device=self.plan.device), self.plan_pos]
