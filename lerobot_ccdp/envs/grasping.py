@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lerobot_ccdp.envs.base import Waypoint
+
 CLOSED, OPEN = 0.6, 0.4  # gripper closure thresholds with hysteresis
 LIFT = 0.03  # how far the grasped object must be raised before it counts as lifted
 
@@ -44,3 +46,18 @@ class Grasp:
         """Let go: the object falls back onto the table where it is."""
         self.active = self.held = False
         obj[2] = self.half_size
+
+
+def pick_and_place(obj: tuple[float, float, float], dest: tuple[float, float], place_z: float) -> list[Waypoint]:
+    """Expert waypoints that grasp the object at `obj`, carry it at 10 cm and release it at (dest, place_z)."""
+    ox, oy, oz = obj
+    dx, dy = dest
+    return [
+        Waypoint((ox, oy, 0.08, 0.0)),
+        Waypoint((ox, oy, oz, 0.0), dwell=2),
+        Waypoint((ox, oy, oz, 1.0), dwell=3),
+        Waypoint((ox, oy, 0.1, 1.0)),
+        Waypoint((dx, dy, 0.1, 1.0)),
+        Waypoint((dx, dy, place_z, 1.0), dwell=1),
+        Waypoint((dx, dy, place_z, 0.0), dwell=3),
+    ]

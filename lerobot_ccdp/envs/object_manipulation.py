@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lerobot_ccdp.envs.base import CCDPTaskEnv, Outcome, OutcomeKind, Waypoint
-from lerobot_ccdp.envs.grasping import Grasp
+from lerobot_ccdp.envs.grasping import Grasp, pick_and_place
 from lerobot_ccdp.envs.scene import mocap_box, mocap_cylinder
 
 BOX = np.array([0.0, 0.0, 0.02])
@@ -83,15 +83,7 @@ class ObjectManipulationEnv(CCDPTaskEnv):
         bx, by, bz = self.mocap("box")
         tx, ty = self._target
         if option == PICK:
-            return [
-                Waypoint((bx, by, 0.08, 0.0)),
-                Waypoint((bx, by, bz, 0.0), dwell=2),
-                Waypoint((bx, by, bz, 1.0), dwell=3),
-                Waypoint((bx, by, 0.1, 1.0)),
-                Waypoint((tx, ty, 0.1, 1.0)),
-                Waypoint((tx, ty, bz + 0.01, 1.0), dwell=1),
-                Waypoint((tx, ty, bz + 0.01, 0.0), dwell=3),
-            ]
+            return pick_and_place((bx, by, bz), (tx, ty), bz + 0.01)
         start_y = by - 3.5 * HALF
         return [
             Waypoint((bx, start_y, 0.1, 0.0)),

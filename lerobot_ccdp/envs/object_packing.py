@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 
 from lerobot_ccdp.envs.base import CCDPTaskEnv, Outcome, OutcomeKind, Waypoint
-from lerobot_ccdp.envs.grasping import Grasp
+from lerobot_ccdp.envs.grasping import Grasp, pick_and_place
 from lerobot_ccdp.envs.scene import mocap_box
 
 OBJECTS_XY = np.array([[-0.05, -0.08], [0.05, -0.08]])
@@ -114,14 +114,4 @@ class ObjectPackingEnv(CCDPTaskEnv):
         self.mocap(f"object_{self._packed}")[:] = (*self._objects0[self._packed], HALF)
 
     def plan(self, option: int) -> list[Waypoint]:
-        ox, oy, oz = self.mocap(f"object_{self._packed}")
-        bx, by = self._baskets[option]
-        return [
-            Waypoint((ox, oy, 0.08, 0.0)),
-            Waypoint((ox, oy, oz, 0.0), dwell=2),
-            Waypoint((ox, oy, oz, 1.0), dwell=3),
-            Waypoint((ox, oy, 0.1, 1.0)),
-            Waypoint((bx, by, 0.1, 1.0)),
-            Waypoint((bx, by, 0.07, 1.0), dwell=1),
-            Waypoint((bx, by, 0.07, 0.0), dwell=3),
-        ]
+        return pick_and_place(tuple(self.mocap(f"object_{self._packed}")), tuple(self._baskets[option]), 0.07)
