@@ -19,6 +19,17 @@ class CompositionWeights:
         coefficient = 1.0 - self.w_s - self.w_h - self.w_z * n_failures.to(torch.float32)
         return bool((coefficient.abs() > 1e-9).any())
 
+    @classmethod
+    def exploration(cls, w_s: float) -> "CompositionWeights":
+        """eps_bar = eps_a + w_s (eps_s - eps_a)   (eq. 7): eq. (4) without history and failures.
+
+        Recovery synthesis samples from it; w_s <= 1 widens the distribution beyond p_s so that the
+        synthesised chunks cover every demonstrated option near a state.
+        """
+        if not 0.0 < w_s <= 1.0:
+            raise ValueError(f"eq. (7) samples with 0 < w_s <= 1; got w_s={w_s}.")
+        return cls(w_s=w_s, w_h=0.0, w_z=0.0)
+
 
 def compose_eps(
     weights: CompositionWeights,

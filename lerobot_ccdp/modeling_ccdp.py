@@ -226,11 +226,28 @@ class CCDPPolicy(PreTrainedPolicy):
         sample = noise[rows] if noise is not None else torch.randn(shape, device=state.device)
         return self._denoise(sample, state, history, z, z_mask)
 
-    def _denoise(self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
-        """Reverse diffusion with eq. (4) at every step: one base call and at most one recovery call per step,
-        whatever the number of failures."""
+    @torch.no_grad()
+    def sample_exploratory(self, state: Tensor, w_s: float, noise: Tensor | None = None) -> Tensor:
+        """Chunks (R, horizon, A) drawn from eq. (7) for normalised state conditions (R, n_obs_steps * state_dim):
+        no history, no failures. Recovery synthesis uses it to propose candidate actions around demo states."""
+        cfg = self.config
+        r = state.shape[0]
+        if noise is None:
+            noise = torch.randn(r, cfg.horizon, cfg.action_dim, device=state.device)
+        history = torch.zeros(r, self.base.history_cond_dim, device=state.device)
+        no_failures = torch.zeros(r, 0, cfg.failure_feature_dim, device=state.device)
+        return self._denoise(noise, state, history, no_failures, no_failures[..., 0].bool(),
+                             CompositionWeights.exploration(w_s))
+
+    def _denoise(
+        self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor,
+        weights: CompositionWeights | None = None,
+    ) -> Tensor:
+        """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given):
+        one base call and at most one recovery call per step, whatever the number of failures."""
+        weights = weights or self.weights
         r, n = sample.shape[0], z.shape[1]
-        terms = self._base_terms(z_mask.sum(dim=1))
+        terms = self._base_terms(z_mask.sum(dim=1), weights)
         ones, zeros = torch.ones(r, 1, device=sample.device), torch.zeros(r, 1, device=sample.device)
         keep = {"a": (zeros, zeros), "s": (ones, zeros), "h": (zeros, ones)}
         k = len(terms)
@@ -248,15 +265,16 @@ class CCDPPolicy(PreTrainedPolicy):
                 noisy = sample[:, None].expand(r, n, *sample.shape[1:]).reshape(r * n, *sample.shape[1:])
                 eps_z = self.recovery(noisy, step[:1].expand(r * n), z_rows).view(r, n, *sample.shape[1:])
             composed = compose_eps(
-                self.weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask
+                weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask
             )
             sample = self.noise_scheduler.step(composed, t, sample).prev_sample
         return sample
 
-    def _base_terms(self, n_failures: Tensor) -> list[str]:
+    @staticmethod
+    def _base_terms(n_failures: Tensor, weights: CompositionWeights) -> list[str]:
         """Which base-network outputs eq. (4) needs: zero-weight terms are not evaluated."""
-        terms = [name for name, w in (("s", self.weights.w_s), ("h", self.weights.w_h)) if w]
-        if self.weights.uses_unconditional(n_failures * bool(self.weights.w_z)) or not terms:
+        terms = [name for name, w in (("s", weights.w_s), ("h", weights.w_h)) if w]
+        if weights.uses_unconditional(n_failures * bool(weights.w_z)) or not terms:
             terms.insert(0, "a")
         return terms
 

@@ -63,8 +63,15 @@ def normalize_batch(config: CCDPConfig, stats: dict, batch: dict[str, Any]) -> d
     return transition_to_batch(_normalizer(config, stats)(batch_to_transition(batch)))
 
 
-def _normalizer(config: CCDPConfig, stats: dict | None) -> NormalizerProcessorStep:
-    return NormalizerProcessorStep(
+def unnormalize_batch(config: CCDPConfig, stats: dict, batch: dict[str, Any]) -> dict[str, Any]:
+    """Invert `normalize_batch` (for code that writes datasets from the policy's normalised space)."""
+    return transition_to_batch(_normalizer(config, stats, UnnormalizerProcessorStep)(batch_to_transition(batch)))
+
+
+def _normalizer(
+    config: CCDPConfig, stats: dict | None, step: type = NormalizerProcessorStep
+) -> NormalizerProcessorStep | UnnormalizerProcessorStep:
+    return step(
         features={**config.input_features, **config.output_features},
         norm_map=config.normalization_mapping,
         stats=stats,

@@ -1,7 +1,7 @@
 """Recipe files (`datasets_recipes/<task>.yaml`): one top-level section per job; each job reads only its own.
 
-The `record:` section (demo recording) is parsed here; other sections (e.g. `recovery:`) belong to other jobs
-and are ignored by this loader.
+`record:` holds what `lerobot-ccdp-record` records, `recovery:` how `lerobot-ccdp-synthesize` builds the
+recovery dataset (paper eq. 5-7).
 """
 
 from __future__ import annotations
@@ -13,6 +13,9 @@ from typing import Any
 
 import yaml
 
+from lerobot.utils.constants import OBS_STATE
+
+from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURES
 from lerobot_ccdp.envs.base import CONTROL_FPS
 from lerobot_ccdp.envs.tasks import task_class
 
@@ -44,15 +47,7 @@ class RecordRecipe:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any], source: str = "recipe") -> RecordRecipe:
-        known = {f.name: f for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - set(known))
-        if unknown:
-            raise ValueError(f"{source}: unknown field(s) in `record:`: {', '.join(unknown)}; known: {', '.join(known)}")
-        required = [n for n, f in known.items() if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
-        missing = [n for n in required if n not in values]
-        if missing:
-            raise ValueError(f"{source}: `record:` is missing required field(s): {', '.join(missing)}")
-        recipe = cls(**values)
+        recipe = _build(cls, values, "record", source)
         task_class(recipe.task)  # names the known tasks if this one is not
         if not isinstance(recipe.n_episodes, int) or recipe.n_episodes < 1:
             raise ValueError(f"{source}: record.n_episodes must be a positive integer, got {recipe.n_episodes!r}")
@@ -68,3 +63,74 @@ class RecordRecipe:
         if n_episodes is None:
             return self
         return self.from_dict({**dataclasses.asdict(self), "n_episodes": n_episodes}, source="override")
+
+
+@dataclass(frozen=True)
+class RecoveryRecipe:
+    """How `lerobot-ccdp-synthesize` builds a recovery dataset (paper eq. 5-7).
+
+    The failure feature settings must be those the base checkpoint was trained with (they define z); the
+    other fields are the synthesis parameters. Distances are in the policy's normalised space.
+    """
+
+    failure_feature: str
+    failure_state_key: str = OBS_STATE
+    failure_state_dims: list[int] = field(default_factory=list)
+    failure_action_steps: list[int] = field(default_factory=list)
+    primitive_key: str = "primitive"
+    num_primitives: int = 0
+    n_states: int = 512  # demo states x_s drawn (eq. 6)
+    chunks_per_state: int = 16  # chunks sampled around each x_s from eq. (7)
+    sigma: float = 0.02  # std of the state noise xi_x (eq. 6)
+    w_s: float = 0.8  # state weight of eq. (7); <= 1 widens the proposals
+    delta_z: float = 0.5  # eq. (5): a recovery's z differs from the failure's by more than this
+    delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
+    pairs_per_state: int = 32  # most (failure, recovery) pairs kept per drawn state
+    demo_pairs: int = 2000  # most pairs drawn straight from the demonstrations
+    batch_states: int = 32  # states sampled per batched denoising call
+    seed: int = 0
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any], source: str = "recipe") -> RecoveryRecipe:
+        recipe = _build(cls, values, "recovery", source)
+        if recipe.failure_feature not in FAILURE_FEATURES:
+            raise ValueError(f"{source}: recovery.failure_feature must be one of {list(FAILURE_FEATURES)}, "
+                             f"got {recipe.failure_feature!r}")
+        if not 0.0 < recipe.w_s <= 1.0:
+            raise ValueError(f"{source}: recovery.w_s must be in (0, 1] (eq. 7), got {recipe.w_s}")
+        counts = ("n_states", "chunks_per_state", "pairs_per_state", "batch_states")
+        bad = [name for name in counts if getattr(recipe, name) < 1] + [
+            name for name in ("sigma", "delta_z", "delta_x", "demo_pairs") if getattr(recipe, name) < 0
+        ]
+        if bad:
+            raise ValueError(f"{source}: recovery field(s) {', '.join(bad)} out of range (counts >= 1, the rest >= 0)")
+        if recipe.chunks_per_state < 2:
+            raise ValueError(f"{source}: recovery.chunks_per_state must be >= 2 to form pairs")
+        return recipe
+
+    @classmethod
+    def load(cls, path: str | Path) -> RecoveryRecipe:
+        return cls.from_dict(read_recipe_section(path, "recovery"), source=str(path))
+
+    def failure_settings(self) -> dict[str, Any]:
+        """The settings that define z, named as in CCDPConfig (`--policy.<name>`)."""
+        names = ["failure_feature"]
+        names += {
+            "final_state": ["failure_state_key", "failure_state_dims"],
+            "action": ["failure_action_steps"],
+            "primitive": ["primitive_key", "num_primitives"],
+        }[self.failure_feature]
+        return {name: getattr(self, name) for name in names}
+
+
+def _build(cls: type, values: dict[str, Any], section: str, source: str):
+    """Instantiate a recipe dataclass from its section, naming unknown and missing fields."""
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise ValueError(f"{source}: unknown field(s) in `{section}:`: {', '.join(unknown)}; known: {', '.join(known)}")
+    required = [n for n, f in known.items() if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    missing = [n for n in required if n not in values]
+    if missing:
+        raise ValueError(f"{source}: `{section}:` is missing required field(s): {', '.join(missing)}")
+    return cls(**values)

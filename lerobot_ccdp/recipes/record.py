@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -27,6 +25,7 @@ from lerobot_ccdp.envs.base import ACTION_NAMES, AGENT_POS_NAMES
 from lerobot_ccdp.envs.scripted import Episode, Expert, run_episode
 from lerobot_ccdp.envs.tasks import gym_id, task_class
 from lerobot_ccdp.recipes.recipe_file import RecordRecipe
+from lerobot_ccdp.recipes.staging import staged_dataset_root
 
 logger = logging.getLogger(__name__)
 
@@ -67,23 +66,28 @@ def record_dataset(
     recipe: RecordRecipe, repo_id: str, root: str | Path, overwrite: bool = False, progress: bool = True
 ) -> Path:
     """Record `recipe.n_episodes` expert successes into a LeRobot dataset at `root`; return `root`."""
-    root = Path(root)
-    if root.exists() and not overwrite:
-        raise FileExistsError(f"{root} already exists; pass --overwrite to replace it or choose another --root")
-    root.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".partial", dir=root.parent))
     env = gym.make(gym_id(recipe.task), **_env_kwargs(recipe))
-    dataset: LeRobotDataset | None = None
     try:
-        description = recipe.task_description or env.unwrapped.task_description
-        dataset = LeRobotDataset.create(
-            repo_id=repo_id,
-            fps=recipe.fps,
-            features=dataset_features(recipe.task),
-            root=staging / "dataset",
-            robot_type="ccdp_cartesian_gripper",
-            use_videos=False,
-        )
+        with staged_dataset_root(root, overwrite) as staging:
+            discarded = _record_into(staging, recipe, repo_id, env, progress)
+    finally:
+        env.close()
+    logger.info("Recorded %d episodes (%d discarded) of %s to %s", recipe.n_episodes, discarded, recipe.task, root)
+    return root
+
+
+def _record_into(path: Path, recipe: RecordRecipe, repo_id: str, env: gym.Env, progress: bool) -> int:
+    """Record the recipe's episodes into a new dataset at `path`; return how many expert failures were discarded."""
+    description = recipe.task_description or env.unwrapped.task_description
+    dataset = LeRobotDataset.create(
+        repo_id=repo_id,
+        fps=recipe.fps,
+        features=dataset_features(recipe.task),
+        root=path,
+        robot_type="ccdp_cartesian_gripper",
+        use_videos=False,
+    )
+    try:
         expert = Expert(env)
         seed, discarded = recipe.seed, 0
         for _ in tqdm(range(recipe.n_episodes), desc=f"Recording {recipe.task}", disable=not progress):
@@ -97,19 +101,10 @@ def record_dataset(
                 if discarded > recipe.n_episodes:
                     raise RuntimeError(f"The {recipe.task} expert failed {discarded} times; giving up")
             _add_episode(dataset, episode, description)
-        dataset.finalize()
-        dataset = None
-        (staging / "dataset" / RECIPE_COPY).write_text(yaml.safe_dump({"record": _as_dict(recipe)}, sort_keys=False))
-        if root.exists():
-            shutil.rmtree(root)
-        (staging / "dataset").rename(root)
     finally:
-        env.close()
-        if dataset is not None:
-            dataset.finalize()  # close its writers now, or their destructors write into the deleted staging folder
-        shutil.rmtree(staging, ignore_errors=True)
-    logger.info("Recorded %d episodes (%d discarded) of %s to %s", recipe.n_episodes, discarded, recipe.task, root)
-    return root
+        dataset.finalize()  # close its writers now, or their destructors write into the deleted staging folder
+    (path / RECIPE_COPY).write_text(yaml.safe_dump({"record": _as_dict(recipe)}, sort_keys=False))
+    return discarded
 
 
 def _env_kwargs(recipe: RecordRecipe) -> dict:
