@@ -2,8 +2,10 @@
 
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.envs import CCDPEnvConfig  # noqa: F401  (registers the `ccdp` env type and the gym ids)
+from lerobot_ccdp.eval_metrics import install_episode_metrics
 from lerobot_ccdp.failure_passthrough import install_failure_passthrough
 
 install_failure_passthrough()
+install_episode_metrics()
 
 __all__ = ["CCDPConfig"]

@@ -24,7 +24,7 @@ class CCDPEnvConfig(EnvConfig):
     fps: int = CONTROL_FPS
     episode_length: int | None = None
     max_failures: int | None = None
-    render_mode: str = "rgb_array"
+    render_mode: str | None = "rgb_array"  # null: no rendering (lerobot-eval then saves no videos)
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(
         default_factory=lambda: {
