@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export HF_HUB_OFFLINE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: install test test-slow train-local clean
+.PHONY: install test test-slow train-local clean quickstart benchmark
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,3 +30,12 @@ train-local: install
 		--dataset.repo_id=local/reaching2d --dataset.root=data/reaching2d \
 		--output_dir=outputs/train/reaching2d-$$(date +%Y%m%d-%H%M%S) --steps=2000 --batch_size=64 \
 		--policy.push_to_hub=false --num_workers=0 --wandb.enable=false
+
+# The main job end to end on one task (record, train base, synthesise, train recovery, evaluate CCDP vs DP).
+TASK ?= DoorOpening-v0
+quickstart: install
+	$(PY) -m lerobot_ccdp.pipeline --tasks $(TASK) --methods dp ccdp --out outputs/quickstart
+
+# The paper's comparison: every task, DP / DP* / CCDP and the no-repeat oracle; report in outputs/benchmark.
+benchmark: install
+	$(PY) -m lerobot_ccdp.pipeline --tasks all --out outputs/benchmark

@@ -1,0 +1,258 @@
+"""`python -m lerobot_ccdp.pipeline`: the CCDP main job end to end through the real CLIs, and the paper's comparison.
+
+Per task: record demos (lerobot-ccdp-record), train the base stage (lerobot-train), synthesise the recovery
+dataset (lerobot-ccdp-synthesize), train the recovery stage (lerobot-train), evaluate every method on the same
+seeds (lerobot-eval --policy.recovery_mode=...), run the no-repeat oracle on those seeds, and report the metrics
+with 95% intervals (`lerobot_ccdp.comparison`) as markdown, JSON and a bar chart.
+
+Settings live in files a user can run by hand: `configs/<task>/{train_base,train_recovery,eval}.json` and
+`datasets_recipes/<task>.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
+checkpoints, eval_info.json, logs). A stage whose output exists is skipped, so an interrupted run resumes;
+`--fresh` starts over.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import torch
+
+from lerobot_ccdp.comparison import Episodes, MethodMetrics, Results, bar_chart, markdown_table, target_checks
+from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
+from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
+
+METHODS = ("dp", "dp_star", "ccdp")
+BIN = Path(sys.executable).parent
+CHECKPOINT = Path("checkpoints/last/pretrained_model")
+# lerobot-train's periodic log line: seconds per step spent updating and waiting for data.
+STEP_TIMES = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
+
+
+class PipelineError(RuntimeError):
+    """A stage's command failed; the message names the command and ends with its log."""
+
+
+def task_slug(task: str) -> str:
+    """File name of a task's configs and recipe: DoorOpening-v0 -> door_opening."""
+    name = task.removesuffix("-v0")
+    return re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower()
+
+
+@dataclass(frozen=True)
+class TaskFiles:
+    """A task's settings files and where its outputs go."""
+
+    task: str
+    recipe: Path
+    train_base: Path
+    train_recovery: Path
+    eval: Path
+    out: Path
+
+    @classmethod
+    def locate(cls, task: str, configs: Path, recipes: Path, out: Path) -> TaskFiles:
+        if task not in TASKS:
+            raise ValueError(f"Unknown task {task!r}; choose among {', '.join(TASKS)}")
+        slug = task_slug(task)
+        files = cls(task, recipes / f"{slug}.yaml", configs / slug / "train_base.json",
+                    configs / slug / "train_recovery.json", configs / slug / "eval.json", out / slug)
+        missing = [str(p) for p in (files.recipe, files.train_base, files.train_recovery, files.eval) if not p.is_file()]
+        if missing:
+            raise FileNotFoundError(f"{task}: missing settings file(s) {', '.join(missing)}")
+        env_task = files.eval_config()["env"].get("task")
+        if env_task != task:
+            raise ValueError(f"{files.eval} evaluates env.task={env_task!r}, not {task!r}")
+        return files
+
+    def eval_config(self) -> dict[str, Any]:
+        return json.loads(self.eval.read_text())
+
+    @property
+    def demos(self) -> Path:
+        return self.out / "demos"
+
+    @property
+    def recovery_data(self) -> Path:
+        return self.out / "recovery_data"
+
+    def eval_dir(self, method: str) -> Path:
+        return self.out / "eval" / method
+
+
+class TaskRun:
+    """Runs one task's stages, skipping those whose output exists, and times each stage."""
+
+    def __init__(self, files: TaskFiles):
+        self.files = files
+        self.slug = task_slug(files.task)
+        self.logs = files.out / "logs"
+        self.logs.mkdir(parents=True, exist_ok=True)
+        timings_path = files.out / "timings.json"
+        self.timings: dict[str, float] = json.loads(timings_path.read_text()) if timings_path.exists() else {}
+
+    def run(self, methods: list[str]) -> dict[str, Episodes]:
+        f = self.files
+        self._stage("record", f.demos / "meta" / "info.json", [
+            "lerobot-ccdp-record", str(f.recipe), f"--repo-id=local/{self.slug}", f"--root={f.demos}"])
+        base = self._train("train_base", f.train_base, f.out / "base", f"local/{self.slug}", f.demos)
+        self._stage("synthesize", f.recovery_data / "meta" / "info.json", [
+            "lerobot-ccdp-synthesize", str(f.recipe), f"--repo-id=local/{self.slug}", f"--root={f.demos}",
+            f"--policy-path={base}", f"--out-repo-id=local/{self.slug}_recovery", f"--out-root={f.recovery_data}"])
+        recovery = self._train("train_recovery", f.train_recovery, f.out / "recovery", f"local/{self.slug}_recovery",
+                               f.recovery_data, f"--policy.path={base}", "--policy.training_stage=recovery")
+        episodes = {}
+        for method in methods:
+            out = f.eval_dir(method)
+            self._stage(f"eval_{method}", out / "eval_info.json", [
+                "lerobot-eval", f"--config_path={f.eval}", f"--policy.path={recovery}",
+                f"--policy.recovery_mode={method}", f"--output_dir={out}"], clear=out)
+            episodes[method] = Episodes.from_eval_info(out / "eval_info.json")
+        episodes["oracle"] = self._oracle()
+        return episodes
+
+    def _train(self, stage: str, config: Path, out: Path, repo_id: str, root: Path, *extra: str) -> Path:
+        checkpoint = out / CHECKPOINT
+        self._stage(stage, checkpoint / "model.safetensors", [
+            "lerobot-train", f"--config_path={config}", f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
+            f"--output_dir={out}", *extra], clear=out)
+        return checkpoint
+
+    def _stage(self, name: str, output: Path, command: list[str], clear: Path | None = None) -> None:
+        """Run `command` unless `output` exists; `clear` (a half-written run folder) is removed first."""
+        if output.exists():
+            print(f"[{self.files.task}] {name}: done already ({output})", flush=True)
+            return
+        if clear is not None and clear.exists():
+            shutil.rmtree(clear)
+        log = self.logs / f"{name}.log"
+        print(f"[{self.files.task}] {name}: {shlex.join(command)}", flush=True)
+        start = time.perf_counter()
+        env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+        with log.open("w") as handle:
+            result = subprocess.run([str(BIN / command[0]), *command[1:]], stdout=handle, stderr=subprocess.STDOUT,
+                                    env=env)
+        if result.returncode != 0 or not output.exists():
+            tail = log.read_text()[-4000:]
+            raise PipelineError(f"{self.files.task} {name} failed (exit {result.returncode}, expected {output}): "
+                                f"{shlex.join(command)}\n--- end of {log} ---\n{tail}")
+        self.timings[name] = round(time.perf_counter() - start, 1)
+        (self.files.out / "timings.json").write_text(json.dumps(self.timings, indent=2))
+        print(f"[{self.files.task}] {name}: {self.timings[name]:.0f} s", flush=True)
+
+    def _oracle(self) -> Episodes:
+        """The no-repeat oracle on lerobot-eval's seeds (episode i gets seed `seed + i`) and env settings."""
+        path = self.files.out / "oracle.json"
+        if not path.exists():
+            config = self.files.eval_config()
+            env_config = CCDPEnvConfig(**{k: v for k, v in config["env"].items() if k != "type"})
+            env = gym.make(env_config.gym_id, **{**env_config.gym_kwargs, "render_mode": None})
+            oracle = NoRepeatOracle(env)
+            seed = config.get("seed", 1000)
+            infos = [run_episode(env, oracle, seed=seed + i).info for i in range(config["eval"]["n_episodes"])]
+            path.write_text(json.dumps([{k: _plain(v) for k, v in i.items()} for i in infos]))
+        return Episodes.from_infos(json.loads(path.read_text()))
+
+    def step_times(self) -> dict[str, tuple[float, float]]:
+        """(update s, data s) per step from the last log line of each training stage."""
+        times = {}
+        for stage in ("train_base", "train_recovery"):
+            log = self.logs / f"{stage}.log"
+            found = STEP_TIMES.findall(log.read_text()) if log.exists() else []
+            if found:
+                times[stage] = tuple(float(v) for v in found[-1])
+        return times
+
+
+def _plain(value: Any) -> Any:
+    return value.item() if hasattr(value, "item") else value
+
+
+def time_breakdown(runs: list[TaskRun]) -> str:
+    """Seconds per stage and task, and how much of a training step is data loading."""
+    stages = list(dict.fromkeys(s for r in runs for s in r.timings))
+    if not stages:
+        return "No stage ran in this output folder (every output was given)."
+    lines = ["| task | " + " | ".join(stages) + " | total |", "|---|" + "---|" * (len(stages) + 1)]
+    for r in runs:
+        cells = [f"{r.timings[s]:.0f}" if s in r.timings else "-" for s in stages]
+        lines.append(f"| {r.files.task} | " + " | ".join(cells) + f" | {sum(r.timings.values()):.0f} |")
+    lines.append("")
+    for r in runs:
+        for stage, (update, data) in r.step_times().items():
+            lines.append(f"- {r.files.task} {stage}: {update + data:.3f} s/step, data loading "
+                         f"{100 * data / (update + data):.0f}%")
+    return "\n".join(lines)
+
+
+def machine() -> str:
+    return (f"{platform.machine()}, {os.cpu_count()} CPU cores, torch {torch.__version__} "
+            f"({torch.get_num_threads()} threads), Python {platform.python_version()}")
+
+
+def write_report(runs: list[TaskRun], results: Results, out: Path, command: str, chart: bool) -> str:
+    parts = [
+        "# CCDP vs DP vs DP* (paper Fig. 5)",
+        f"Command: `{command}`  \nMachine: {machine()}",
+        markdown_table(results),
+        "## Targets",
+        target_checks(results),
+        "## Time per stage (s)",
+        time_breakdown(runs),
+    ]
+    if chart:
+        bar_chart(results, out / "comparison.png")
+        parts.insert(3, "![comparison](comparison.png)")
+    report = "\n\n".join(parts) + "\n"
+    (out / "report.md").write_text(report)
+    summary = {task: {m: metrics.as_dict() for m, metrics in methods.items()} for task, methods in results.items()}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return report
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", required=True, help=f"task ids, or `all` ({', '.join(TASKS)})")
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
+                        help="recovery modes to evaluate (the no-repeat oracle always runs)")
+    parser.add_argument("--out", type=Path, default=Path("outputs/pipeline"), help="root of every output")
+    parser.add_argument("--configs", type=Path, default=Path("configs"), help="folder of <task>/*.json configs")
+    parser.add_argument("--recipes", type=Path, default=Path("datasets_recipes"), help="folder of <task>.yaml recipes")
+    parser.add_argument("--no-chart", action="store_true", help="skip the PNG bar chart (needs matplotlib)")
+    parser.add_argument("--fresh", action="store_true", help="delete --out first instead of resuming")
+    args = parser.parse_args(argv)
+    tasks = list(TASKS) if args.tasks == ["all"] else args.tasks
+    files = [TaskFiles.locate(t, args.configs, args.recipes, args.out) for t in tasks]
+    if args.fresh and args.out.exists():
+        shutil.rmtree(args.out)
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    start = time.perf_counter()
+    runs, results = [], {}
+    try:
+        for f in files:
+            run = TaskRun(f)
+            episodes = run.run(args.methods)
+            runs.append(run)
+            results[f.task] = {m: MethodMetrics.of(e) for m, e in episodes.items()}
+    except PipelineError as error:
+        sys.exit(str(error))
+    command = "python -m lerobot_ccdp.pipeline " + shlex.join(argv if argv is not None else sys.argv[1:])
+    print(write_report(runs, results, args.out, command, chart=not args.no_chart))
+    print(f"Report: {args.out / 'report.md'}; total {time.perf_counter() - start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,131 @@
+"""The main job end to end through the real CLIs, reduced (tiny steps, one task, a few episodes): every stage's
+outputs exist, load, and feed the next; the report and a resumed run agree."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+from lerobot_ccdp.comparison import Episodes
+from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.pipeline import CHECKPOINT, TaskFiles, main, task_slug
+
+REPO = Path(__file__).resolve().parents[1]
+TASK = "DoorOpening-v0"
+SLUG = task_slug(TASK)
+METHODS = ["dp", "ccdp"]
+N_DEMOS, N_EPISODES = 8, 4
+
+
+def _shrink_json(src: Path, dst: Path, changes: dict) -> None:
+    config = json.loads(src.read_text())
+    for key, value in changes.items():
+        config[key] = {**config[key], **value} if isinstance(value, dict) else value
+    dst.write_text(json.dumps(config))
+
+
+@pytest.fixture(scope="module")
+def settings(tmp_path_factory) -> tuple[Path, Path]:
+    """The repository's configs and recipe for the task, shrunk to seconds per stage."""
+    root = tmp_path_factory.mktemp("settings")
+    configs, recipes = root / "configs", root / "recipes"
+    (configs / SLUG).mkdir(parents=True)
+    recipes.mkdir()
+    train = {"steps": 10, "batch_size": 8, "save_freq": 10, "log_freq": 5}
+    for name, changes in {"train_base": train, "train_recovery": train,
+                          "eval": {"eval": {"n_episodes": N_EPISODES, "batch_size": 2}}}.items():
+        _shrink_json(REPO / "configs" / SLUG / f"{name}.json", configs / SLUG / f"{name}.json", changes)
+    recipe = yaml.safe_load((REPO / "datasets_recipes" / f"{SLUG}.yaml").read_text())
+    recipe["record"]["n_episodes"] = N_DEMOS
+    small = {"n_states": 8, "chunks_per_state": 4, "batch_states": 8, "pairs_per_state": 4, "pairs_per_failure": 4,
+             "demo_pairs": 16, "demo_frames": 64}
+    recipe["recovery"].update({k: v for k, v in small.items() if k in recipe["recovery"]})
+    (recipes / f"{SLUG}.yaml").write_text(yaml.safe_dump(recipe))
+    return configs, recipes
+
+
+def _run_pipeline(configs: Path, recipes: Path, out: Path) -> str:
+    result = subprocess.run(
+        [sys.executable, "-m", "lerobot_ccdp.pipeline", "--tasks", TASK, "--methods", *METHODS, "--out", str(out),
+         "--configs", str(configs), "--recipes", str(recipes)],
+        capture_output=True, text=True, cwd=REPO)
+    if result.returncode != 0:
+        pytest.fail(f"pipeline failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}")
+    return result.stdout
+
+
+@pytest.fixture(scope="module")
+def pipeline_run(settings, tmp_path_factory) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("pipeline")
+    return out, _run_pipeline(*settings, out)
+
+
+def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
+    out, _ = pipeline_run
+    task_out = out / SLUG
+
+    demos = LeRobotDataset(f"local/{SLUG}", root=task_out / "demos")
+    assert demos.meta.total_episodes == N_DEMOS
+
+    base = CCDPPolicy.from_pretrained(task_out / "base" / CHECKPOINT)
+    assert base.config.training_stage == "base" and not bool(base.recovery_trained)
+    assert base.config.failure_feature == "primitive" and base.config.num_primitives == 2
+
+    recovery_data = LeRobotDataset(f"local/{SLUG}_recovery", root=task_out / "recovery_data")
+    row = recovery_data[0]
+    assert row[FAILURE_FEATURE_KEY].shape == (base.config.failure_feature_dim,)
+    assert row["action"].shape == (base.config.horizon, 4)
+    source = yaml.safe_load((task_out / "recovery_data" / "meta" / "ccdp_recovery_recipe.yaml").read_text())
+    assert source["source"]["policy_path"] == str(task_out / "base" / CHECKPOINT)  # made from this base
+
+    recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
+    assert bool(recovery.recovery_trained)
+    for name, weight in base.base.state_dict().items():  # the recovery stage starts from the base and freezes it
+        assert torch.equal(weight, recovery.base.state_dict()[name]), name
+
+    for method in METHODS:
+        episodes = Episodes.from_eval_info(task_out / "eval" / method / "eval_info.json")
+        assert len(episodes) == N_EPISODES
+        assert (episodes.attempts[episodes.success] >= 1).all()
+        assert not list((task_out / "eval" / method).rglob("*.mp4"))  # render_mode null: no videos
+    oracle = Episodes.from_infos(json.loads((task_out / "oracle.json").read_text()))
+    assert len(oracle) == N_EPISODES and oracle.success.all() and not oracle.repeated_failures.any()
+
+
+def test_report_table_chart_and_timings(pipeline_run):
+    out, stdout = pipeline_run
+    report = (out / "report.md").read_text()
+    for label in ("| DoorOpening-v0 | DP |", "| DoorOpening-v0 | CCDP |", "| DoorOpening-v0 | no-repeat oracle |",
+                  "success > DP", "attempts within 15% of oracle", "data loading"):
+        assert label in report, label
+    assert report.split("## Targets")[0] in stdout  # the table is printed too
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary[TASK]) == {*METHODS, "oracle"}
+    assert summary[TASK]["oracle"]["success"]["value"] == 1.0
+    assert (out / "comparison.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    timings = json.loads((out / SLUG / "timings.json").read_text())
+    assert set(timings) == {"record", "train_base", "synthesize", "train_recovery", *(f"eval_{m}" for m in METHODS)}
+
+
+def test_a_second_run_resumes_every_stage(settings, pipeline_run):
+    out, _ = pipeline_run
+    summary = (out / "summary.json").read_text()
+    stdout = _run_pipeline(*settings, out)
+    assert stdout.count("done already") == 4 + len(METHODS)
+    assert (out / "summary.json").read_text() == summary
+
+
+def test_bad_task_and_missing_settings_are_named(settings, tmp_path):
+    configs, recipes = settings
+    with pytest.raises(ValueError, match="Unknown task"):
+        TaskFiles.locate("PushT-v0", configs, recipes, tmp_path)
+    with pytest.raises(FileNotFoundError, match="button_search"):
+        TaskFiles.locate("ButtonSearch-v0", configs, recipes, tmp_path)
+    with pytest.raises(SystemExit):
+        main(["--tasks", TASK, "--methods", "oracle"])
