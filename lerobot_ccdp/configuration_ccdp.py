@@ -11,6 +11,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 RECOVERY_MODES = ("ccdp", "dp", "dp_star")
 FAILURE_FEATURES = ("final_state", "action", "primitive")
 TRAINING_STAGES = ("base", "recovery")
+RECOVERY_HEADS = ("unet", "mlp")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
 # Observation key an env uses to flag a failed attempt (DESIGN section 5).
@@ -88,7 +89,9 @@ class CCDPConfig(PreTrainedConfig):
     dp_star_candidates: int = 16
     # Demonstrated chunks kept to look up the outcome (final state, primitive) of a sampled chunk.
     outcome_index_size: int = 20000
-    # Recovery head: a small residual MLP denoiser over the flattened chunk, conditioned on z.
+    # Recovery head eps_z: "unet" (LeRobot's diffusion UNet conditioned on z) or "mlp" (a residual MLP over the
+    # flattened chunk, FiLM-conditioned on z: cheaper, less sharp); the MLP's size.
+    recovery_head: str = "unet"
     recovery_hidden_dim: int = 128
     recovery_num_blocks: int = 3
 
@@ -118,6 +121,7 @@ class CCDPConfig(PreTrainedConfig):
         self._check_choice("recovery_mode", RECOVERY_MODES)
         self._check_choice("failure_feature", FAILURE_FEATURES)
         self._check_choice("training_stage", TRAINING_STAGES)
+        self._check_choice("recovery_head", RECOVERY_HEADS)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
         if self.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
             raise ValueError(

@@ -30,11 +30,33 @@ class BaseDenoiser(nn.Module):
             return self.unet(noisy, timestep, global_cond=cond)
 
 
-class RecoveryDenoiser(nn.Module):
+def make_recovery_denoiser(config: CCDPConfig) -> nn.Module:
+    """eps_z(a, z, k) of the architecture `config.recovery_head` names."""
+    return RecoveryUnet(config) if config.recovery_head == "unet" else RecoveryMLP(config)
+
+
+class RecoveryUnet(nn.Module):
+    """eps_z(a, z, k): LeRobot's diffusion UNet with z as its global condition (no state, as in eq. 4).
+
+    It learns which modes of the demonstrated chunks are absent given z far better than an MLP over the
+    flattened chunk; all remembered failures of a step are evaluated in one batched call.
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=config.failure_feature_dim)
+
+    def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor) -> Tensor:
+        """noisy (R, horizon, A); timestep (R,); z (R, z_dim) -> predicted noise (R, horizon, A)."""
+        with _small_batch_convolutions(noisy):
+            return self.unet(noisy, timestep, global_cond=z)
+
+
+class RecoveryMLP(nn.Module):
     """eps_z(a, z, k): a residual MLP over the flattened chunk, FiLM-conditioned on z and the diffusion step.
 
-    It is evaluated once per remembered failure at every denoising step, so it is kept far cheaper than
-    the UNet: with N failures the step costs one UNet call plus one small batched MLP call.
+    Several times cheaper than the UNet head, for latency-bound robots; it separates the modes of a
+    multimodal chunk distribution less sharply (see the README's recovery-head comparison).
     """
 
     def __init__(self, config: CCDPConfig):

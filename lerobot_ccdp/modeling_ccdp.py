@@ -11,7 +11,7 @@ from torch import Tensor
 
 from lerobot_ccdp.composition import CompositionWeights, compose_eps
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
-from lerobot_ccdp.denoisers import BaseDenoiser, RecoveryDenoiser
+from lerobot_ccdp.denoisers import BaseDenoiser, make_recovery_denoiser
 from lerobot_ccdp.failure_buffer import FailureBuffer
 from lerobot_ccdp.failure_features import FailureFeature
 from lerobot_ccdp.outcome_index import OutcomeIndex
@@ -38,7 +38,7 @@ class CCDPPolicy(PreTrainedPolicy):
         config.validate_features()
         self.config = config
         self.base = BaseDenoiser(config)
-        self.recovery = RecoveryDenoiser(config)
+        self.recovery = make_recovery_denoiser(config)
         self.outcomes = OutcomeIndex()
         # Whether eps_z has been trained; a base-only checkpoint composes nothing for failures.
         self.register_buffer("recovery_trained", torch.zeros((), dtype=torch.bool))

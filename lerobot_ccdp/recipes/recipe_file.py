@@ -79,14 +79,14 @@ class RecoveryRecipe:
     failure_action_steps: list[int] = field(default_factory=list)
     primitive_key: str = "primitive"
     num_primitives: int = 0
-    n_states: int = 512  # demo states x_s drawn (eq. 6)
+    n_states: int = 512  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
     chunks_per_state: int = 16  # chunks sampled around each x_s from eq. (7)
     sigma: float = 0.02  # std of the state noise xi_x (eq. 6)
     w_s: float = 0.8  # state weight of eq. (7); <= 1 widens the proposals
+    demo_frames: int = 4096  # demonstrated chunks that join the pool; 0 = synthesised chunks only
     delta_z: float = 0.5  # eq. (5): a recovery's z differs from the failure's by more than this
     delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
-    pairs_per_state: int = 32  # most (failure, recovery) pairs kept per drawn state
-    demo_pairs: int = 2000  # most pairs drawn straight from the demonstrations
+    pairs_per_failure: int = 2  # recoveries drawn per pool sample taken as a failure
     batch_states: int = 32  # states sampled per batched denoising call
     seed: int = 0
 
@@ -98,14 +98,14 @@ class RecoveryRecipe:
                              f"got {recipe.failure_feature!r}")
         if not 0.0 < recipe.w_s <= 1.0:
             raise ValueError(f"{source}: recovery.w_s must be in (0, 1] (eq. 7), got {recipe.w_s}")
-        counts = ("n_states", "chunks_per_state", "pairs_per_state", "batch_states")
+        counts = ("chunks_per_state", "pairs_per_failure", "batch_states")
         bad = [name for name in counts if getattr(recipe, name) < 1] + [
-            name for name in ("sigma", "delta_z", "delta_x", "demo_pairs") if getattr(recipe, name) < 0
+            name for name in ("n_states", "demo_frames", "sigma", "delta_z", "delta_x") if getattr(recipe, name) < 0
         ]
         if bad:
             raise ValueError(f"{source}: recovery field(s) {', '.join(bad)} out of range (counts >= 1, the rest >= 0)")
-        if recipe.chunks_per_state < 2:
-            raise ValueError(f"{source}: recovery.chunks_per_state must be >= 2 to form pairs")
+        if recipe.n_states == 0 and recipe.demo_frames == 0:
+            raise ValueError(f"{source}: recovery.n_states and recovery.demo_frames are both 0: the pool is empty")
         return recipe
 
     @classmethod

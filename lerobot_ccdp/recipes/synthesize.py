@@ -1,15 +1,17 @@
 """`lerobot-ccdp-synthesize`: turn demonstrations and a base checkpoint into a recovery dataset (paper eq. 5-7).
 
-For `n_states` demo states x_s it perturbs the state (x = x_s + xi, xi ~ N(0, sigma^2), eq. 6), samples
-`chunks_per_state` chunks from the base composition of eq. (7), computes z of every chunk with the policy's own
-`FailureFeature`, and keeps the pairs (failure i, recovery j) of eq. (5). Pairs drawn straight from the demos
-(two demonstrated chunks at nearby states with different z) are added. Every row holds one pair:
+It builds a pool of chunks with their states and failure features z: `n_states` demo states x_s, perturbed
+(x = x_s + xi, xi ~ N(0, sigma^2), eq. 6), with `chunks_per_state` chunks sampled at each from the base
+composition of eq. (7), plus up to `demo_frames` demonstrated chunks ("pairs straight from the demos"). z of
+every chunk comes from the policy's own `FailureFeature`. Every pool sample then serves as a failure
+(a_f, x_f), and up to `pairs_per_failure` recoveries are drawn among the pool samples that satisfy eq. (5)
+against it. Every row holds one pair:
 
-    action                       the recovery chunk a_j (horizon, action_dim), raw units
+    action                       the recovery chunk a (horizon, action_dim), raw units
     observation.failure_feature  z of the failed chunk, raw units (stats from `failure_feature_stats`)
-    failure_action               the failed chunk a_i, kept for inspection
+    failure_action               the failed chunk a_f, kept for inspection
     observation.state / .environment_state   the state of the recovery chunk (last frame of its window)
-    pair_source                  0 synthesised, 1 drawn from the demos
+    pair_source                  where the recovery chunk comes from: 0 synthesised, 1 demonstrated
 
 The dataset carries the checkpoint's normalisation stats (lerobot-train normalises with the training
 dataset's stats, so recovery training sees actions exactly as the base did) and a copy of the recipe with
@@ -50,26 +52,25 @@ FAILURE_ACTION = "failure_action"
 PAIR_SOURCE = "pair_source"
 RECIPE_COPY = "meta/ccdp_recovery_recipe.yaml"
 SYNTHESISED, FROM_DEMOS = 0, 1
-DEMO_PAIR_POOL = 4096  # demo frames searched for demo pairs (the search is quadratic in it)
+PAIR_BLOCK = 256  # failures whose eq. (5) masks against the whole pool are computed at once
 EPISODE_ROWS = 1000  # rows per dataset episode (recovery rows have no temporal order; episodes only group them)
 
 
 @dataclass
-class Pairs:
-    """(failure, recovery) pairs in the policy's normalised space."""
+class Samples:
+    """Chunks with the state they were taken in and their failure feature, in the policy's normalised space."""
 
-    frames: Tensor  # (R, state_dim): state of the recovery chunk (last frame of its window)
-    actions: Tensor  # (R, horizon, A): recovery chunk
-    z_fail: Tensor  # (R, z_dim)
-    failure_actions: Tensor  # (R, horizon, A)
-    source: Tensor  # (R,)
+    windows: Tensor  # (R, n_obs_steps, state_dim): the observation window the chunk starts from
+    chunks: Tensor  # (R, horizon, A)
+    z: Tensor  # (R, z_dim)
+    source: Tensor  # (R,): SYNTHESISED or FROM_DEMOS
 
     @staticmethod
-    def cat(parts: list[Pairs]) -> Pairs:
-        return Pairs(*(torch.cat([getattr(p, name) for p in parts]) for name in Pairs.__dataclass_fields__))
+    def cat(parts: list[Samples]) -> Samples:
+        return Samples(*(torch.cat([getattr(p, name) for p in parts]) for name in Samples.__dataclass_fields__))
 
     def __len__(self) -> int:
-        return self.actions.shape[0]
+        return self.chunks.shape[0]
 
 
 @dataclass
@@ -120,37 +121,42 @@ def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) ->
     )
 
 
-def synthesised_pairs(
+def synthesised_samples(
     policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator, progress: bool = True
-) -> Pairs:
-    """Eq. (6) and (7): perturbed demo states, chunks sampled around each, and the pairs of eq. (5) among them."""
+) -> Samples:
+    """Eq. (6) and (7): demo states x_s perturbed by N(0, sigma^2), `chunks_per_state` chunks sampled at each."""
     cfg, k = policy.config, recipe.chunks_per_state
     picks = torch.randint(0, len(demos.windows), (recipe.n_states,), generator=generator)
     parts = []
-    for batch in tqdm(picks.split(recipe.batch_states), desc="Synthesising recovery pairs", disable=not progress):
-        b = len(batch)
-        x_s = demos.windows[batch]  # (b, n_obs, D)
-        x = x_s[:, None] + recipe.sigma * torch.randn(b, k, *x_s.shape[1:], generator=generator)  # eq. (6)
-        noise = torch.randn(b * k, cfg.horizon, cfg.action_dim, generator=generator)
-        chunks = policy.sample_exploratory(x.flatten(start_dim=2).flatten(end_dim=1), recipe.w_s, noise)  # eq. (7)
-        z = policy.feature.from_chunk(chunks, policy.outcomes).view(b, k, -1)
-        chunks, states = chunks.view(b, k, *chunks.shape[1:]), x.flatten(start_dim=2)
-        mask = recovery_pair_mask(z, states, z, states, recipe.delta_z, recipe.delta_x)  # eq. (5), (b, k, k)
-        group, i, j = pick_pairs(mask, recipe.pairs_per_state, generator)
-        parts.append(Pairs(x[group, j, -1], chunks[group, j], z[group, i], chunks[group, i],
-                           torch.full((len(group),), SYNTHESISED)))
-    return Pairs.cat(parts)
+    for batch in tqdm(picks.split(recipe.batch_states), desc="Sampling chunks (eq. 7)", disable=not progress):
+        x_s = demos.windows[batch].repeat_interleave(k, dim=0)  # (b * k, n_obs, D)
+        x = x_s + recipe.sigma * torch.randn(x_s.shape, generator=generator)  # eq. (6)
+        noise = torch.randn(len(x), cfg.horizon, cfg.action_dim, generator=generator)
+        chunks = policy.sample_exploratory(x.flatten(start_dim=1), recipe.w_s, noise)  # eq. (7)
+        z = policy.feature.from_chunk(chunks, policy.outcomes)
+        parts.append(Samples(x, chunks, z, torch.full((len(x),), SYNTHESISED)))
+    return Samples.cat(parts)
 
 
-def demo_pairs(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator) -> Pairs:
-    """Pairs of eq. (5) between demonstrated chunks: different outcomes started from nearby states."""
-    pool = torch.randperm(len(demos.windows), generator=generator)[:DEMO_PAIR_POOL]
-    chunks, windows = demos.chunks[pool], demos.windows[pool]
+def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator) -> Samples:
+    """Up to `demo_frames` demonstrated chunks, with their z computed like any other chunk's."""
+    pick = torch.randperm(len(demos.windows), generator=generator)[: recipe.demo_frames]
+    chunks = demos.chunks[pick]
     z = policy.feature.from_chunk(chunks, policy.outcomes)
-    states = windows.flatten(start_dim=1)
-    mask = recovery_pair_mask(z, states, z, states, recipe.delta_z, recipe.delta_x)
-    _, i, j = pick_pairs(mask[None], recipe.demo_pairs, generator)
-    return Pairs(windows[j, -1], chunks[j], z[i], chunks[i], torch.full((len(j),), FROM_DEMOS))
+    return Samples(demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS))
+
+
+def recovery_pairs(pool: Samples, recipe: RecoveryRecipe, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+    """Eq. (5) over the whole pool: every sample is a failure (a_f, x_f); up to `pairs_per_failure` recoveries
+    are drawn uniformly among the pool samples that satisfy eq. (5) against it. Returns (failure, recovery) indices."""
+    states = pool.windows.flatten(start_dim=1)
+    failures, recoveries = [], []
+    for block in torch.arange(len(pool)).split(PAIR_BLOCK):
+        mask = recovery_pair_mask(pool.z[block], states[block], pool.z, states, recipe.delta_z, recipe.delta_x)
+        row, _, j = pick_pairs(mask[:, None], recipe.pairs_per_failure, generator)
+        failures.append(block[row])
+        recoveries.append(j)
+    return torch.cat(failures), torch.cat(recoveries)
 
 
 def synthesize_recovery_dataset(
@@ -177,46 +183,52 @@ def synthesize_recovery_dataset(
     demos = load_demos(config, stats, meta)
     generator = torch.Generator().manual_seed(recipe.seed)
     torch.manual_seed(recipe.seed)
-    pairs = [synthesised_pairs(policy, recipe, demos, generator, progress)]
-    if recipe.demo_pairs:
-        pairs.append(demo_pairs(policy, recipe, demos, generator))
-    pairs = Pairs.cat(pairs)
-    if len(pairs) == 0:
+    parts = [synthesised_samples(policy, recipe, demos, generator, progress)] if recipe.n_states else []
+    sampling_seconds = time.perf_counter() - started
+    if recipe.demo_frames:
+        parts.append(demo_samples(policy, recipe, demos, generator))
+    pool = Samples.cat(parts)
+    failure, recovery = recovery_pairs(pool, recipe, generator)
+    if len(failure) == 0:
         raise ValueError(f"No pair satisfies eq. (5) with delta_z={recipe.delta_z}, delta_x={recipe.delta_x}: the "
                          "sampled chunks never differ in z at nearby states. Lower delta_z, raise delta_x, sigma or "
                          "chunks_per_state, or lower w_s to widen the proposals.")
     stats = {**stats, FAILURE_FEATURE_KEY: {k: torch.as_tensor(v) for k, v in failure_feature_stats(config, stats).items()}}
+    result = {
+        "rows": len(failure),
+        "pool_synthesised": int((pool.source == SYNTHESISED).sum()),
+        "pool_demo": int((pool.source == FROM_DEMOS).sum()),
+        "recoveries_synthesised": int((pool.source[recovery] == SYNTHESISED).sum()),
+        "recoveries_from_demos": int((pool.source[recovery] == FROM_DEMOS).sum()),
+        "sampling_seconds": round(sampling_seconds, 2),
+    }
     with staged_dataset_root(out_root, overwrite) as path:
-        _write(path, out_repo_id, config, stats, pairs, meta)
+        _write(path, out_repo_id, config, stats, pool, failure, recovery, meta)
+        result["seconds"] = round(time.perf_counter() - started, 2)
         record = {
             "recovery": asdict(recipe),
             "source": {"repo_id": demo_repo_id, "root": str(demo_root), "policy_path": str(policy_path)},
-            "result": {
-                "rows": len(pairs),
-                "synthesised_pairs": int((pairs.source == SYNTHESISED).sum()),
-                "demo_pairs": int((pairs.source == FROM_DEMOS).sum()),
-                "seconds": round(time.perf_counter() - started, 2),
-            },
+            "result": result,
         }
         (path / RECIPE_COPY).write_text(yaml.safe_dump(record, sort_keys=False))
-    logger.info("Wrote %d recovery pairs (%d synthesised, %d from demos) to %s in %.1f s", len(pairs),
-                record["result"]["synthesised_pairs"], record["result"]["demo_pairs"], out_root,
-                record["result"]["seconds"])
+    logger.info("Wrote %d recovery pairs from a pool of %d synthesised and %d demonstrated chunks to %s in %.1f s",
+                result["rows"], result["pool_synthesised"], result["pool_demo"], out_root, result["seconds"])
     return Path(out_root)
 
 
-def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pairs: Pairs, meta: LeRobotDatasetMetadata) -> None:
-    """One dataset row per pair, in raw units, with the checkpoint's stats."""
+def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pool: Samples, failure: Tensor,
+           recovery: Tensor, meta: LeRobotDatasetMetadata) -> None:
+    """One dataset row per (failure, recovery) pair, in raw units, with the checkpoint's stats."""
     keys = [OBS_STATE] + ([OBS_ENV_STATE] if config.env_state_feature else [])
     sizes = [config.input_features[k].shape[0] for k in keys]
     raw = unnormalize_batch(config, stats, {
-        **dict(zip(keys, pairs.frames.split(sizes, dim=-1), strict=True)),
-        FAILURE_FEATURE_KEY: pairs.z_fail,
-        ACTION: pairs.actions,
+        **dict(zip(keys, pool.windows[recovery, -1].split(sizes, dim=-1), strict=True)),
+        FAILURE_FEATURE_KEY: pool.z[failure],
+        ACTION: pool.chunks[recovery],
     })
-    raw[FAILURE_ACTION] = unnormalize_batch(config, stats, {ACTION: pairs.failure_actions})[ACTION]
-    raw[PAIR_SOURCE] = pairs.source[:, None]
-    chunk_spec = {"dtype": "float32", "shape": tuple(pairs.actions.shape[1:]), "names": None}
+    raw[FAILURE_ACTION] = unnormalize_batch(config, stats, {ACTION: pool.chunks[failure]})[ACTION]
+    raw[PAIR_SOURCE] = pool.source[recovery][:, None]
+    chunk_spec = {"dtype": "float32", "shape": tuple(pool.chunks.shape[1:]), "names": None}
     features = {
         **{k: meta.features[k] for k in keys},
         ACTION: chunk_spec,
@@ -228,8 +240,8 @@ def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pairs: Pai
     task = f"recover from a failure: {meta.tasks.index[0]}" if len(meta.tasks) else "recover from a failure"
     dataset = LeRobotDataset.create(repo_id, fps=meta.fps, features=features, root=path, use_videos=False)
     try:
-        for start in range(0, len(pairs), EPISODE_ROWS):
-            for row in range(start, min(start + EPISODE_ROWS, len(pairs))):
+        for start in range(0, len(failure), EPISODE_ROWS):
+            for row in range(start, min(start + EPISODE_ROWS, len(failure))):
                 dataset.add_frame({**{k: v[row] for k, v in columns.items()}, "task": task})
             dataset.save_episode()
     finally:

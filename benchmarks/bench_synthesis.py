@@ -1,0 +1,161 @@
+"""Recovery synthesis and recovery training: throughput, recovery-set size, training time, and the paper's Fig. 2.
+
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_synthesis.py \
+        [--tasks reaching2d DoorOpening-v0 ...] [--base-steps 1000] [--recovery-steps 1500] \
+        [--base TASK=CHECKPOINT ...] [--work outputs/bench_synthesis]
+
+For every task: record the demos (`lerobot-ccdp-record`, or the 2-D recorder), train the base with
+`lerobot-train` (or take `--base TASK=<pretrained_model>`), run `lerobot-ccdp-synthesize` with the task's
+recipe in datasets_recipes/, and train the recovery stage with `lerobot-train`. Prints one table (synthesis
+pairs/s, rows synthesised and drawn from demos, wall times of every stage) and, on the 2-D task, saves
+fig2_reaching2d.png: sampled chunks from DP, then CCDP after one and after two failed goals (the paper's Fig. 2).
+Everything is kept under --work (ignored by git).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import torch
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+RECIPES = {
+    "reaching2d": "reaching2d", "DoorOpening-v0": "door_opening", "ButtonSearch-v0": "button_search",
+    "ObjectManipulation-v0": "object_manipulation", "ObjectPacking-v0": "object_packing", "Bartender-v0": "bartender",
+}
+FIG2_ROWS = 96
+
+
+def run(*args: str) -> float:
+    """Run a console script of this venv; return its wall time (s)."""
+    start = time.perf_counter()
+    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True,
+                            env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    if result.returncode:
+        sys.exit(f"{' '.join(args)} failed:\n{result.stdout[-2000:]}\n{result.stderr[-4000:]}")
+    return time.perf_counter() - start
+
+
+def train(policy_args: list[str], repo_id: str, root: Path, out: Path, steps: int) -> tuple[Path, float]:
+    seconds = run("lerobot-train", *policy_args, f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
+                  f"--output_dir={out}", f"--steps={steps}", "--batch_size=64", f"--save_freq={steps}",
+                  "--policy.push_to_hub=false", "--num_workers=0", "--wandb.enable=false", "--log_freq=100",
+                  "--seed=0")
+    return out / "checkpoints" / "last" / "pretrained_model", seconds
+
+
+def bench_task(task: str, work: Path, base: Path | None, base_steps: int, recovery_steps: int) -> dict:
+    name = RECIPES[task]
+    recipe_path = REPO / "datasets_recipes" / f"{name}.yaml"
+    recovery = yaml.safe_load(recipe_path.read_text())["recovery"]
+    demos, row = work / name / "demos", {"task": task}
+    if not demos.exists():
+        if task == "reaching2d":
+            row["record_s"] = run("python", "-m", "lerobot_ccdp.reaching2d", f"--root={demos}")
+        else:
+            row["record_s"] = run("lerobot-ccdp-record", str(recipe_path), f"--repo-id=local/{name}", f"--root={demos}")
+    if base is None:
+        flags = [f"--policy.{k}={v}" for k, v in recovery.items() if k in ("failure_feature", "num_primitives")]
+        base, row["base_train_s"] = train(["--policy.type=ccdp", *flags], f"local/{name}", demos,
+                                          work / name / "base", base_steps)
+    data = work / name / "recovery_data"
+    row["synthesis_s"] = run("lerobot-ccdp-synthesize", str(recipe_path), f"--repo-id=local/{name}", f"--root={demos}",
+                             f"--policy-path={base}", f"--out-repo-id=local/{name}_recovery", f"--out-root={data}",
+                             "--overwrite")
+    result = yaml.safe_load((data / "meta" / "ccdp_recovery_recipe.yaml").read_text())["result"]
+    row.update(result)
+    row["chunks_per_s"] = result["pool_synthesised"] / result["sampling_seconds"]
+    row["pairs_per_s"] = result["rows"] / result["seconds"]
+    checkpoint, row["recovery_train_s"] = train(
+        [f"--policy.path={base}", "--policy.training_stage=recovery"], f"local/{name}_recovery", data,
+        work / name / "recovery", recovery_steps)
+    row["checkpoint"] = str(checkpoint)
+    return row
+
+
+def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
+    """Sampled chunks on the 2-D task: DP, CCDP after goal 0 failed, after goals 0 and 1 failed (paper Fig. 2)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+    from lerobot_ccdp.reaching2d import GOALS
+
+    policy = CCDPPolicy.from_pretrained(checkpoint).eval()
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+    panels = [("DP", "dp", []), ("CCDP, goal 0 failed", "ccdp", [0]), ("CCDP, goals 0 and 1 failed", "ccdp", [0, 1])]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4.2), sharex=True, sharey=True)
+    shares = {}
+    for ax, (title, mode, failed) in zip(axes, panels, strict=True):
+        policy.config.recovery_mode = mode
+        torch.manual_seed(0)
+        policy.reset()
+        obs = pre({"observation.state": torch.zeros(FIG2_ROWS, 2)})
+        policy.select_action(obs)
+        for goal in failed:
+            policy.report_failure(z=policy.feature.one_hot(torch.full((FIG2_ROWS,), goal)))
+        policy.select_action(obs)
+        chunk = policy._memory.attempt_chunk
+        goals = policy.outcomes.primitives[policy.outcomes.nearest(chunk)]
+        shares[title] = (torch.bincount(goals, minlength=4).float() / FIG2_ROWS).tolist()
+        path = post(chunk).reshape(FIG2_ROWS, -1, 2)
+        for trajectory in path:
+            ax.plot(trajectory[:, 0], trajectory[:, 1], color="tab:blue", alpha=0.25, lw=1)
+        ax.scatter(path[:, -1, 0], path[:, -1, 1], s=8, color="navy", zorder=3)
+        ax.scatter(GOALS[:, 0], GOALS[:, 1], s=120, facecolors="none", edgecolors="lightblue", lw=2)
+        for goal in failed:
+            ax.scatter(*GOALS[goal], s=160, marker="x", color="red", lw=3, zorder=4)
+        ax.scatter([0], [0], s=80, color="gold", edgecolors="k", zorder=4)
+        ax.set_title(f"{title}\nshares {', '.join(f'{s:.2f}' for s in shares[title])}", fontsize=10)
+        ax.set_aspect("equal")
+    fig.suptitle("Sampled chunks from the start state (yellow); red x = failed goal; circles = demonstrated goals")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    return shares
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=list(RECIPES), choices=list(RECIPES))
+    parser.add_argument("--base", nargs="*", default=[], metavar="TASK=CHECKPOINT",
+                        help="use an existing base checkpoint instead of training one")
+    parser.add_argument("--base-steps", type=int, default=1000)
+    parser.add_argument("--recovery-steps", type=int, default=1500)
+    parser.add_argument("--work", type=Path, default=REPO / "outputs" / "bench_synthesis")
+    args = parser.parse_args(argv)
+    bases = dict(item.split("=", 1) for item in args.base)
+    args.work.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for task in args.tasks:
+        rows.append(bench_task(task, args.work, Path(bases[task]) if task in bases else None, args.base_steps,
+                               args.recovery_steps))
+        print(f"{task}: {rows[-1]}", flush=True)
+    print(f"\nMachine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
+          f"{torch.get_num_threads()} threads; base {args.base_steps} steps, recovery {args.recovery_steps} steps\n")
+    print("| task | pool: sampled + demo chunks | chunks sampled/s (eq. 7) | recovery rows | rows/s (whole command) "
+          "| synthesis (s) | base train (s) | recovery train (s) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['task']} | {r['pool_synthesised']} + {r['pool_demo']} | {r['chunks_per_s']:.0f} | {r['rows']} | "
+              f"{r['pairs_per_s']:.0f} | {r['seconds']:.1f} | {r.get('base_train_s', float('nan')):.0f} | "
+              f"{r['recovery_train_s']:.0f} |")
+    if "reaching2d" in args.tasks:
+        shares = fig2(Path(rows[args.tasks.index("reaching2d")]["checkpoint"]), args.work / "fig2_reaching2d.png")
+        print(f"\nFig. 2 saved to {args.work / 'fig2_reaching2d.png'}; goal shares (demonstrated 0.4/0.3/0.2/0.1):")
+        for title, share in shares.items():
+            print(f"  {title}: {', '.join(f'{s:.2f}' for s in share)}")
+
+
+if __name__ == "__main__":
+    main()
