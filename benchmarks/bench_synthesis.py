@@ -90,7 +90,7 @@ def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
     from lerobot.policies.factory import make_pre_post_processors
 
     from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-    from lerobot_ccdp.reaching2d import GOALS
+    from lerobot_ccdp.reaching2d import GOALS, chunks_after_failures
 
     policy = CCDPPolicy.from_pretrained(checkpoint).eval()
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
@@ -99,15 +99,7 @@ def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
     shares = {}
     for ax, (title, mode, failed) in zip(axes, panels, strict=True):
         policy.config.recovery_mode = mode
-        torch.manual_seed(0)
-        policy.reset()
-        obs = pre({"observation.state": torch.zeros(FIG2_ROWS, 2)})
-        policy.select_action(obs)
-        for goal in failed:
-            policy.report_failure(z=policy.feature.one_hot(torch.full((FIG2_ROWS,), goal)))
-        policy.select_action(obs)
-        chunk = policy._memory.attempt_chunk
-        goals = policy.outcomes.primitives[policy.outcomes.nearest(chunk)]
+        chunk, goals = chunks_after_failures(policy, pre, failed, FIG2_ROWS)
         shares[title] = (torch.bincount(goals, minlength=4).float() / FIG2_ROWS).tolist()
         path = post(chunk).reshape(FIG2_ROWS, -1, 2)
         for trajectory in path:

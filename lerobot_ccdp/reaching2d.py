@@ -76,3 +76,22 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def chunks_after_failures(policy, preprocessor, failed_goals: list[int], rows: int, seed: int = 0):
+    """Plan one chunk per row from the start state after reporting failures at `failed_goals` in every row.
+
+    Returns the normalised chunks (rows, horizon, 2) and the goal each heads to (the primitive of its nearest
+    demonstrated chunk): the measurement behind the recovery tests and the Fig. 2 benchmark.
+    """
+    import torch
+
+    torch.manual_seed(seed)
+    policy.reset()
+    obs = preprocessor({"observation.state": torch.zeros(rows, 2)})
+    policy.select_action(obs)
+    for goal in failed_goals:
+        policy.report_failure(z=policy.feature.one_hot(torch.full((rows,), goal)))
+    policy.select_action(obs)
+    chunks = policy._memory.attempt_chunk
+    return chunks, policy.outcomes.primitives[policy.outcomes.nearest(chunks)]

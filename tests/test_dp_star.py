@@ -4,21 +4,15 @@ import torch
 from lerobot.policies.factory import make_pre_post_processors
 
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.reaching2d import chunks_after_failures
 
 ROWS = 48
 
 
 def goal_shares(policy, pre, failed_goal: int | None) -> torch.Tensor:
     """Share of sampled chunks per goal (their nearest demonstrated chunk's primitive)."""
-    torch.manual_seed(0)
-    policy.reset()
-    obs = pre({"observation.state": torch.zeros(ROWS, 2)})
-    policy.select_action(obs)
-    if failed_goal is not None:
-        policy.report_failure(z=policy.feature.one_hot(torch.full((ROWS,), failed_goal)))
-    policy.select_action(obs)
-    labels = policy.outcomes.primitives[policy.outcomes.nearest(policy._memory.attempt_chunk)]
-    return torch.bincount(labels, minlength=4).float() / ROWS
+    _, goals = chunks_after_failures(policy, pre, [] if failed_goal is None else [failed_goal], ROWS)
+    return torch.bincount(goals, minlength=4).float() / ROWS
 
 
 def test_dp_star_rejects_the_failed_option_that_dp_repeats(checkpoint):

@@ -46,6 +46,15 @@ def untrained_checkpoint(root: Path, out: Path, **settings) -> Path:
     return out
 
 
+def normalized_rows(checkpoint: Path, root: Path, chunk_column: str) -> tuple[CCDPPolicy, dict]:
+    """The policy, and every row's z and chunk `chunk_column` normalised by LeRobot with the dataset's stats."""
+    policy = CCDPPolicy.from_pretrained(checkpoint)
+    dataset = LeRobotDataset("local/recovery", root=root)
+    rows = dataset.hf_dataset.with_format("torch")[:]
+    return policy, normalize_batch(policy.config, dataset.meta.stats, {
+        FAILURE_FEATURE_KEY: rows[FAILURE_FEATURE_KEY], ACTION: rows[chunk_column]})
+
+
 @pytest.fixture(scope="module", params=list(FEATURE_SETTINGS))
 def synthesised(request, reaching_root, tmp_path_factory) -> tuple[Path, Path, RecoveryRecipe]:
     settings = FEATURE_SETTINGS[request.param]
@@ -81,12 +90,7 @@ def test_recovery_dataset_loads_with_its_stats_and_recipe_record(synthesised, re
 def test_stored_z_is_the_policys_z_of_the_failed_chunk(synthesised):
     """z of every row, normalised by LeRobot with the dataset's stats, equals what the policy computes at run time
     for the failed chunk (FailureFeature.from_chunk, the code behind report_failure and the env flag)."""
-    checkpoint, root, _ = synthesised
-    policy = CCDPPolicy.from_pretrained(checkpoint)
-    dataset = LeRobotDataset("local/recovery", root=root)
-    rows = dataset.hf_dataset.with_format("torch")[:]
-    normalized = normalize_batch(policy.config, dataset.meta.stats, {
-        FAILURE_FEATURE_KEY: rows[FAILURE_FEATURE_KEY], ACTION: rows[FAILURE_ACTION]})
+    policy, normalized = normalized_rows(*synthesised[:2], chunk_column=FAILURE_ACTION)
     expected = policy.feature.from_chunk(normalized[ACTION], policy.outcomes)
     torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], expected, atol=1e-4, rtol=1e-4)
 
@@ -94,15 +98,10 @@ def test_stored_z_is_the_policys_z_of_the_failed_chunk(synthesised):
 def test_every_row_satisfies_eq5(synthesised):
     """The recovery chunk's z differs from the failure's by more than delta_z (the state condition is checked
     between perturbed windows inside the recipe; here the stored z and chunks are re-read from disk)."""
-    checkpoint, root, recipe = synthesised
-    policy = CCDPPolicy.from_pretrained(checkpoint)
-    dataset = LeRobotDataset("local/recovery", root=root)
-    rows = dataset.hf_dataset.with_format("torch")[:]
-    normalized = normalize_batch(policy.config, dataset.meta.stats, {
-        FAILURE_FEATURE_KEY: rows[FAILURE_FEATURE_KEY], ACTION: rows[ACTION]})
+    policy, normalized = normalized_rows(*synthesised[:2], chunk_column=ACTION)
     z_recovery = policy.feature.from_chunk(normalized[ACTION], policy.outcomes)
     distance = ((z_recovery - normalized[FAILURE_FEATURE_KEY]) ** 2).sum(dim=-1)
-    assert (distance > recipe.delta_z - 1e-4).all()
+    assert (distance > synthesised[2].delta_z - 1e-4).all()
 
 
 def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tmp_path):
