@@ -247,6 +247,7 @@ def main(argv: list[str] | None = None) -> None:
             episodes = run.run(args.methods)
             runs.append(run)
             results[f.task] = {m: MethodMetrics.of(e) for m, e in episodes.items()}
+            print(markdown_table({f.task: results[f.task]}), flush=True)
     except PipelineError as error:
         sys.exit(str(error))
     command = "python -m lerobot_ccdp.pipeline " + shlex.join(argv if argv is not None else sys.argv[1:])
