@@ -1,7 +1,7 @@
 """CCDP versus LeRobot's stock DiffusionPolicy: planning latency and training speed, side by side.
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
-        [--cli-steps 60 | --no-cli] [--threads 2] [--out outputs/bench_policy.json]
+        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp] [--out outputs/bench_policy.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
 kernel 5, 8 groups, n_obs_steps 1, horizon 16, n_action_steps 8, DDIM with 10 inference steps) and the same
@@ -25,6 +25,7 @@ Prints one table and writes the figures to --out (JSON).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import platform
@@ -93,15 +94,16 @@ def interleaved_medians(calls: dict[str, callable], repeats: int, warmup: int) -
 # ----- (a) planning latency -------------------------------------------------------------------------------
 
 
-def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates: int) -> dict:
+def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates: int, recovery_head: str) -> dict:
     torch.manual_seed(0)
+    make = functools.partial(make_ccdp, recovery_head=recovery_head)
     obs = {STATE: torch.randn(1, 2), ENV: torch.randn(1, env_dim)}
 
     diffusion = make_diffusion(env_dim).eval()
     diffusion.reset()
     diffusion.select_action(dict(obs))  # fills the observation queues predict_action_chunk stacks
 
-    ccdp = make_ccdp(env_dim).eval()
+    ccdp = make(env_dim).eval()
     state_dict = ccdp.state_dict()
     z_dim = ccdp.config.failure_feature_dim
 
@@ -116,11 +118,11 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates
         return policy
 
     calls = {"diffusion": lambda: diffusion.predict_action_chunk(dict(obs))}
-    ccdp_policies = {n: with_failures(make_ccdp(env_dim).eval(), n) for n in FAILURE_COUNTS}
+    ccdp_policies = {n: with_failures(make(env_dim).eval(), n) for n in FAILURE_COUNTS}
     for n, policy in ccdp_policies.items():
         calls[f"ccdp N={n}"] = lambda p=policy: p.predict_action_chunk(dict(obs))
-    dp_star = with_failures(make_ccdp(env_dim, recovery_mode="dp_star", dp_star_candidates=dp_star_candidates), 4)
-    dp = with_failures(make_ccdp(env_dim, recovery_mode="dp"), 4)
+    dp_star = with_failures(make(env_dim, recovery_mode="dp_star", dp_star_candidates=dp_star_candidates), 4)
+    dp = with_failures(make(env_dim, recovery_mode="dp"), 4)
     calls["dp_star N=4"] = lambda: dp_star.predict_action_chunk(dict(obs))
     calls["dp N=4"] = lambda: dp.predict_action_chunk(dict(obs))
 
@@ -129,7 +131,7 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates
         diffusion.reset()
         diffusion.select_action(dict(obs))
 
-    ccdp_plain = with_failures(make_ccdp(env_dim).eval(), 0)
+    ccdp_plain = with_failures(make(env_dim).eval(), 0)
 
     def ccdp_select():
         ccdp_plain.reset()
@@ -304,6 +306,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--env-dim", type=int, default=4, help="size of observation.environment_state")
     parser.add_argument("--dp-star-candidates", type=int, default=16)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--recovery-head", choices=["unet", "mlp"], default="unet", help="eps_z architecture")
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")
     parser.add_argument("--cli-log-freq", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")
@@ -317,7 +320,8 @@ def main(argv: list[str] | None = None) -> dict:
     results["args"]["command"] = " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])])
 
     print("(a) planning latency ...", flush=True)
-    results["latency"] = planning_latency(args.env_dim, args.repeats, args.warmup, args.dp_star_candidates)
+    results["latency"] = planning_latency(args.env_dim, args.repeats, args.warmup, args.dp_star_candidates,
+                                          args.recovery_head)
     print("(b) training step ...", flush=True)
     results["train_step"] = training_step_time(args.env_dim, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:
