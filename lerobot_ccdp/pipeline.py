@@ -69,7 +69,8 @@ class TaskFiles:
         slug = task_slug(task)
         files = cls(task, recipes / f"{slug}.yaml", configs / slug / "train_base.json",
                     configs / slug / "train_recovery.json", configs / slug / "eval.json", out / slug)
-        missing = [str(p) for p in (files.recipe, files.train_base, files.train_recovery, files.eval) if not p.is_file()]
+        settings = (files.recipe, files.train_base, files.train_recovery, files.eval)
+        missing = [str(p) for p in settings if not p.is_file()]
         if missing:
             raise FileNotFoundError(f"{task}: missing settings file(s) {', '.join(missing)}")
         env_task = files.eval_config()["env"].get("task")
