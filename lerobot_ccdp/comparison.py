@@ -54,7 +54,9 @@ def wilson(successes: int, n: int) -> Estimate:
     denominator = 1 + Z95**2 / n
     centre = (p + Z95**2 / (2 * n)) / denominator
     half = Z95 * np.sqrt(p * (1 - p) / n + Z95**2 / (4 * n**2)) / denominator
-    return Estimate(p, max(0.0, centre - half), min(1.0, centre + half), n)
+    low = 0.0 if successes == 0 else float(centre - half)  # exact at the ends, where round-off would show
+    high = 1.0 if successes == n else float(centre + half)
+    return Estimate(p, low, high, n)
 
 
 def bootstrap_mean(values: np.ndarray, n_resamples: int = 2000, seed: int = 0) -> Estimate:
