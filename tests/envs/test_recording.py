@@ -21,8 +21,10 @@ def _write(tmp_path: Path, content: dict) -> Path:
 
 
 def test_every_task_has_a_recipe():
-    recipes = {RecordRecipe.load(p).task for p in RECIPES.glob("*.yaml")}
-    assert recipes == set(TASKS)
+    # reaching2d.yaml holds only a `recovery:` section: its demos come from `python -m lerobot_ccdp.reaching2d`.
+    recorded = [p for p in RECIPES.glob("*.yaml") if "record" in yaml.safe_load(p.read_text())]
+    assert {RecordRecipe.load(p).task for p in recorded} == set(TASKS)
+    assert len(recorded) == len(list(RECIPES.glob("*.yaml"))) - 1
 
 
 @pytest.mark.parametrize("task", list(TASKS))
