@@ -186,12 +186,3 @@ def test_every_task_recipe_has_a_valid_recovery_section():
     assert len(recipes) == 6
     for path in recipes:
         RecoveryRecipe.load(path)
-
-
-def test_cli_writes_the_dataset(reaching_root, tmp_path):
-    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
-    recipe = tmp_path / "recipe.yaml"
-    recipe.write_text(yaml.safe_dump({"recovery": {**FEATURE_SETTINGS["primitive"], **SMALL}}))
-    run_cli("lerobot-ccdp-synthesize", str(recipe), f"--repo-id={REACHING_REPO_ID}", f"--root={reaching_root}",
-            f"--policy-path={checkpoint}", "--out-repo-id=local/r", f"--out-root={tmp_path / 'r'}")
-    assert LeRobotDataset("local/r", root=tmp_path / "r").num_frames > 0
