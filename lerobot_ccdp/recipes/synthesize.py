@@ -183,8 +183,9 @@ def synthesize_recovery_dataset(
     demos = load_demos(config, stats, meta)
     generator = torch.Generator().manual_seed(recipe.seed)
     torch.manual_seed(recipe.seed)
+    sampling_started = time.perf_counter()
     parts = [synthesised_samples(policy, recipe, demos, generator, progress)] if recipe.n_states else []
-    sampling_seconds = time.perf_counter() - started
+    sampling_seconds = time.perf_counter() - sampling_started
     if recipe.demo_frames:
         parts.append(demo_samples(policy, recipe, demos, generator))
     pool = Samples.cat(parts)
