@@ -27,7 +27,7 @@ def train_args(root: Path, out: Path, steps: int, *extra: str) -> list[str]:
     return [
         "lerobot-train", "--policy.type=ccdp", "--policy.failure_feature=primitive", "--policy.num_primitives=4",
         f"--dataset.repo_id={REACHING_REPO_ID}", f"--dataset.root={root}", f"--output_dir={out}",
-        f"--steps={steps}", "--batch_size=64", "--policy.push_to_hub=false", "--num_workers=0",
+        f"--steps={steps}", "--batch_size=32", "--policy.push_to_hub=false", "--num_workers=0",
         "--wandb.enable=false", "--log_freq=50", "--seed=0", *extra,
     ]
 
@@ -43,7 +43,7 @@ def reaching_root(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def trained_run(reaching_root, tmp_path_factory) -> Path:
-    """A base-stage ccdp run of 1000 steps (about 4 min on 2 cores), checkpointed at 500 and 1000."""
+    """A base-stage ccdp run of 1000 steps of batch 32 (about 4 min on 2 cores), checkpointed at 500 and 1000."""
     out = tmp_path_factory.mktemp("runs") / "base"
     run_cli(*train_args(reaching_root, out, 1000, "--save_freq=500"))
     return out

@@ -50,7 +50,7 @@ def test_trained_policy_reaches_the_demonstrated_goals(checkpoint):
     chunk = post(policy.predict_action_chunk(obs)).reshape(128, -1, 2)
     end = chunk[:, -1]  # 0.8 s into the reach
     distance_to_ray = torch.stack([torch.linalg.norm(end - (end @ g)[:, None] * g, dim=-1) for g in torch.from_numpy(GOALS)]).min(0).values
-    assert (distance_to_ray < 0.15).float().mean() > 0.8  # 0.5 after 400 steps, 0.9-0.97 after 1000
+    assert (distance_to_ray < 0.15).float().mean() > 0.8  # 0.79-0.88 over sampling seeds (batch 32, 1000 steps)
 
 
 def test_lerobot_train_from_policy_path(checkpoint, reaching_root, tmp_path):
