@@ -29,13 +29,21 @@ class OutcomeIndex(nn.Module):
 
     def nearest(self, chunk: Tensor) -> Tensor:
         """Index of the nearest demonstrated chunk for each chunk in (B, horizon, action_dim)."""
+        return self._distances(chunk).argmin(dim=1)
+
+    def rms_distance(self, chunk: Tensor) -> Tensor:
+        """Root-mean-square gap per action element between each chunk (B, horizon, action_dim) and its nearest
+        demonstrated chunk: how far the outcome borrowed from that chunk is from being the chunk's own."""
+        return self._distances(chunk).min(dim=1).values / chunk[0].numel() ** 0.5
+
+    def _distances(self, chunk: Tensor) -> Tensor:
         if len(self) == 0:
             raise RuntimeError(
                 "This policy holds no demonstrated outcomes, so a sampled chunk's final state or primitive is "
                 "unknown. Train the base stage from a dataset (lerobot-train builds the table), or use "
                 "--policy.failure_feature=action."
             )
-        return torch.cdist(chunk.flatten(start_dim=1), self.chunks).argmin(dim=1)
+        return torch.cdist(chunk.flatten(start_dim=1), self.chunks)
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         # The table's size depends on the dataset it was built from: take the saved shapes.

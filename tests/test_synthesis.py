@@ -10,6 +10,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetad
 from lerobot.datasets.utils import dataset_to_policy_features
 from lerobot.utils.constants import ACTION, OBS_STATE
 from safetensors.torch import load_file
+from torch import Tensor
 
 from conftest import REACHING_REPO_ID, run_cli
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
@@ -146,6 +147,41 @@ def test_interrupted_synthesis_leaves_nothing(reaching_root, tmp_path, monkeypat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["base"], "no dataset and no staging folder left"
 
 
+def test_outcome_radius_keeps_only_sampled_chunks_near_a_demonstration(reaching_root, tmp_path):
+    """Sampled chunks borrow the outcome of their nearest demonstrated chunk; with outcome_radius those farther
+    than the radius from every demonstrated chunk leave the pool, while demonstrated chunks all stay."""
+    settings = FEATURE_SETTINGS["primitive"]
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
+    policy = CCDPPolicy.from_pretrained(checkpoint)
+
+    def synthesised_gaps(radius: float, name: str) -> tuple[Tensor, dict]:
+        recipe = RecoveryRecipe.from_dict({**settings, **SMALL, "outcome_radius": radius})
+        root = synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r",
+                                           tmp_path / name, progress=False)
+        rows = LeRobotDataset("local/r", root=root).hf_dataset.with_format("torch")[:]
+        chunks = normalize_batch(policy.config, LeRobotDatasetMetadata("local/r", root=root).stats,
+                                 {ACTION: rows[ACTION]})[ACTION][rows[PAIR_SOURCE].flatten() == 0]
+        result = yaml.safe_load((root / RECIPE_COPY).read_text())["result"]
+        return policy.outcomes.rms_distance(chunks), result
+
+    gaps, unfiltered = synthesised_gaps(0.0, "all")
+    radius = float(gaps.median())
+    kept, filtered = synthesised_gaps(radius, "near")
+    assert unfiltered["pool_synthesised"] == unfiltered["sampled"] and (gaps > radius + 1e-4).any()
+    assert 0 < filtered["pool_synthesised"] < filtered["sampled"]
+    assert len(kept) and (kept <= radius + 1e-4).all()
+    assert filtered["pool_demo"] == unfiltered["pool_demo"]
+
+
+def test_refuses_an_outcome_radius_that_drops_every_sampled_chunk(reaching_root, tmp_path):
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
+    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "outcome_radius": 1e-6})
+    with pytest.raises(ValueError, match="Raise outcome_radius"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r",
+                                    progress=False)
+    assert not (tmp_path / "r").exists()
+
+
 def test_refuses_a_recipe_that_defines_z_differently(reaching_root, tmp_path):
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
     recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["final_state"], **SMALL})
@@ -174,6 +210,7 @@ def test_refuses_a_demo_dataset_without_the_named_feature(reaching_root, tmp_pat
     ({"n_states": 0, "demo_frames": 0}, "the pool is empty"),
     ({"pairs_per_failure": 0}, "pairs_per_failure"),
     ({"delta_x": -1.0}, "delta_x"),
+    ({"outcome_radius": -0.1}, "outcome_radius"),
     ({"sigmaa": 0.1}, "unknown field"),
 ])
 def test_recipe_validation(change, message):

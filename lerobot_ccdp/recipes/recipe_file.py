@@ -83,6 +83,7 @@ class RecoveryRecipe:
     chunks_per_state: int = 16  # chunks sampled around each x_s from eq. (7)
     sigma: float = 0.02  # std of the state noise xi_x (eq. 6)
     w_s: float = 0.8  # state weight of eq. (7); <= 1 widens the proposals
+    outcome_radius: float = 0.0  # drop sampled chunks whose RMS gap to every demonstrated chunk exceeds this; 0 keeps all
     demo_frames: int = 4096  # demonstrated chunks that join the pool; 0 = synthesised chunks only
     delta_z: float = 0.5  # eq. (5): a recovery's z differs from the failure's by more than this
     delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
@@ -100,7 +101,8 @@ class RecoveryRecipe:
             raise ValueError(f"{source}: recovery.w_s must be in (0, 1] (eq. 7), got {recipe.w_s}")
         counts = ("chunks_per_state", "pairs_per_failure", "batch_states")
         bad = [name for name in counts if getattr(recipe, name) < 1] + [
-            name for name in ("n_states", "demo_frames", "sigma", "delta_z", "delta_x") if getattr(recipe, name) < 0
+            name for name in ("n_states", "demo_frames", "sigma", "delta_z", "delta_x", "outcome_radius")
+            if getattr(recipe, name) < 0
         ]
         if bad:
             raise ValueError(f"{source}: recovery field(s) {', '.join(bad)} out of range (counts >= 1, the rest >= 0)")

@@ -3,7 +3,9 @@
 It builds a pool of chunks with their states and failure features z: `n_states` demo states x_s, perturbed
 (x = x_s + xi, xi ~ N(0, sigma^2), eq. 6), with `chunks_per_state` chunks sampled at each from the base
 composition of eq. (7), plus up to `demo_frames` demonstrated chunks ("pairs straight from the demos"). z of
-every chunk comes from the policy's own `FailureFeature`. Every pool sample then serves as a failure
+every chunk comes from the policy's own `FailureFeature`; a sampled chunk borrows the outcome of its nearest
+demonstrated chunk, so with `outcome_radius` > 0 sampled chunks farther than that from every demonstrated
+chunk (RMS per action element) are dropped: no demonstration says what they lead to. Every pool sample then serves as a failure
 (a_f, x_f), and up to `pairs_per_failure` recoveries are drawn among the pool samples that satisfy eq. (5)
 against it. Every row holds one pair:
 
@@ -72,6 +74,9 @@ class Samples:
     def __len__(self) -> int:
         return self.chunks.shape[0]
 
+    def select(self, keep: Tensor) -> Samples:
+        return Samples(*(getattr(self, name)[keep] for name in Samples.__dataclass_fields__))
+
 
 @dataclass
 class Demos:
@@ -134,7 +139,10 @@ def synthesised_samples(
         noise = torch.randn(len(x), cfg.horizon, cfg.action_dim, generator=generator)
         chunks = policy.sample_exploratory(x.flatten(start_dim=1), recipe.w_s, noise)  # eq. (7)
         z = policy.feature.from_chunk(chunks, policy.outcomes)
-        parts.append(Samples(x, chunks, z, torch.full((len(x),), SYNTHESISED)))
+        samples = Samples(x, chunks, z, torch.full((len(x),), SYNTHESISED))
+        if recipe.outcome_radius:
+            samples = samples.select(policy.outcomes.rms_distance(chunks) <= recipe.outcome_radius)
+        parts.append(samples)
     return Samples.cat(parts)
 
 
@@ -189,6 +197,10 @@ def synthesize_recovery_dataset(
     if recipe.demo_frames:
         parts.append(demo_samples(policy, recipe, demos, generator))
     pool = Samples.cat(parts)
+    if recipe.n_states and recipe.outcome_radius and not (pool.source == SYNTHESISED).any():
+        raise ValueError(f"Every sampled chunk lies farther than outcome_radius={recipe.outcome_radius} from the "
+                         "demonstrated chunks, so none has an outcome to borrow. Raise outcome_radius (0 keeps all) "
+                         "or train the base checkpoint longer.")
     failure, recovery = recovery_pairs(pool, recipe, generator)
     if len(failure) == 0:
         raise ValueError(f"No pair satisfies eq. (5) with delta_z={recipe.delta_z}, delta_x={recipe.delta_x}: the "
@@ -197,6 +209,7 @@ def synthesize_recovery_dataset(
     stats = {**stats, FAILURE_FEATURE_KEY: {k: torch.as_tensor(v) for k, v in failure_feature_stats(config, stats).items()}}
     result = {
         "rows": len(failure),
+        "sampled": recipe.n_states * recipe.chunks_per_state,
         "pool_synthesised": int((pool.source == SYNTHESISED).sum()),
         "pool_demo": int((pool.source == FROM_DEMOS).sum()),
         "recoveries_synthesised": int((pool.source[recovery] == SYNTHESISED).sum()),
