@@ -23,11 +23,11 @@ def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     return result
 
 
-def train_args(root: Path, out: Path, steps: int, *extra: str) -> list[str]:
+def train_args(root: Path, out: Path, steps: int, *extra: str, batch_size: int = 32) -> list[str]:
     return [
         "lerobot-train", "--policy.type=ccdp", "--policy.failure_feature=primitive", "--policy.num_primitives=4",
         f"--dataset.repo_id={REACHING_REPO_ID}", f"--dataset.root={root}", f"--output_dir={out}",
-        f"--steps={steps}", "--batch_size=32", "--policy.push_to_hub=false", "--num_workers=0",
+        f"--steps={steps}", f"--batch_size={batch_size}", "--policy.push_to_hub=false", "--num_workers=0",
         "--wandb.enable=false", "--log_freq=50", "--seed=0", *extra,
     ]
 
