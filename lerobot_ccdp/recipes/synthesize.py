@@ -74,9 +74,6 @@ class Samples:
     def __len__(self) -> int:
         return self.chunks.shape[0]
 
-    def select(self, keep: Tensor) -> Samples:
-        return Samples(*(getattr(self, name)[keep] for name in Samples.__dataclass_fields__))
-
 
 @dataclass
 class Demos:
@@ -138,11 +135,11 @@ def synthesised_samples(
         x = x_s + recipe.sigma * torch.randn(x_s.shape, generator=generator)  # eq. (6)
         noise = torch.randn(len(x), cfg.horizon, cfg.action_dim, generator=generator)
         chunks = policy.sample_exploratory(x.flatten(start_dim=1), recipe.w_s, noise)  # eq. (7)
+        if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
+            near = policy.outcomes.rms_distance(chunks) <= recipe.outcome_radius
+            x, chunks = x[near], chunks[near]
         z = policy.feature.from_chunk(chunks, policy.outcomes)
-        samples = Samples(x, chunks, z, torch.full((len(x),), SYNTHESISED))
-        if recipe.outcome_radius:
-            samples = samples.select(policy.outcomes.rms_distance(chunks) <= recipe.outcome_radius)
-        parts.append(samples)
+        parts.append(Samples(x, chunks, z, torch.full((len(x),), SYNTHESISED)))
     return Samples.cat(parts)
 
 
