@@ -32,6 +32,7 @@ RECIPES = {
     "ObjectManipulation-v0": "object_manipulation", "ObjectPacking-v0": "object_packing", "Bartender-v0": "bartender",
 }
 FIG2_ROWS = 96
+SHARE_ROWS = 512
 
 
 def run(*args: str) -> float:
@@ -117,6 +118,29 @@ def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
     return shares
 
 
+def sampler_shares(checkpoint: Path) -> dict[str, dict[str, list[float]]]:
+    """Goal shares (SHARE_ROWS chunks) of DP and of CCDP after one and two failed goals, with the checkpoint
+    sampled by DDIM and by DDPM (the training is the same for both; only the reverse step differs)."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+    from lerobot_ccdp.reaching2d import chunks_after_failures
+
+    table = {}
+    for scheduler in ("DDIM", "DDPM"):
+        config = PreTrainedConfig.from_pretrained(checkpoint)
+        config.noise_scheduler_type = scheduler
+        policy = CCDPPolicy.from_pretrained(checkpoint, config=config).eval()
+        pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+        for label, mode, failed in (("DP", "dp", []), ("goal 0 failed", "ccdp", [0]),
+                                    ("goals 0, 1 failed", "ccdp", [0, 1])):
+            policy.config.recovery_mode = mode
+            _, goals = chunks_after_failures(policy, pre, failed, SHARE_ROWS)
+            table.setdefault(label, {})[scheduler] = (torch.bincount(goals, minlength=4).float() / SHARE_ROWS).tolist()
+    return table
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=list(RECIPES), choices=list(RECIPES))
@@ -147,6 +171,12 @@ def main(argv: list[str] | None = None) -> None:
         print(f"\nFig. 2 saved to {args.work / 'fig2_reaching2d.png'}; goal shares (demonstrated 0.4/0.3/0.2/0.1):")
         for title, share in shares.items():
             print(f"  {title}: {', '.join(f'{s:.2f}' for s in share)}")
+        table = sampler_shares(Path(rows[args.tasks.index("reaching2d")]["checkpoint"]))
+        print(f"\nGoal shares of {SHARE_ROWS} chunks by reverse sampler (10 steps; demonstrated 0.4/0.3/0.2/0.1):")
+        print("| chunks | DDIM | DDPM |\n|---|---|---|")
+        for label, by_scheduler in table.items():
+            cells = [" / ".join(f"{s:.2f}" for s in by_scheduler[k]) for k in ("DDIM", "DDPM")]
+            print(f"| {label} | {cells[0]} | {cells[1]} |")
 
 
 if __name__ == "__main__":

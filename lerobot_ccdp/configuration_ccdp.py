@@ -28,8 +28,10 @@ class CCDPConfig(PreTrainedConfig):
     (eps_z) is trained in a second stage on a synthesised recovery dataset. Both stages use this config:
     `training_stage` selects what `forward()` trains.
 
-    Defaults are sized for low-dimensional tasks on a 2-core CPU (a 1.1 M-parameter UNet, DDIM with 10
-    inference steps, a learning rate and warm-up that converge in a few thousand steps).
+    Defaults are sized for low-dimensional tasks on a 2-core CPU (a 1.1 M-parameter UNet, 10 inference steps,
+    a learning rate and warm-up that converge in a few thousand steps). The reverse step is DDPM's stochastic
+    one, eq. (3) of the paper: deterministic DDIM follows eq. (4)'s summed estimates exactly and so keeps their
+    error, which lets remembered failures back in (README, "Reverse sampler").
     """
 
     # Diffusion (same meaning as in LeRobot's DiffusionConfig).
@@ -49,7 +51,7 @@ class CCDPConfig(PreTrainedConfig):
     n_groups: int = 8
     diffusion_step_embed_dim: int = 32
     use_film_scale_modulation: bool = True
-    noise_scheduler_type: str = "DDIM"
+    noise_scheduler_type: str = "DDPM"
     num_train_timesteps: int = 100
     num_inference_steps: int | None = 10
     beta_schedule: str = "squaredcos_cap_v2"

@@ -6,9 +6,12 @@ again while DP keeps its demonstrated share; after failures at two goals both ar
 goals keep their demonstrated order.
 
 Measured (512 rows, seed 0): without the recipe's outcome_radius, CCDP after goal 0 failed 0.07 / 0.33 / 0.36 /
-0.24 (goal 3 over-sampled). With outcome_radius 0.05 (this test, 2026-11-23): DP 0.46 / 0.24 / 0.19 / 0.11;
-after goal 0 failed 0.05 / 0.38 / 0.41 / 0.15; after goals 0 and 1 failed 0.13 / 0.24 / 0.38 / 0.25. It FAILS
-the two-failure avoidance and the order of goals 1 and 2: the issue's preference claim is not met yet (README).
+0.24 (goal 3 over-sampled). With outcome_radius 0.05 and DDIM sampling: DP 0.46 / 0.24 / 0.19 / 0.11; after goal 0
+failed 0.05 / 0.38 / 0.41 / 0.15; after goals 0 and 1 failed 0.13 / 0.24 / 0.38 / 0.25 (two failures not avoided).
+With DDPM sampling (the default since 2026-11-23): DP 0.50 / 0.29 / 0.14 / 0.07; after goal 0 failed 0.04 / 0.37 /
+0.46 / 0.13; after goals 0 and 1 failed 0.07 / 0.21 / 0.48 / 0.24: both failures avoided, but goal 2 outnumbers
+goal 1 after one failure. The recovery head alone (eps_z given goal 0 failed) samples 0.45 / 0.42 / 0.10 of goals
+1-3 where its training rows hold 0.51 / 0.32 / 0.17: the head's mode weights, not the composition, break the order.
 """
 
 from pathlib import Path
