@@ -5,9 +5,11 @@ lerobot-train --policy.training_stage=recovery. After a failure at one goal, CCD
 again while DP keeps its demonstrated share, and the least preferred goal stays the least sampled; after failures
 at two goals both are avoided and the two remaining goals keep their demonstrated order (what issue 4 asks).
 
-Measured (512 rows, seed 0, DDPM): DP 0.50 / 0.29 / 0.14 / 0.07; after goal 0 failed 0.04 / 0.37 / 0.46 / 0.13;
-after goals 0 and 1 failed 0.07 / 0.21 / 0.48 / 0.24. Not asserted: after ONE failure goals 1 and 2 swap places
-(0.37 < 0.46, demonstrated 0.3 > 0.2). Two causes, both measured: the recovery head alone samples goals 1-3 as
+Measured (512 rows, seed 0, DDPM; the passing run of 2026-11-23 with OMP_NUM_THREADS=1, shares re-sampled from
+its checkpoint): DP 0.50 / 0.28 / 0.15 / 0.07; after goal 0 failed 0.07 / 0.31 / 0.46 / 0.16; after goals 0 and 1
+failed 0.08 / 0.14 / 0.45 / 0.34. An earlier run (2 threads): 0.50 / 0.29 / 0.14 / 0.07, 0.04 / 0.37 / 0.46 / 0.13,
+0.07 / 0.21 / 0.48 / 0.24. Not asserted: after ONE failure goals 1 and 2 swap places (0.31 < 0.46 and 0.37 < 0.46,
+demonstrated 0.3 > 0.2). Two causes, both measured: the recovery head alone samples goals 1-3 as
 0.45 / 0.42 / 0.10 where its rows hold 0.51 / 0.32 / 0.17, and eq. (4)'s sum of noise estimates at high noise
 pushes samples to the goal opposite the failed one (on another base, raising w_z from 1 to 3 moved goal 2's share
 after goal 0 failed from 0.35 to 0.54 while the head alone kept 0.49 / 0.35 / 0.15). The README's Fig. 2
