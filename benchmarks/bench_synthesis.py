@@ -33,6 +33,8 @@ RECIPES = {
 }
 FIG2_ROWS = 96
 SHARE_ROWS = 512
+# (title, recovery_mode, failed goals) of the three Fig. 2 panels, also the rows of the sampler table.
+PANELS = [("DP", "dp", []), ("CCDP, goal 0 failed", "ccdp", [0]), ("CCDP, goals 0 and 1 failed", "ccdp", [0, 1])]
 
 
 def run(*args: str) -> float:
@@ -91,17 +93,16 @@ def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
     from lerobot.policies.factory import make_pre_post_processors
 
     from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-    from lerobot_ccdp.reaching2d import GOALS, chunks_after_failures
+    from lerobot_ccdp.reaching2d import GOALS, chunks_after_failures, shares_per_goal
 
     policy = CCDPPolicy.from_pretrained(checkpoint).eval()
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
-    panels = [("DP", "dp", []), ("CCDP, goal 0 failed", "ccdp", [0]), ("CCDP, goals 0 and 1 failed", "ccdp", [0, 1])]
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.2), sharex=True, sharey=True)
     shares = {}
-    for ax, (title, mode, failed) in zip(axes, panels, strict=True):
+    for ax, (title, mode, failed) in zip(axes, PANELS, strict=True):
         policy.config.recovery_mode = mode
         chunk, goals = chunks_after_failures(policy, pre, failed, FIG2_ROWS)
-        shares[title] = (torch.bincount(goals, minlength=4).float() / FIG2_ROWS).tolist()
+        shares[title] = shares_per_goal(goals).tolist()
         path = post(chunk).reshape(FIG2_ROWS, -1, 2)
         for trajectory in path:
             ax.plot(trajectory[:, 0], trajectory[:, 1], color="tab:blue", alpha=0.25, lw=1)
@@ -125,7 +126,7 @@ def sampler_shares(checkpoint: Path) -> dict[str, dict[str, list[float]]]:
     from lerobot.policies.factory import make_pre_post_processors
 
     from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-    from lerobot_ccdp.reaching2d import chunks_after_failures
+    from lerobot_ccdp.reaching2d import chunks_after_failures, shares_per_goal
 
     table = {}
     for scheduler in ("DDIM", "DDPM"):
@@ -133,11 +134,10 @@ def sampler_shares(checkpoint: Path) -> dict[str, dict[str, list[float]]]:
         config.noise_scheduler_type = scheduler
         policy = CCDPPolicy.from_pretrained(checkpoint, config=config).eval()
         pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
-        for label, mode, failed in (("DP", "dp", []), ("goal 0 failed", "ccdp", [0]),
-                                    ("goals 0, 1 failed", "ccdp", [0, 1])):
+        for label, mode, failed in PANELS:
             policy.config.recovery_mode = mode
             _, goals = chunks_after_failures(policy, pre, failed, SHARE_ROWS)
-            table.setdefault(label, {})[scheduler] = (torch.bincount(goals, minlength=4).float() / SHARE_ROWS).tolist()
+            table.setdefault(label, {})[scheduler] = shares_per_goal(goals).tolist()
     return table
 
 

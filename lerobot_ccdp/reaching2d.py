@@ -95,3 +95,10 @@ def chunks_after_failures(policy, preprocessor, failed_goals: list[int], rows: i
     policy.select_action(obs)
     chunks = policy._memory.attempt_chunk
     return chunks, policy.outcomes.primitives[policy.outcomes.nearest(chunks)]
+
+
+def shares_per_goal(goals):
+    """Share of rows heading to each goal, from the goal indices `chunks_after_failures` returns."""
+    import torch
+
+    return torch.bincount(goals, minlength=len(GOALS)).float() / len(goals)

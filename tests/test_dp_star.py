@@ -4,7 +4,7 @@ import torch
 from lerobot.policies.factory import make_pre_post_processors
 
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.reaching2d import chunks_after_failures
+from lerobot_ccdp.reaching2d import chunks_after_failures, shares_per_goal
 
 ROWS = 48
 
@@ -12,7 +12,7 @@ ROWS = 48
 def goal_shares(policy, pre, failed_goal: int | None) -> torch.Tensor:
     """Share of sampled chunks per goal (their nearest demonstrated chunk's primitive)."""
     _, goals = chunks_after_failures(policy, pre, [] if failed_goal is None else [failed_goal], ROWS)
-    return torch.bincount(goals, minlength=4).float() / ROWS
+    return shares_per_goal(goals)
 
 
 def test_dp_star_rejects_the_failed_option_that_dp_repeats(checkpoint):

@@ -24,7 +24,7 @@ from lerobot.policies.factory import make_pre_post_processors
 
 from conftest import REACHING_REPO_ID, run_cli, train_args
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.reaching2d import chunks_after_failures
+from lerobot_ccdp.reaching2d import chunks_after_failures, shares_per_goal
 
 RECIPE = Path(__file__).parents[1] / "datasets_recipes" / "reaching2d.yaml"
 ROWS = 512
@@ -52,7 +52,7 @@ def goal_shares(policy: CCDPPolicy, pre, mode: str, failed: list[int]) -> torch.
     """Share of freshly planned chunks per goal after `failed` goals were reported as failures in every row."""
     policy.config.recovery_mode = mode
     _, goals = chunks_after_failures(policy, pre, failed, ROWS)
-    return torch.bincount(goals, minlength=4).float() / ROWS
+    return shares_per_goal(goals)
 
 
 @pytest.mark.slow
