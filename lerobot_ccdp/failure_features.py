@@ -52,11 +52,17 @@ class FailureFeature:
             return outcomes.final_states[nearest]
         return self.one_hot(outcomes.primitives[nearest])
 
-    def of_failure(self, frame_at_failure: Tensor, attempt_chunk: Tensor, outcomes: OutcomeIndex) -> Tensor:
-        """z_f of failed attempts: the state where the attempt ended, or the attempt's (first) chunk."""
+    def of_failure(
+        self, frame_at_failure: Tensor, attempt_chunk: Tensor, latest_chunk: Tensor, outcomes: OutcomeIndex
+    ) -> Tensor:
+        """z_f of failed attempts: the state where the attempt ended (`final_state`), the attempt's first chunk,
+        the one that chose the option (`action`), or the label of the chunk executing when the failure was
+        flagged (`primitive`). A label is a property of the whole attempt, and the latest chunk, near where the
+        attempt failed, names it far more reliably than the first, whose steps are mostly the approach that
+        every option shares (ButtonSearch: 93% vs 74% of failures given their true option, under DP*)."""
         if self.kind == "final_state":
             return self.from_frame(frame_at_failure)
-        return self.from_chunk(attempt_chunk, outcomes)
+        return self.from_chunk(latest_chunk if self.kind == "primitive" else attempt_chunk, outcomes)
 
     def one_hot(self, labels: Tensor) -> Tensor:
         return F.one_hot(labels.long(), self.config.num_primitives).to(torch.float32)

@@ -157,7 +157,7 @@ class CCDPPolicy(PreTrainedPolicy):
         """Record a failed attempt from a custom control loop (e.g. a real robot's failure detector).
 
         `rows` are the batch rows that failed (all rows if None). z defaults to the failure feature of the
-        latest observation and the attempt's chunk; pass `z` (len(rows), z_dim), normalised, to override it.
+        latest observation and the attempt's chunks; pass `z` (len(rows), z_dim), normalised, to override it.
         Those rows re-plan from their next observation, which should be the attempt's restored start pose.
         """
         if self._memory is None:
@@ -196,7 +196,8 @@ class CCDPPolicy(PreTrainedPolicy):
                 logger.warning("Row(s) %s failed before planning any chunk: no chunk to remember.",
                                unplanned.nonzero().flatten().tolist())
                 rows = failed & memory.attempt_planned
-            z = self.feature.of_failure(memory.last_frame, memory.attempt_chunk, self.outcomes)
+            z = self.feature.of_failure(memory.last_frame, memory.attempt_chunk, memory.latest_chunk,
+                                          self.outcomes)
         else:
             z_full = torch.zeros(memory.batch_size, self.config.failure_feature_dim, device=z.device)
             z_full[rows] = z.reshape(-1, self.config.failure_feature_dim).to(z_full.dtype)

@@ -7,7 +7,8 @@ from lerobot_ccdp.configuration_ccdp import CCDPConfig
 
 
 class RolloutMemory:
-    """Per-row windows of observations and executed actions, the current plan, and the attempt's first chunk.
+    """Per-row windows of observations and executed actions, the current plan, and two chunks of the attempt:
+    its first (the one that chose the option) and its latest (the one executing when a failure is flagged).
 
     Every row moves on its own clock: a row that fails is restarted (its windows refilled with the current
     frame, as at an episode start, and its plan dropped) while the other rows keep executing their plans.
@@ -21,6 +22,7 @@ class RolloutMemory:
         self.plan = torch.zeros(batch_size, config.n_action_steps, config.action_dim, device=device)
         self.plan_pos = torch.full((batch_size,), config.n_action_steps, dtype=torch.long, device=device)
         self.attempt_chunk = torch.zeros(batch_size, config.horizon, config.action_dim, device=device)
+        self.latest_chunk = torch.zeros(batch_size, config.horizon, config.action_dim, device=device)
         self.attempt_planned = torch.zeros(batch_size, dtype=torch.bool, device=device)
         self.started = torch.zeros(batch_size, dtype=torch.bool, device=device)
         self.restart_pending = torch.zeros(batch_size, dtype=torch.bool, device=device)
@@ -56,12 +58,13 @@ class RolloutMemory:
         return torch.cat([frames, actions], dim=-1)
 
     def set_plan(self, rows: Tensor, chunk: Tensor, start: int) -> None:
-        """Store a freshly sampled chunk (R, horizon, A) for `rows`; the first chunk of an attempt is kept."""
+        """Store a freshly sampled chunk (R, horizon, A) for `rows`; the attempt's first chunk is kept apart."""
         self.plan[rows] = chunk[:, start : start + self.plan.shape[1]]
         self.plan_pos[rows] = 0
         index = rows.nonzero().flatten()
         fresh = ~self.attempt_planned[index]
         self.attempt_chunk[index[fresh]] = chunk[fresh]
+        self.latest_chunk[index] = chunk
         self.attempt_planned[index] = True
 
     def pop_action(self) -> Tensor:

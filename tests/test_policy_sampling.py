@@ -190,6 +190,25 @@ def test_failure_feature_of_a_flagged_failure_is_the_state_before_it():
     assert mask.all() and z[:, 0, 0].tolist() == pytest.approx([0.7, -0.4])
 
 
+@pytest.mark.parametrize("feature", ["primitive", "action"])
+def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_from_the_first(monkeypatch, feature):
+    """An attempt whose first chunk heads to option 0 and whose re-planned chunk reaches option 1 failed at
+    option 1: `primitive` z names option 1, while `action` z stays the chunk that chose the option."""
+    policy = make_policy(failure_feature=feature, primitive_key="primitive", num_primitives=2, n_action_steps=2)
+    towards = torch.stack([torch.full((HORIZON, ACTION_DIM), -1.0), torch.full((HORIZON, ACTION_DIM), 1.0)])
+    policy.outcomes.fill(towards, torch.zeros(2, 1), torch.tensor([0, 1]))
+    planned = iter([towards[:1] * 0.9, towards[1:] * 0.9])
+    monkeypatch.setattr(policy, "_sample", lambda rows, noise: next(planned))
+    obs = {"observation.state": torch.zeros(1, 2)}
+    for _ in range(3):  # plans the first chunk, executes it, then re-plans
+        policy.select_action(obs)
+    policy.report_failure()
+    z, mask = policy._failures.padded()
+    expected = policy.feature.one_hot(torch.tensor([1])) if feature == "primitive" else towards[0].flatten()[None] * 0.9
+    assert mask.all()
+    torch.testing.assert_close(z[:, 0], expected)
+
+
 def test_untrained_recovery_head_falls_back_to_dp_with_a_warning(caplog):
     policy = make_policy()
     obs = {"observation.state": torch.zeros(1, 2)}
