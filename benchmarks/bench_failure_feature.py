@@ -1,0 +1,104 @@
+"""How often the failure feature z names the option that actually failed, and what that does to the metrics.
+
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_failure_feature.py \
+        --policy-path outputs/benchmark/button_search/recovery/checkpoints/last/pretrained_model \
+        --eval-config configs/button_search/eval.json [--modes dp_star ccdp] [--episodes 50]
+
+For a `primitive` policy, runs lerobot-eval (in process, the task's eval settings) once per recovery mode and
+per source of the label: `first`, the demonstrated chunk nearest the attempt's first chunk, and `latest`, the
+one nearest the chunk executing when the env flagged the failure (the policy's rule). Every recorded z is
+matched with the option the env says failed, per vector-env row and in order. Prints one markdown table:
+label accuracy, success rate and repeated-failure rate (with 95% intervals).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from lerobot_ccdp.comparison import Episodes, MethodMetrics
+from lerobot_ccdp.envs.base import CCDPTaskEnv
+from lerobot_ccdp.failure_features import FailureFeature
+from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+
+SOURCES = ("first", "latest")
+
+
+@contextmanager
+def label_audit(source: str) -> Iterator[collections.Counter]:
+    """Counts (true failed option, recorded z label) pairs while lerobot-eval runs in this process."""
+    rows: dict[int, int] = {}
+    truth: dict[int, list[int]] = collections.defaultdict(list)
+    labels: dict[int, list[int]] = collections.defaultdict(list)
+    pairs: collections.Counter = collections.Counter()
+    step, record, of_failure = CCDPTaskEnv.step, CCDPPolicy._record_failures, FailureFeature.of_failure
+
+    def audited_step(env, action):
+        out = step(env, action)
+        row = rows.setdefault(id(env), len(rows))  # SyncVectorEnv steps its envs in row order
+        if out[0]["failure"][0] > 0.5:
+            truth[row].append(env._last_option)
+        return out
+
+    def audited_record(policy, failed, z=None):
+        record(policy, failed, z)
+        buffer = policy._failures
+        for r in failed.nonzero().flatten().tolist():
+            slot = min(int(buffer.count[r]), buffer.cap) - 1
+            if slot >= 0:
+                labels[r].append(int(buffer.z[r, slot].argmax()))
+
+    def labelled(feature, frame, attempt_chunk, latest_chunk, outcomes):
+        chunk = attempt_chunk if source == "first" else latest_chunk
+        return of_failure(feature, frame, attempt_chunk, chunk, outcomes)
+
+    CCDPTaskEnv.step, CCDPPolicy._record_failures, FailureFeature.of_failure = audited_step, audited_record, labelled
+    try:
+        yield pairs
+    finally:
+        CCDPTaskEnv.step, CCDPPolicy._record_failures, FailureFeature.of_failure = step, record, of_failure
+        for r, zs in labels.items():
+            pairs.update(zip(truth[r], zs))  # a row's last failures may end its episode unseen by the policy
+
+
+def run_eval(args: argparse.Namespace, mode: str, out: Path) -> MethodMetrics:
+    from lerobot.scripts.lerobot_eval import main as lerobot_eval
+
+    argv = sys.argv
+    sys.argv = ["lerobot-eval", f"--config_path={args.eval_config}", f"--policy.path={args.policy_path}",
+                f"--policy.recovery_mode={mode}", f"--eval.n_episodes={args.episodes}", f"--output_dir={out}"]
+    try:
+        lerobot_eval()
+    finally:
+        sys.argv = argv
+    return MethodMetrics.of(Episodes.from_eval_info(out / "eval_info.json"))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--policy-path", required=True, help="a trained recovery-stage checkpoint (primitive z)")
+    parser.add_argument("--eval-config", required=True, help="the task's configs/<task>/eval.json")
+    parser.add_argument("--modes", nargs="+", default=["dp_star", "ccdp"], choices=["dp_star", "ccdp"])
+    parser.add_argument("--episodes", type=int, default=50)
+    args = parser.parse_args()
+    rows = ["| mode | z label from | failures matched | label accuracy | success | repeated-failure rate |",
+            "|---|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory() as tmp:
+        for mode in args.modes:
+            for source in SOURCES:
+                with label_audit(source) as pairs:
+                    metrics = run_eval(args, mode, Path(tmp) / f"{mode}_{source}")
+                matched = sum(pairs.values())
+                right = sum(n for (true, z), n in pairs.items() if true == z)
+                rows.append(f"| {mode} | {source} chunk | {matched} | {right / max(matched, 1):.3f} | "
+                            f"{metrics.success} | {metrics.repeated_failure_rate} |")
+    print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()
