@@ -9,19 +9,29 @@ per source of the label: `first`, the demonstrated chunk nearest the attempt's f
 one nearest the chunk executing when the env flagged the failure (the policy's rule). Every recorded z is
 matched with the option the env says failed, per vector-env row and in order. Prints one markdown table:
 label accuracy, success rate and repeated-failure rate (with 95% intervals).
+
+With `--shares`, it instead samples `--rows` first chunks from one start state of the task (no rollout) and
+prints the share of each option (label of the nearest demonstrated chunk) under DP, the recovery head alone
+(eq. (4) with w_s = 0, w_z = 1) and CCDP at the checkpoint's weights, after each option failed once.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import json
 import sys
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import gymnasium as gym
+import torch
+
 from lerobot_ccdp.comparison import Episodes, MethodMetrics
+from lerobot_ccdp.composition import CompositionWeights
+from lerobot_ccdp.envs import gym_id
 from lerobot_ccdp.envs.base import CCDPTaskEnv
 from lerobot_ccdp.failure_features import FailureFeature
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
@@ -79,13 +89,52 @@ def run_eval(args: argparse.Namespace, mode: str, out: Path) -> MethodMetrics:
     return MethodMetrics.of(Episodes.from_eval_info(out / "eval_info.json"))
 
 
+def option_shares(args: argparse.Namespace) -> str:
+    """Markdown table: option shares of freshly sampled chunks, before and after each option failed."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    policy = CCDPPolicy.from_pretrained(args.policy_path).eval()
+    preprocessor, _ = make_pre_post_processors(policy.config, pretrained_path=args.policy_path)
+    env_settings = json.loads(Path(args.eval_config).read_text())["env"]
+    obs, _ = gym.make(gym_id(env_settings["task"])).reset(seed=args.seed)
+    raw = {"observation.state": obs["agent_pos"], "observation.environment_state": obs["environment_state"]}
+    batch = preprocessor({k: torch.as_tensor(v)[None].repeat(args.rows, 1) for k, v in raw.items()})
+    batch = {k: v for k, v in batch.items() if k.startswith("observation.")}
+    k = policy.config.num_primitives
+    ccdp = policy.weights
+
+    def shares(weights: CompositionWeights, failed: int | None) -> str:
+        torch.manual_seed(0)
+        policy.reset()
+        policy.weights = weights
+        policy.select_action(batch)
+        if failed is not None:
+            policy.report_failure(z=policy.feature.one_hot(torch.full((args.rows,), failed)))
+            policy.select_action(batch)
+        options = policy.outcomes.primitives[policy.outcomes.nearest(policy._memory.latest_chunk)]
+        return " / ".join(f"{v:.2f}" for v in (torch.bincount(options, minlength=k).float() / args.rows).tolist())
+
+    rows = ["| failed option | sampler | option shares |", "|---|---|---|",
+            f"| none | DP | {shares(CompositionWeights(ccdp.w_s, ccdp.w_h, 0.0), None)} |"]
+    for failed in range(k):
+        rows.append(f"| {failed} | recovery head alone | {shares(CompositionWeights(0.0, 0.0, 1.0), failed)} |")
+        rows.append(f"| {failed} | CCDP (w_z = {ccdp.w_z}) | {shares(ccdp, failed)} |")
+    return "\n".join(rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--policy-path", required=True, help="a trained recovery-stage checkpoint (primitive z)")
     parser.add_argument("--eval-config", required=True, help="the task's configs/<task>/eval.json")
     parser.add_argument("--modes", nargs="+", default=["dp_star", "ccdp"], choices=["dp_star", "ccdp"])
     parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--shares", action="store_true", help="option shares of sampled chunks, no rollouts")
+    parser.add_argument("--rows", type=int, default=256, help="chunks sampled per row of --shares")
+    parser.add_argument("--seed", type=int, default=3, help="env seed of the start state for --shares")
     args = parser.parse_args()
+    if args.shares:
+        print(option_shares(args))
+        return
     rows = ["| mode | z label from | failures matched | label accuracy | success | repeated-failure rate |",
             "|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory() as tmp:
