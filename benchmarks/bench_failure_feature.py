@@ -35,6 +35,7 @@ from lerobot_ccdp.envs import gym_id
 from lerobot_ccdp.envs.base import CCDPTaskEnv
 from lerobot_ccdp.failure_features import FailureFeature
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.outcome_index import options_after_failures
 
 SOURCES = ("first", "latest")
 
@@ -104,14 +105,8 @@ def option_shares(args: argparse.Namespace) -> str:
     ccdp = policy.weights
 
     def shares(weights: CompositionWeights, failed: int | None) -> str:
-        torch.manual_seed(0)
-        policy.reset()
         policy.weights = weights
-        policy.select_action(batch)
-        if failed is not None:
-            policy.report_failure(z=policy.feature.one_hot(torch.full((args.rows,), failed)))
-            policy.select_action(batch)
-        options = policy.outcomes.primitives[policy.outcomes.nearest(policy._memory.latest_chunk)]
+        _, options = options_after_failures(policy, batch, [] if failed is None else [failed])
         return " / ".join(f"{v:.2f}" for v in (torch.bincount(options, minlength=k).float() / args.rows).tolist())
 
     rows = ["| failed option | sampler | option shares |", "|---|---|---|",

@@ -53,6 +53,21 @@ class OutcomeIndex(nn.Module):
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 
+def options_after_failures(policy, batch: dict[str, Tensor], failed_options: list[int], seed: int = 0):
+    """Plan one chunk per row of `batch` (normalised observations) after reporting failures at `failed_options`
+    in every row; returns the chunks (rows, horizon, A) and the option of each (its nearest demonstrated
+    chunk's primitive). The measurement behind the recovery tests and the option-share benchmarks."""
+    torch.manual_seed(seed)
+    policy.reset()
+    policy.select_action(batch)
+    rows = next(iter(batch.values())).shape[0]
+    for option in failed_options:
+        policy.report_failure(z=policy.feature.one_hot(torch.full((rows,), option)))
+    policy.select_action(batch)
+    chunks = policy._memory.attempt_chunk
+    return chunks, policy.outcomes.primitives[policy.outcomes.nearest(chunks)]
+
+
 def demo_chunks(episode_index: np.ndarray, actions: np.ndarray, start: int, horizon: int) -> np.ndarray:
     """The chunk each frame starts, actions[t + start : t + start + horizon], clamped inside its episode.
 

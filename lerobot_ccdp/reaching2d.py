@@ -86,15 +86,9 @@ def chunks_after_failures(policy, preprocessor, failed_goals: list[int], rows: i
     """
     import torch
 
-    torch.manual_seed(seed)
-    policy.reset()
-    obs = preprocessor({"observation.state": torch.zeros(rows, 2)})
-    policy.select_action(obs)
-    for goal in failed_goals:
-        policy.report_failure(z=policy.feature.one_hot(torch.full((rows,), goal)))
-    policy.select_action(obs)
-    chunks = policy._memory.attempt_chunk
-    return chunks, policy.outcomes.primitives[policy.outcomes.nearest(chunks)]
+    from lerobot_ccdp.outcome_index import options_after_failures
+
+    return options_after_failures(policy, preprocessor({"observation.state": torch.zeros(rows, 2)}), failed_goals, seed)
 
 
 def shares_per_goal(goals):
