@@ -60,7 +60,7 @@ def options_after_failures(policy, batch: dict[str, Tensor], failed_options: lis
     torch.manual_seed(seed)
     policy.reset()
     policy.select_action(batch)
-    rows = next(iter(batch.values())).shape[0]
+    rows = batch["observation.state"].shape[0]
     for option in failed_options:
         policy.report_failure(z=policy.feature.one_hot(torch.full((rows,), option)))
     policy.select_action(batch)
