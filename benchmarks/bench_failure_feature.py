@@ -12,7 +12,8 @@ label accuracy, success rate and repeated-failure rate (with 95% intervals).
 
 With `--shares`, it instead samples `--rows` first chunks from one start state of the task (no rollout) and
 prints the share of each option (label of the nearest demonstrated chunk) under DP, the recovery head alone
-(eq. (4) with w_s = 0, w_z = 1) and CCDP at the checkpoint's weights, after each option failed once.
+(eq. (4) with w_s = 0, w_z = 1) and CCDP at the checkpoint's weights with either z_reference, after each
+option failed once.
 """
 
 from __future__ import annotations
@@ -113,7 +114,9 @@ def option_shares(args: argparse.Namespace) -> str:
             f"| none | DP | {shares(CompositionWeights(ccdp.w_s, ccdp.w_h, 0.0), None)} |"]
     for failed in range(k):
         rows.append(f"| {failed} | recovery head alone | {shares(CompositionWeights(0.0, 0.0, 1.0), failed)} |")
-        rows.append(f"| {failed} | CCDP (w_z = {ccdp.w_z}) | {shares(ccdp, failed)} |")
+        for reference in ("eps_a", "eps_z_null"):
+            weights = CompositionWeights(ccdp.w_s, ccdp.w_h, ccdp.w_z, reference)
+            rows.append(f"| {failed} | CCDP (w_z = {ccdp.w_z}, against {reference}) | {shares(weights, failed)} |")
     return "\n".join(rows)
 
 

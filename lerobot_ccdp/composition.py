@@ -8,15 +8,23 @@ from torch import Tensor
 
 @dataclass(frozen=True)
 class CompositionWeights:
-    """w_s, w_h and w_z of eq. (4); w_z is shared by every recorded failure."""
+    """w_s, w_h and w_z of eq. (4); w_z is shared by every recorded failure.
+
+    `z_reference` names what each failure term is measured against: "eps_a" (the paper's eq. 4) or
+    "eps_z_null" (the recovery head's own z-dropped estimate, so that the term compares two estimates learnt
+    from the same recovery data; see `compose_eps`).
+    """
 
     w_s: float
     w_h: float
     w_z: float
+    z_reference: str = "eps_a"
 
     def uses_unconditional(self, n_failures: Tensor) -> bool:
-        """Whether eps_a carries weight for any row: its coefficient is 1 - w_s - w_h - w_z * N_row."""
-        coefficient = 1.0 - self.w_s - self.w_h - self.w_z * n_failures.to(torch.float32)
+        """Whether eps_a carries weight for any row: its coefficient is 1 - w_s - w_h - w_z * N_row, without the
+        failure part when the failure terms are measured against eps_z_null instead."""
+        per_failure = self.w_z if self.z_reference == "eps_a" else 0.0
+        coefficient = 1.0 - self.w_s - self.w_h - per_failure * n_failures.to(torch.float32)
         return bool((coefficient.abs() > 1e-9).any())
 
     @classmethod
@@ -38,6 +46,7 @@ def compose_eps(
     eps_h: Tensor | None = None,
     eps_z: Tensor | None = None,
     z_mask: Tensor | None = None,
+    eps_z_null: Tensor | None = None,
 ) -> Tensor:
     """eps = eps_a + w_s (eps_s - eps_a) + w_h (eps_h - eps_a) + sum_i w_z (eps_z(z_i) - eps_a).   (eq. 4)
 
@@ -45,6 +54,11 @@ def compose_eps(
     per remembered failure, with `z_mask` (B, N) marking the slots that hold a failure (rows remember
     different numbers of failures). A term whose weight is zero may be passed as None; eps_a may be None
     only when its total coefficient is zero for every row (see `CompositionWeights.uses_unconditional`).
+
+    With `weights.z_reference == "eps_z_null"` the failure terms read w_z (eps_z(z_i) - eps_z_null), where
+    eps_z_null (B, horizon, action_dim) is the recovery head with z dropped: both estimates then come from
+    the recovery data, so the term keeps only what z says about the action (the ratio p_z(a|z_i) / p_z(a)),
+    not how the recovery data's action marginal differs from the demonstrations'.
     """
     if eps_a is None:
         # Only valid when eps_a's total coefficient is zero: its contributions below then cancel exactly.
@@ -56,7 +70,8 @@ def compose_eps(
         eps = eps + weights.w_h * (_require(eps_h, "eps_h") - eps_a)
     if weights.w_z and eps_z is not None:
         mask = _require(z_mask, "z_mask").to(eps_z.dtype)[..., None, None]  # (B, N, 1, 1)
-        eps = eps + weights.w_z * ((eps_z - eps_a[:, None]) * mask).sum(dim=1)
+        reference = eps_a if weights.z_reference == "eps_a" else _require(eps_z_null, "eps_z_null")
+        eps = eps + weights.w_z * ((eps_z - reference[:, None]) * mask).sum(dim=1)
     return eps
 
 

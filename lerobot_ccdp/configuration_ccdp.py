@@ -12,6 +12,7 @@ RECOVERY_MODES = ("ccdp", "dp", "dp_star")
 FAILURE_FEATURES = ("final_state", "action", "primitive")
 TRAINING_STAGES = ("base", "recovery")
 RECOVERY_HEADS = ("unet", "mlp")
+Z_REFERENCES = ("eps_a", "eps_z_null")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
 # Observation key an env uses to flag a failed attempt (DESIGN section 5).
@@ -66,6 +67,9 @@ class CCDPConfig(PreTrainedConfig):
     w_s: float = 1.0
     w_h: float = 0.0
     w_z: float = 1.0
+    # What each failure term of eq. (4) is measured against: "eps_a" (the paper) or "eps_z_null" (the recovery
+    # head with z dropped, trained on the same recovery data as eps_z; see compose_eps).
+    z_reference: str = "eps_z_null"
     # History h_t^H: the H states and actions before the current observation window.
     history_length: int = 2
     # Condition dropout while training the base network (independent per condition): dropping both
@@ -96,6 +100,8 @@ class CCDPConfig(PreTrainedConfig):
     recovery_head: str = "unet"
     recovery_hidden_dim: int = 128
     recovery_num_blocks: int = 3
+    # z dropout while training the recovery head, so that it also yields eps_z_null.
+    p_drop_failure: float = 0.1
 
     training_stage: str = "base"
 
@@ -117,13 +123,14 @@ class CCDPConfig(PreTrainedConfig):
         for name in ("w_s", "w_h", "w_z"):
             if getattr(self, name) < 0:
                 raise ValueError(f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(self, name)}.")
-        for name in ("p_drop_state", "p_drop_history"):
+        for name in ("p_drop_state", "p_drop_history", "p_drop_failure"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise ValueError(f"`{name}` must be in [0, 1); got {getattr(self, name)}.")
         self._check_choice("recovery_mode", RECOVERY_MODES)
         self._check_choice("failure_feature", FAILURE_FEATURES)
         self._check_choice("training_stage", TRAINING_STAGES)
         self._check_choice("recovery_head", RECOVERY_HEADS)
+        self._check_choice("z_reference", Z_REFERENCES)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
         if self.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
             raise ValueError(

@@ -44,12 +44,12 @@ class RecoveryUnet(nn.Module):
 
     def __init__(self, config: CCDPConfig):
         super().__init__()
-        self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=config.failure_feature_dim)
+        self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=config.failure_feature_dim + 1)
 
-    def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor) -> Tensor:
-        """noisy (R, horizon, A); timestep (R,); z (R, z_dim) -> predicted noise (R, horizon, A)."""
+    def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor, keep_z: Tensor) -> Tensor:
+        """noisy (R, horizon, A); timestep (R,); z (R, z_dim); keep_z (R, 1) -> predicted noise (R, horizon, A)."""
         with _small_batch_convolutions(noisy):
-            return self.unet(noisy, timestep, global_cond=z)
+            return self.unet(noisy, timestep, global_cond=_z_condition(z, keep_z))
 
 
 class RecoveryMLP(nn.Module):
@@ -67,18 +67,23 @@ class RecoveryMLP(nn.Module):
             nn.Linear(config.diffusion_step_embed_dim, width),
             nn.Mish(),
         )
-        self.z_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish())
+        self.z_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim + 1, width), nn.Mish())
         self.inp = nn.Linear(chunk, width)
         self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(config.recovery_num_blocks))
         self.out = nn.Linear(width, chunk)
 
-    def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor) -> Tensor:
-        """noisy (R, horizon, A); timestep (R,); z (R, z_dim) -> predicted noise (R, horizon, A)."""
-        cond = self.step_embedding(timestep) + self.z_embedding(z)
+    def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor, keep_z: Tensor) -> Tensor:
+        """noisy (R, horizon, A); timestep (R,); z (R, z_dim); keep_z (R, 1) -> predicted noise (R, horizon, A)."""
+        cond = self.step_embedding(timestep) + self.z_embedding(_z_condition(z, keep_z))
         h = self.inp(noisy.flatten(start_dim=1))
         for block in self.blocks:
             h = block(h, cond)
         return self.out(h).view_as(noisy)
+
+
+def _z_condition(z: Tensor, keep_z: Tensor) -> Tensor:
+    """z with its keep flag: a dropped z (keep 0) is zeroed, so the head learns eps_z_null on the same data."""
+    return torch.cat([z * keep_z, keep_z], dim=-1)
 
 
 class _FiLMBlock(nn.Module):

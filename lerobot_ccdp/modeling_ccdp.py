@@ -53,7 +53,7 @@ class CCDPPolicy(PreTrainedPolicy):
             prediction_type=config.prediction_type,
         )
         self.feature = FailureFeature(config)
-        self.weights = CompositionWeights(config.w_s, config.w_h, config.w_z)
+        self.weights = CompositionWeights(config.w_s, config.w_h, config.w_z, config.z_reference)
         if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
         self._set_trainable()
@@ -118,7 +118,8 @@ class CCDPPolicy(PreTrainedPolicy):
             )
         self.recovery_trained.fill_(True)
         noise, timesteps, noisy = self._noised(chunk)
-        return F.mse_loss(self.recovery(noisy, timesteps, z), noise), {}
+        keep_z = (torch.rand(chunk.shape[0], 1, device=chunk.device) >= cfg.p_drop_failure).to(z.dtype)
+        return F.mse_loss(self.recovery(noisy, timesteps, z, keep_z), noise), {}
 
     def _noised(self, chunk: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         noise = torch.randn_like(chunk)
@@ -256,20 +257,32 @@ class CCDPPolicy(PreTrainedPolicy):
         keep_s = torch.cat([keep[t][0] for t in terms])
         keep_h = torch.cat([keep[t][1] for t in terms])
         z_rows = z.reshape(r * n, z.shape[-1])
+        null_row = bool(weights.w_z) and weights.z_reference == "eps_z_null"
         self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
         for t in self.noise_scheduler.timesteps:
             step = torch.full((r * k,), int(t), dtype=torch.long, device=sample.device)
             eps = self.base(sample.repeat(k, 1, 1), step, state_rows, keep_s, history_rows, keep_h)
             by_term = dict(zip(terms, eps.split(r), strict=True))
-            eps_z = None
-            if n:
-                noisy = sample[:, None].expand(r, n, *sample.shape[1:]).reshape(r * n, *sample.shape[1:])
-                eps_z = self.recovery(noisy, step[:1].expand(r * n), z_rows).view(r, n, *sample.shape[1:])
+            eps_z, eps_z_null = (self._recovery_terms(sample, step[0], z_rows, n, null_row) if n else (None, None))
             composed = compose_eps(
-                weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask
+                weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null
             )
             sample = self.noise_scheduler.step(composed, t, sample).prev_sample
         return sample
+
+    def _recovery_terms(
+        self, sample: Tensor, timestep: Tensor, z_rows: Tensor, n: int, null_row: bool
+    ) -> tuple[Tensor, Tensor | None]:
+        """eps_z(z_i) for every failure slot (R, N, horizon, A) and, when asked, eps_z_null (R, horizon, A):
+        one recovery call for all of them."""
+        r, chunk = sample.shape[0], sample.shape[1:]
+        noisy = sample[:, None].expand(r, n, *chunk).reshape(r * n, *chunk)
+        keep = torch.ones(r * n, 1, device=sample.device)
+        if null_row:
+            noisy, z_rows = torch.cat([noisy, sample]), torch.cat([z_rows, z_rows.new_zeros(r, z_rows.shape[-1])])
+            keep = torch.cat([keep, torch.zeros(r, 1, device=sample.device)])
+        eps = self.recovery(noisy, timestep.expand(noisy.shape[0]), z_rows, keep)
+        return eps[: r * n].view(r, n, *chunk), (eps[r * n :] if null_row else None)
 
     @staticmethod
     def _base_terms(n_failures: Tensor, weights: CompositionWeights) -> list[str]:

@@ -44,6 +44,23 @@ def test_unconditional_term_may_be_skipped_only_when_its_weight_vanishes():
     assert weights.uses_unconditional(torch.tensor([0, 1, 0, 0]))
 
 
+def test_failure_terms_against_the_recovery_heads_null_estimate():
+    """z_reference=eps_z_null: each failure moves the mean by w_z (mu_z - mu_null), and eps_a is not needed."""
+    torch.manual_seed(2)
+    x, mu_s, mu_null = torch.randn(3, 16, 2), torch.randn(1, 16, 2), torch.randn(3, 16, 2)
+    mu_z = torch.randn(3, 2, 16, 2)
+    mask = torch.tensor([[1, 1], [1, 0], [0, 0]], dtype=torch.bool)
+    weights = CompositionWeights(1.0, 0.0, 0.7, "eps_z_null")
+    assert not weights.uses_unconditional(mask.sum(dim=1))
+    eps = compose_eps(
+        weights, None, gaussian_eps(x, mu_s), None, gaussian_eps(x[:, None], mu_z), mask, gaussian_eps(x, mu_null)
+    )
+    mean = mu_s + 0.7 * ((mu_z - mu_null[:, None]) * mask.float()[..., None, None]).sum(1)
+    torch.testing.assert_close(eps, gaussian_eps(x, mean))
+    with pytest.raises(ValueError, match="eps_z_null"):
+        compose_eps(weights, None, gaussian_eps(x, mu_s), None, gaussian_eps(x[:, None], mu_z), mask)
+
+
 def test_a_weighted_term_that_was_not_evaluated_is_an_error():
     with pytest.raises(ValueError, match="eps_h"):
         compose_eps(CompositionWeights(1.0, 0.5, 0.0), torch.zeros(1, 16, 2), torch.zeros(1, 16, 2))

@@ -35,13 +35,13 @@ class GaussianRecovery(nn.Module):
         super().__init__()
         self.scheduler = scheduler
 
-    def forward(self, noisy, timestep, z):
+    def forward(self, noisy, timestep, z, keep_z):
         return optimal_eps(self.scheduler, noisy, timestep, z.view(-1, HORIZON, ACTION_DIM))
 
 
 def test_sampling_with_analytic_denoisers_reaches_the_composed_mean():
     torch.manual_seed(0)
-    policy = make_policy(w_s=1.0, w_h=0.5, w_z=0.5, clip_sample=False, history_length=2)
+    policy = make_policy(w_s=1.0, w_h=0.5, w_z=0.5, clip_sample=False, history_length=2, z_reference="eps_a")
     means = torch.rand(3, HORIZON, ACTION_DIM) * 0.6 - 0.3
     policy.base = GaussianBase(policy.noise_scheduler, means)
     policy.recovery = GaussianRecovery(policy.noise_scheduler)
@@ -92,24 +92,33 @@ class MixtureBase(nn.Module):
         return mixture_eps(self.scheduler, noisy, timestep, self.modes, weights)
 
 
+def recovery_shares(z: torch.Tensor) -> torch.Tensor:
+    """Mode shares of the recovery set for a failed mode z (one-hot): the demonstrated mixture without it."""
+    weights = DEMONSTRATED * (1 - z)
+    return weights / weights.sum(-1, keepdim=True)
+
+
 class MixtureRecovery(nn.Module):
-    """eps_z of the recovery set for a failed mode z (one-hot): the demonstrated mixture without that mode."""
+    """eps_z of the recovery sets; with z dropped, of their union (every demonstrated mode serves as a failure
+    as often as it is demonstrated, as in recovery synthesis)."""
 
     def __init__(self, scheduler, modes):
         super().__init__()
         self.scheduler, self.modes = scheduler, modes
+        self.null_shares = (DEMONSTRATED[:, None] * recovery_shares(torch.eye(4))).sum(dim=0)
 
-    def forward(self, noisy, timestep, z):
-        weights = DEMONSTRATED * (1 - z)
-        return mixture_eps(self.scheduler, noisy, timestep, self.modes, weights / weights.sum(-1, keepdim=True))
+    def forward(self, noisy, timestep, z, keep_z):
+        weights = torch.where(keep_z.bool(), recovery_shares(z), self.null_shares)
+        return mixture_eps(self.scheduler, noisy, timestep, self.modes, weights)
 
 
-def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_preference():
+@pytest.mark.parametrize("z_reference", ["eps_a", "eps_z_null"])
+def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_preference(z_reference):
     """With exact noise estimates, what is left is the sampler's own error: eq. (4) is the score of a product
     only at zero noise. Measured (1024 rows, 10 steps): after failures at modes 0 and 1, DDPM samples them 0.16
     of the time and deterministic DDIM 0.23 (0.22 with 100 steps); the default sampler must keep that error small."""
     torch.manual_seed(0)
-    policy = make_policy(failure_feature="primitive", num_primitives=4, clip_sample=False)
+    policy = make_policy(failure_feature="primitive", num_primitives=4, clip_sample=False, z_reference=z_reference)
     modes = torch.randn(4, HORIZON, ACTION_DIM)
     modes = 0.3 * modes / modes.pow(2).mean(dim=(1, 2), keepdim=True).sqrt()  # RMS 0.3, ~2.4 apart
     policy.base = MixtureBase(policy.noise_scheduler, modes)
