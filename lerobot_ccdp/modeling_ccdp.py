@@ -256,32 +256,40 @@ class CCDPPolicy(PreTrainedPolicy):
         state_rows, history_rows = state.repeat(k, 1), history.repeat(k, 1)
         keep_s = torch.cat([keep[t][0] for t in terms])
         keep_h = torch.cat([keep[t][1] for t in terms])
-        z_rows = z.reshape(r * n, z.shape[-1])
-        null_row = bool(weights.w_z) and weights.z_reference == "eps_z_null"
+        z_rows, keep_z = self._recovery_conditions(z, bool(weights.w_z) and weights.z_reference == "eps_z_null")
         self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
         for t in self.noise_scheduler.timesteps:
             step = torch.full((r * k,), int(t), dtype=torch.long, device=sample.device)
             eps = self.base(sample.repeat(k, 1, 1), step, state_rows, keep_s, history_rows, keep_h)
             by_term = dict(zip(terms, eps.split(r), strict=True))
-            eps_z, eps_z_null = (self._recovery_terms(sample, step[0], z_rows, n, null_row) if n else (None, None))
+            eps_z, eps_z_null = self._recovery_terms(sample, step[0], z_rows, keep_z, n) if n else (None, None)
             composed = compose_eps(
                 weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null
             )
             sample = self.noise_scheduler.step(composed, t, sample).prev_sample
         return sample
 
+    @staticmethod
+    def _recovery_conditions(z: Tensor, null_row: bool) -> tuple[Tensor, Tensor]:
+        """The recovery head's z rows (R * N [+ R], z_dim) and keep flags, fixed for a whole reverse diffusion:
+        one row per failure slot and, with `null_row`, one z-dropped row per batch row for eps_z_null."""
+        r, n, dim = z.shape
+        z_rows, keep_z = z.reshape(r * n, dim), z.new_ones(r * n, 1)
+        if null_row:
+            z_rows, keep_z = torch.cat([z_rows, z.new_zeros(r, dim)]), torch.cat([keep_z, z.new_zeros(r, 1)])
+        return z_rows, keep_z
+
     def _recovery_terms(
-        self, sample: Tensor, timestep: Tensor, z_rows: Tensor, n: int, null_row: bool
+        self, sample: Tensor, timestep: Tensor, z_rows: Tensor, keep_z: Tensor, n: int
     ) -> tuple[Tensor, Tensor | None]:
-        """eps_z(z_i) for every failure slot (R, N, horizon, A) and, when asked, eps_z_null (R, horizon, A):
-        one recovery call for all of them."""
+        """eps_z(z_i) for every failure slot (R, N, horizon, A) and, when `z_rows` ends with the z-dropped rows,
+        eps_z_null (R, horizon, A): one recovery call for all of them."""
         r, chunk = sample.shape[0], sample.shape[1:]
         noisy = sample[:, None].expand(r, n, *chunk).reshape(r * n, *chunk)
-        keep = torch.ones(r * n, 1, device=sample.device)
+        null_row = z_rows.shape[0] > r * n
         if null_row:
-            noisy, z_rows = torch.cat([noisy, sample]), torch.cat([z_rows, z_rows.new_zeros(r, z_rows.shape[-1])])
-            keep = torch.cat([keep, torch.zeros(r, 1, device=sample.device)])
-        eps = self.recovery(noisy, timestep.expand(noisy.shape[0]), z_rows, keep)
+            noisy = torch.cat([noisy, sample])
+        eps = self.recovery(noisy, timestep.expand(noisy.shape[0]), z_rows, keep_z)
         return eps[: r * n].view(r, n, *chunk), (eps[r * n :] if null_row else None)
 
     @staticmethod
