@@ -43,10 +43,12 @@ SOURCES = ("first", "latest")
 
 @contextmanager
 def label_audit(source: str) -> Iterator[collections.Counter]:
-    """Counts (true failed option, recorded z label) pairs while lerobot-eval runs in this process."""
+    """Counts (true failed option, recorded z label) pairs while lerobot-eval runs in this process.
+
+    Each label is paired with the failure its row flagged last: a failure that ends an episode is never seen by
+    the policy, so pairing a row's failures and labels in order would shift every later pair of that row."""
     rows: dict[int, int] = {}
-    truth: dict[int, list[int]] = collections.defaultdict(list)
-    labels: dict[int, list[int]] = collections.defaultdict(list)
+    flagged: dict[int, int] = {}
     pairs: collections.Counter = collections.Counter()
     step, record, of_failure = CCDPTaskEnv.step, CCDPPolicy._record_failures, FailureFeature.of_failure
 
@@ -54,7 +56,7 @@ def label_audit(source: str) -> Iterator[collections.Counter]:
         out = step(env, action)
         row = rows.setdefault(id(env), len(rows))  # SyncVectorEnv steps its envs in row order
         if out[0]["failure"][0] > 0.5:
-            truth[row].append(env._last_option)
+            flagged[row] = env._last_option
         return out
 
     def audited_record(policy, failed, z=None):
@@ -62,8 +64,8 @@ def label_audit(source: str) -> Iterator[collections.Counter]:
         buffer = policy._failures
         for r in failed.nonzero().flatten().tolist():
             slot = min(int(buffer.count[r]), buffer.cap) - 1
-            if slot >= 0:
-                labels[r].append(int(buffer.z[r, slot].argmax()))
+            if slot >= 0 and r in flagged:
+                pairs[(flagged.pop(r), int(buffer.z[r, slot].argmax()))] += 1
 
     def labelled(feature, frame, attempt_chunk, latest_chunk, outcomes):
         chunk = attempt_chunk if source == "first" else latest_chunk
@@ -74,8 +76,6 @@ def label_audit(source: str) -> Iterator[collections.Counter]:
         yield pairs
     finally:
         CCDPTaskEnv.step, CCDPPolicy._record_failures, FailureFeature.of_failure = step, record, of_failure
-        for r, zs in labels.items():
-            pairs.update(zip(truth[r], zs))  # a row's last failures may end its episode unseen by the policy
 
 
 def run_eval(args: argparse.Namespace, mode: str, out: Path) -> MethodMetrics:
