@@ -47,6 +47,22 @@ class CCDPConfig(PreTrainedConfig):
             "ACTION": NormalizationMode.MIN_MAX,
         }
     )
+    # Vision (same fields and defaults as LeRobot's DiffusionConfig; its RGB encoder is reused as is). The backbone
+    # is randomly initialised unless `pretrained_backbone_weights` names torchvision weights (e.g.
+    # "ResNet18_Weights.IMAGENET1K_V1"), which torchvision must find in its cache or download.
+    vision_backbone: str = "resnet18"
+    # ResNet stages kept (4 = LeRobot's encoder). Each stage halves the feature map: 3 keeps a 4x4 map of 64 px
+    # images for the spatial softmax (4 stages leave 2x2) at a quarter of the backbone's parameters.
+    vision_backbone_stages: int = 4
+    resize_shape: tuple[int, int] | None = None
+    crop_ratio: float = 1.0
+    crop_shape: tuple[int, int] | None = None
+    crop_is_random: bool = True
+    pretrained_backbone_weights: str | None = None
+    use_group_norm: bool = True
+    spatial_softmax_num_keypoints: int = 32
+    use_separate_rgb_encoder_per_camera: bool = False
+    # UNet.
     down_dims: tuple[int, ...] = (32, 64, 128)
     kernel_size: int = 5
     n_groups: int = 8
@@ -132,6 +148,7 @@ class CCDPConfig(PreTrainedConfig):
         self._check_choice("recovery_head", RECOVERY_HEADS)
         self._check_choice("z_reference", Z_REFERENCES)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
+        self._check_vision()
         if self.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
             raise ValueError(
                 f"`failure_state_key` must be {OBS_STATE!r} or {OBS_ENV_STATE!r}; got {self.failure_state_key!r}."
@@ -156,6 +173,27 @@ class CCDPConfig(PreTrainedConfig):
                 f"({self.horizon - self.n_obs_steps + 1})."
             )
 
+    def _check_vision(self) -> None:
+        """The checks LeRobot's DiffusionConfig makes of the same fields, and its crop derivation."""
+        if not self.vision_backbone.startswith("resnet"):
+            raise ValueError(f"`vision_backbone` must be a torchvision ResNet (e.g. resnet18); got {self.vision_backbone!r}.")
+        if self.resize_shape is not None and (len(self.resize_shape) != 2 or min(self.resize_shape) <= 0):
+            raise ValueError(f"`resize_shape` must be a pair of positive integers; got {self.resize_shape}.")
+        if self.vision_backbone_stages not in (1, 2, 3, 4):
+            raise ValueError(f"`vision_backbone_stages` must be 1 to 4 (a ResNet has 4); got {self.vision_backbone_stages}.")
+        if not 0 < self.crop_ratio <= 1.0:
+            raise ValueError(f"`crop_ratio` must be in (0, 1]; got {self.crop_ratio}.")
+        if self.resize_shape is not None:
+            ratio = self.crop_ratio
+            self.crop_shape = None if ratio == 1.0 else tuple(int(d * ratio) for d in self.resize_shape)
+        if self.crop_shape is not None and min(self.crop_shape) <= 0:
+            raise ValueError(f"`crop_shape` must have positive dimensions; got {self.crop_shape}.")
+        if self.use_group_norm and self.pretrained_backbone_weights:
+            raise ValueError(
+                "Pretrained backbone weights were trained with BatchNorm: set --policy.use_group_norm=false "
+                "to use them (replacing BatchNorm by GroupNorm would discard what they learnt)."
+            )
+
     def _check_choice(self, name: str, allowed: tuple[str, ...]) -> None:
         if getattr(self, name) not in allowed:
             raise ValueError(f"Unknown `{name}` {getattr(self, name)!r}; choose one of {list(allowed)}.")
@@ -167,11 +205,7 @@ class CCDPConfig(PreTrainedConfig):
                 f"CCDP needs {OBS_STATE!r} among the input features; the dataset or env has "
                 f"{sorted(self.input_features)}. Record the robot state as {OBS_STATE!r}."
             )
-        if self.image_features:
-            raise ValueError(
-                f"CCDP is state-only; drop the image features {sorted(self.image_features)} "
-                "(e.g. with --policy.input_features or a state-only dataset)."
-            )
+        self._validate_images()
         if self.action_feature is None:
             raise ValueError(f"CCDP needs an {ACTION!r} output feature; the dataset has none.")
         if len(self.action_feature.shape) == 2:
@@ -192,11 +226,34 @@ class CCDPConfig(PreTrainedConfig):
                 )
         self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(FeatureType.STATE, (self.failure_feature_dim,))
 
+    def _validate_images(self) -> None:
+        """Every camera has the same (C, H, W) shape (one encoder shape, as in LeRobot) and fits the crop."""
+        shapes = {key: tuple(ft.shape) for key, ft in self.image_features.items()}
+        if len(set(shapes.values())) > 1:
+            raise ValueError(
+                f"All cameras must have the same shape (one encoder input size); got {shapes}. Record them at one "
+                "size, or set --policy.resize_shape=[H,W] to resize every camera to it."
+            )
+        if shapes and self.crop_shape is not None and self.resize_shape is None:
+            _, height, width = next(iter(shapes.values()))
+            if self.crop_shape[0] > height or self.crop_shape[1] > width:
+                raise ValueError(f"`crop_shape` {self.crop_shape} does not fit in the camera images {shapes}.")
+
     @property
     def state_dim(self) -> int:
-        """Size of one observation frame as the networks see it (robot state + environment state)."""
+        """Size of the low-dimensional part of an observation frame (robot state + environment state)."""
         env = self.env_state_feature.shape[0] if self.env_state_feature else 0
         return self.robot_state_feature.shape[0] + env
+
+    @property
+    def image_feature_dim(self) -> int:
+        """Size of the encoded cameras of one frame: 2 coordinates per spatial-softmax keypoint and camera."""
+        return len(self.image_features) * 2 * self.spatial_softmax_num_keypoints
+
+    @property
+    def frame_dim(self) -> int:
+        """Size of one observation frame as the networks see it: low-dimensional state, then camera features."""
+        return self.state_dim + self.image_feature_dim
 
     @property
     def action_dim(self) -> int:

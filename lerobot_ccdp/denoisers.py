@@ -19,8 +19,8 @@ class BaseDenoiser(nn.Module):
 
     def __init__(self, config: CCDPConfig):
         super().__init__()
-        self.state_cond_dim = config.n_obs_steps * config.state_dim
-        self.history_cond_dim = config.history_length * (config.state_dim + config.action_dim)
+        self.state_cond_dim = config.n_obs_steps * config.frame_dim
+        self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
         self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=self.state_cond_dim + self.history_cond_dim + 2)
 
     def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, keep_s: Tensor, history: Tensor, keep_h: Tensor) -> Tensor:

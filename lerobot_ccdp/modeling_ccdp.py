@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
 from lerobot.policies.pretrained import PreTrainedPolicy
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
 from torch import Tensor
 
 from lerobot_ccdp.composition import CompositionWeights, compose_eps
@@ -14,6 +14,7 @@ from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KE
 from lerobot_ccdp.denoisers import BaseDenoiser, make_recovery_denoiser
 from lerobot_ccdp.failure_buffer import FailureBuffer
 from lerobot_ccdp.failure_features import FailureFeature
+from lerobot_ccdp.image_encoder import ImageEncoder
 from lerobot_ccdp.outcome_index import OutcomeIndex
 from lerobot_ccdp.outcome_table import build_outcome_table
 from lerobot_ccdp.rollout_memory import RolloutMemory
@@ -38,6 +39,7 @@ class CCDPPolicy(PreTrainedPolicy):
         config.validate_features()
         self.config = config
         self.base = BaseDenoiser(config)
+        self.images = ImageEncoder(config) if config.image_features else None
         self.recovery = make_recovery_denoiser(config)
         self.outcomes = OutcomeIndex()
         # Whether eps_z has been trained; a base-only checkpoint composes nothing for failures.
@@ -62,9 +64,12 @@ class CCDPPolicy(PreTrainedPolicy):
     # ----- training -------------------------------------------------------------------------------------
 
     def _set_trainable(self) -> None:
-        """The recovery stage trains eps_z only: the base network is frozen."""
-        self.base.requires_grad_(self.config.training_stage == "base")
-        self.recovery.requires_grad_(self.config.training_stage == "recovery")
+        """The recovery stage trains eps_z only: the base network and the camera encoder are frozen."""
+        base_stage = self.config.training_stage == "base"
+        self.base.requires_grad_(base_stage)
+        if self.images is not None:
+            self.images.requires_grad_(base_stage)
+        self.recovery.requires_grad_(not base_stage)
 
     def get_optim_params(self) -> list:
         return [p for p in self.parameters() if p.requires_grad]
@@ -77,7 +82,8 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def _base_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config
-        frames = self._frames(batch)
+        self._refuse_unknown_cameras(batch)
+        frames = self.frames(batch)
         if frames.ndim != 3 or batch[ACTION].ndim != 3:
             raise ValueError(
                 f"The base stage expects observation windows (B, {cfg.history_length + cfg.n_obs_steps}, D) and "
@@ -173,7 +179,7 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def _observe(self, batch: dict[str, Tensor]) -> RolloutMemory:
         """Take in one observation per row: remember flagged failures, then push the frame."""
-        frame = self._frames(batch)
+        frame = self.frames(batch)
         if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
             frame = frame[:, -1]
         if self._memory is None or self._memory.batch_size != frame.shape[0]:
@@ -230,7 +236,7 @@ class CCDPPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def sample_exploratory(self, state: Tensor, w_s: float, noise: Tensor | None = None) -> Tensor:
-        """Chunks (R, horizon, A) drawn from eq. (7) for normalised state conditions (R, n_obs_steps * state_dim):
+        """Chunks (R, horizon, A) drawn from eq. (7) for normalised state conditions (R, n_obs_steps * frame_dim):
         no history, no failures. Recovery synthesis uses it to propose candidate actions around demo states."""
         cfg = self.config
         r = state.shape[0]
@@ -323,22 +329,58 @@ class CCDPPolicy(PreTrainedPolicy):
 
     # ----- inputs ---------------------------------------------------------------------------------------
 
-    def _frames(self, batch: dict[str, Tensor]) -> Tensor:
-        """Robot state and env state concatenated on the last dim, after checking they are usable."""
+    def frames(self, batch: dict[str, Tensor]) -> Tensor:
+        """Observation frames (B, [T,] frame_dim) as the networks see them: robot state, environment state, then
+        the encoded cameras. `batch` holds normalised inputs, one frame (B, ...) or a window (B, T, ...) each."""
         cfg = self.config
         keys = [OBS_STATE] + ([OBS_ENV_STATE] if cfg.env_state_feature else [])
         parts = []
         for key in keys:
-            if key not in batch:
-                raise KeyError(
-                    f"CCDP needs {key!r} in every batch (it was trained with inputs "
-                    f"{sorted(k for k in cfg.input_features if k != FAILURE_FEATURE_KEY)}); got keys {sorted(batch)}."
-                )
-            value = batch[key]
+            value = self._input(batch, key)
             expected = cfg.input_features[key].shape[0]
             if value.shape[-1] != expected:
                 raise ValueError(f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}.")
             if torch.isnan(value).any():
                 raise ValueError(f"{key!r} contains NaN; fix the dataset or env observation before calling the policy.")
             parts.append(value)
+        if self.images is not None:
+            parts.append(self.images([self._camera(batch, key, parts[0].shape[:-1]) for key in self.images.keys]))
         return torch.cat(parts, dim=-1)
+
+    def _input(self, batch: dict[str, Tensor], key: str) -> Tensor:
+        if key not in batch:
+            cameras = sorted(k for k in batch if k.startswith(OBS_IMAGES) or k == OBS_IMAGE)
+            hint = ""
+            if cameras and key not in self.config.image_features:
+                hint = (f" The batch holds cameras {cameras} instead: this checkpoint was trained on other observations "
+                        "(for a ccdp task, evaluate it with the --env.obs_type it was trained with).")
+            raise KeyError(
+                f"CCDP needs {key!r} in every batch (it was trained with inputs "
+                f"{sorted(k for k in self.config.input_features if k != FAILURE_FEATURE_KEY)}); got keys "
+                f"{sorted(batch)}.{hint}"
+            )
+        return batch[key]
+
+    def _camera(self, batch: dict[str, Tensor], key: str, lead: torch.Size) -> Tensor:
+        """One camera's images (*lead, C, H, W), checked against the shape the encoder was built for."""
+        image = self._input(batch, key)
+        expected = tuple(self.config.image_features[key].shape)
+        if tuple(image.shape[-3:]) != expected or image.shape[:-3] != lead:
+            raise ValueError(
+                f"{key!r} has shape {tuple(image.shape)}; the policy expects {(*lead, *expected)} (channels, height, "
+                "width as in its training data). Render or resize this camera to that size (for a ccdp task: "
+                "--env.observation_height/--env.observation_width), or train on images of this size."
+            )
+        return image
+
+    def _refuse_unknown_cameras(self, batch: dict[str, Tensor]) -> None:
+        """A camera dataset given to a checkpoint that never saw those cameras would silently train without them."""
+        unknown = sorted(k for k in batch if (k.startswith(f"{OBS_IMAGES}.") or k == OBS_IMAGE)
+                         and k not in self.config.image_features and not k.endswith("_is_pad"))
+        if unknown:
+            raise ValueError(
+                f"The dataset has cameras {unknown} that this policy does not encode (its inputs: "
+                f"{sorted(k for k in self.config.input_features if k != FAILURE_FEATURE_KEY)}). To use them, train a "
+                "new base stage on this dataset (--policy.type=ccdp, no --policy.path); to train without them, use a "
+                "dataset without those cameras."
+            )

@@ -17,7 +17,7 @@ class RolloutMemory:
     def __init__(self, config: CCDPConfig, batch_size: int, device: torch.device):
         self.n_obs, self.history = config.n_obs_steps, config.history_length
         window = self.history + self.n_obs
-        self.frames = torch.zeros(batch_size, window, config.state_dim, device=device)
+        self.frames = torch.zeros(batch_size, window, config.frame_dim, device=device)
         self.actions = torch.zeros(batch_size, window - 1, config.action_dim, device=device)
         self.plan = torch.zeros(batch_size, config.n_action_steps, config.action_dim, device=device)
         self.plan_pos = torch.full((batch_size,), config.n_action_steps, dtype=torch.long, device=device)
