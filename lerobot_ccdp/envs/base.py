@@ -19,13 +19,19 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from lerobot_ccdp.envs.scene import FINGER_OPEN, TIMESTEP, WORKSPACE_HIGH, WORKSPACE_LOW, build_scene_xml
+from lerobot_ccdp.envs.camera import CameraRenderer
+from lerobot_ccdp.envs.scene import CAMERAS, FINGER_OPEN, TIMESTEP, WORKSPACE_HIGH, WORKSPACE_LOW, build_scene_xml
 
 CONTROL_FPS = 10
 ROBOT_JOINTS = ("ee_x", "ee_y", "ee_z", "finger_l", "finger_r")
 ACTION_NAMES = ("x", "y", "z", "grip")  # end-effector target (metres) and gripper closure in [0, 1]
 AGENT_POS_NAMES = ("x", "y", "z", "grip")  # end-effector position and measured gripper closure
 ACTION_DIM, AGENT_POS_DIM = len(ACTION_NAMES), len(AGENT_POS_NAMES)
+# Observation modes, as gym-pusht's `obs_type`: low-dimensional state, or rendered cameras plus the robot state.
+OBS_TYPES = ("state", "pixels_agent_pos")
+# 64 x 64: a ResNet-18 step on 64 frames of this size fits a 2-core CPU (about 1 s forward and backward), the
+# scene's objects stay several pixels wide, and a frame renders in a few ms without shadows.
+OBSERVATION_SIZE = 64
 
 
 class OutcomeKind(Enum):
@@ -71,14 +77,25 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         layout_noise: float = 0.01,
         render_width: int = 320,
         render_height: int = 240,
+        obs_type: str = "state",
+        cameras: tuple[str, ...] = ("front",),
+        observation_width: int = OBSERVATION_SIZE,
+        observation_height: int = OBSERVATION_SIZE,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        if obs_type not in OBS_TYPES:
+            raise ValueError(f"obs_type must be one of {list(OBS_TYPES)}, got {obs_type!r}")
+        unknown = sorted(set(cameras) - set(CAMERAS))
+        if unknown or not cameras:
+            raise ValueError(f"cameras must name one or more of {list(CAMERAS)}, got {list(cameras)}")
         self.render_mode = render_mode
         self.max_failures = self.n_options if max_failures is None else max_failures
         self.init_noise = init_noise
         self.layout_noise = layout_noise
         self.render_width, self.render_height = render_width, render_height
+        self.obs_type, self.cameras = obs_type, tuple(cameras)
+        self._camera_renderer = CameraRenderer(observation_width, observation_height) if obs_type != "state" else None
 
         self.model = mujoco.MjModel.from_xml_string(build_scene_xml(self.name, self._task_bodies_xml()))
         self.data = mujoco.MjData(self.model)
@@ -93,14 +110,14 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             high=np.array([*WORKSPACE_HIGH, 1.0], dtype=np.float32),
             dtype=np.float32,
         )
-        env_state_dim = len(self.env_state_names)
-        self.observation_space = spaces.Dict(
-            {
-                "agent_pos": spaces.Box(-1.0, 1.0, shape=(AGENT_POS_DIM,), dtype=np.float32),
-                "environment_state": spaces.Box(-1.0, 1.0, shape=(env_state_dim,), dtype=np.float32),
-                "failure": spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32),
-            }
-        )
+        observations = {"agent_pos": spaces.Box(-1.0, 1.0, shape=(AGENT_POS_DIM,), dtype=np.float32)}
+        if self._camera_renderer is None:
+            observations["environment_state"] = spaces.Box(-1.0, 1.0, shape=(len(self.env_state_names),), dtype=np.float32)
+        else:
+            frame = spaces.Box(0, 255, shape=(observation_height, observation_width, 3), dtype=np.uint8)
+            observations["pixels"] = spaces.Dict({camera: frame for camera in self.cameras})
+        observations["failure"] = spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)
+        self.observation_space = spaces.Dict(observations)
         self.hidden_param = 0
         self.attempt_index = 0
         self.attempt_start_pose = np.asarray(self.home, dtype=np.float64)
@@ -245,6 +262,8 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        if self._camera_renderer is not None:
+            self._camera_renderer.close()
 
     # ----------------------------------------------------------------------------------------------------
     def _set_robot(self, pose: np.ndarray) -> None:
@@ -258,12 +277,15 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         self.attempt_index += 1
         self.attempt_start_pose = np.array([*self.ee_pos, self.grip])
 
-    def _observation(self, failure: bool) -> dict[str, np.ndarray]:
-        return {
-            "agent_pos": np.array([*self.ee_pos, self.grip], dtype=np.float32),
-            "environment_state": self._environment_state().astype(np.float32),
-            "failure": np.array([1.0 if failure else 0.0], dtype=np.float32),
-        }
+    def _observation(self, failure: bool) -> dict[str, Any]:
+        observation: dict[str, Any] = {"agent_pos": np.array([*self.ee_pos, self.grip], dtype=np.float32)}
+        if self._camera_renderer is None:
+            observation["environment_state"] = self._environment_state().astype(np.float32)
+        else:
+            observation["pixels"] = {camera: self._camera_renderer.render(self.model, self.data, camera)
+                                     for camera in self.cameras}
+        observation["failure"] = np.array([1.0 if failure else 0.0], dtype=np.float32)
+        return observation
 
     def _info(self) -> dict[str, Any]:
         return {

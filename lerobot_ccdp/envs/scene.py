@@ -11,6 +11,8 @@ TIMESTEP = 0.005
 WORKSPACE_LOW = (-0.4, -0.4, 0.0)
 WORKSPACE_HIGH = (0.4, 0.4, 0.3)
 FINGER_OPEN = 0.03  # finger travel in metres, fully open
+# Cameras of the scene: `front` looks at the table from the robot's side, `top` from above it.
+CAMERAS = ("front", "top")
 
 _ROBOT = f"""
     <body name="ee" pos="0 0 0">
@@ -56,6 +58,7 @@ def build_scene_xml(name: str, task_bodies: str) -> str:
   <worldbody>
     <light pos="0.3 -0.4 1.2" dir="-0.2 0.3 -1" directional="true" diffuse="0.8 0.8 0.8"/>
     <camera name="front" pos="0 -0.6 0.48" xyaxes="1 0 0 0 0.64 0.77" fovy="50"/>
+    <camera name="top" pos="0 0 0.9" xyaxes="1 0 0 0 1 0" fovy="50"/>
     <geom name="table" type="plane" size="0.45 0.45 0.01" material="table"/>
 {_ROBOT}
 {task_bodies}

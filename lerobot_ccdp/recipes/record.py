@@ -1,7 +1,8 @@
 """`lerobot-ccdp-record`: record scripted-expert demonstrations of a CCDP task as a local LeRobot dataset.
 
-The dataset is state only (`observation.state`, `observation.environment_state`, `action`) plus two
-per-frame labels: `primitive` (the option the expert executes in that frame) and `hidden_param` (the
+The dataset holds what the env observes: `observation.state` and `observation.environment_state` (obs_type
+`state`), or `observation.state` and one `observation.images.<camera>` video per camera (obs_type
+`pixels_agent_pos`, set in the recipe's `env_kwargs`), then `action`, plus two per-frame labels: `primitive` (the option the expert executes in that frame) and `hidden_param` (the
 episode's hidden parameter, for analysis; no policy input reads it). Only successful episodes are kept.
 It is written to a temporary folder next to `--root` and renamed into place when complete, so an
 interrupted run leaves nothing half-written at `--root`.
@@ -18,12 +19,12 @@ import gymnasium as gym
 import numpy as np
 import yaml
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from tqdm import tqdm
 
-from lerobot_ccdp.envs.base import ACTION_NAMES, AGENT_POS_NAMES
+from lerobot_ccdp.envs.base import ACTION_NAMES, AGENT_POS_NAMES, CCDPTaskEnv
 from lerobot_ccdp.envs.scripted import Episode, Expert, run_episode
-from lerobot_ccdp.envs.tasks import gym_id, task_class
+from lerobot_ccdp.envs.tasks import gym_id
 from lerobot_ccdp.recipes.recipe_file import RecordRecipe
 from lerobot_ccdp.recipes.staging import staged_dataset_root
 
@@ -34,16 +35,32 @@ HIDDEN_PARAM = "hidden_param"
 RECIPE_COPY = "meta/ccdp_record_recipe.yaml"
 
 
-def dataset_features(task: str) -> dict[str, dict]:
-    """LeRobot feature spec of a task's demo dataset."""
-    env_state_names = list(task_class(task).env_state_names)
+def dataset_features(env: CCDPTaskEnv) -> dict[str, dict]:
+    """LeRobot feature spec of a task's demo dataset, from what the env observes (cameras are stored as videos)."""
+    features = {OBS_STATE: {"dtype": "float32", "shape": (len(AGENT_POS_NAMES),), "names": list(AGENT_POS_NAMES)}}
+    spaces = env.observation_space.spaces
+    if "environment_state" in spaces:
+        names = list(env.env_state_names)
+        features[OBS_ENV_STATE] = {"dtype": "float32", "shape": (len(names),), "names": names}
+    for camera, space in spaces.get("pixels", {}).items():
+        features[f"{OBS_IMAGES}.{camera}"] = {"dtype": "video", "shape": space.shape,
+                                              "names": ["height", "width", "channels"]}
     return {
-        OBS_STATE: {"dtype": "float32", "shape": (len(AGENT_POS_NAMES),), "names": list(AGENT_POS_NAMES)},
-        OBS_ENV_STATE: {"dtype": "float32", "shape": (len(env_state_names),), "names": env_state_names},
+        **features,
         ACTION: {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
         PRIMITIVE: {"dtype": "int64", "shape": (1,), "names": None},
         HIDDEN_PARAM: {"dtype": "float32", "shape": (1,), "names": None},
     }
+
+
+def _observation_frame(observation: dict) -> dict[str, np.ndarray]:
+    """The dataset columns of one env observation."""
+    frame = {OBS_STATE: observation["agent_pos"]}
+    if "environment_state" in observation:
+        frame[OBS_ENV_STATE] = observation["environment_state"]
+    for camera, image in observation.get("pixels", {}).items():
+        frame[f"{OBS_IMAGES}.{camera}"] = image
+    return frame
 
 
 def _add_episode(dataset: LeRobotDataset, episode: Episode, description: str) -> None:
@@ -51,8 +68,7 @@ def _add_episode(dataset: LeRobotDataset, episode: Episode, description: str) ->
     for observation, action, option in zip(episode.observations, episode.actions, episode.options, strict=True):
         dataset.add_frame(
             {
-                OBS_STATE: observation["agent_pos"],
-                OBS_ENV_STATE: observation["environment_state"],
+                **_observation_frame(observation),
                 ACTION: np.asarray(action, dtype=np.float32),
                 PRIMITIVE: np.array([option], dtype=np.int64),
                 HIDDEN_PARAM: hidden,
@@ -79,13 +95,14 @@ def record_dataset(
 def _record_into(path: Path, recipe: RecordRecipe, repo_id: str, env: gym.Env, progress: bool) -> int:
     """Record the recipe's episodes into a new dataset at `path`; return how many expert failures were discarded."""
     description = recipe.task_description or env.unwrapped.task_description
+    features = dataset_features(env.unwrapped)
     dataset = LeRobotDataset.create(
         repo_id=repo_id,
         fps=recipe.fps,
-        features=dataset_features(recipe.task),
+        features=features,
         root=path,
         robot_type="ccdp_cartesian_gripper",
-        use_videos=False,
+        use_videos=any(spec["dtype"] == "video" for spec in features.values()),
     )
     try:
         expert = Expert(env)
