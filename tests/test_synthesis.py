@@ -5,17 +5,16 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-from lerobot.configs.types import FeatureType
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
-from lerobot.datasets.utils import dataset_to_policy_features
 from lerobot.utils.constants import ACTION, OBS_STATE
 from safetensors.torch import load_file
 from torch import Tensor
 
 from conftest import REACHING_REPO_ID, run_cli
-from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
+from policy_factory import untrained_checkpoint
+from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.processor_ccdp import make_ccdp_pre_post_processors, normalize_batch
+from lerobot_ccdp.processor_ccdp import normalize_batch
 from lerobot_ccdp.recipes import synthesize
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 from lerobot_ccdp.recipes.synthesize import FAILURE_ACTION, PAIR_SOURCE, RECIPE_COPY, synthesize_recovery_dataset
@@ -28,23 +27,6 @@ FEATURE_SETTINGS = {
 # Small and loose enough that an untrained base (near-random chunks) still yields pairs quickly.
 SMALL = {"n_states": 16, "chunks_per_state": 6, "batch_states": 8, "pairs_per_failure": 2, "demo_frames": 200,
          "delta_x": 0.05, "delta_z": 0.1}
-
-
-def untrained_checkpoint(root: Path, out: Path, **settings) -> Path:
-    """A base-stage checkpoint as lerobot-train writes it (config, weights with the outcome table, processors)."""
-    meta = LeRobotDatasetMetadata(REACHING_REPO_ID, root=root)
-    features = dataset_to_policy_features(meta.features)
-    config = CCDPConfig(
-        input_features={k: f for k, f in features.items() if f.type is not FeatureType.ACTION},
-        output_features={k: f for k, f in features.items() if f.type is FeatureType.ACTION},
-        device="cpu", **settings,
-    )
-    torch.manual_seed(0)
-    policy = CCDPPolicy(config, dataset_meta=meta, dataset_stats=meta.stats)
-    pre, post = make_ccdp_pre_post_processors(config, meta.stats)
-    for item in (policy, pre, post):
-        item.save_pretrained(out)
-    return out
 
 
 def normalized_rows(checkpoint: Path, root: Path, chunk_column: str) -> tuple[CCDPPolicy, dict]:
@@ -220,6 +202,6 @@ def test_recipe_validation(change, message):
 
 def test_every_task_recipe_has_a_valid_recovery_section():
     recipes = sorted(Path(__file__).parents[1].joinpath("datasets_recipes").glob("*.yaml"))
-    assert len(recipes) == 6
+    assert len(recipes) == 8  # five tasks, two of them also with cameras, and the 2-D task
     for path in recipes:
         RecoveryRecipe.load(path)

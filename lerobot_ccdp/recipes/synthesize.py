@@ -18,6 +18,11 @@ against it. Every row holds one pair:
 The dataset carries the checkpoint's normalisation stats (lerobot-train normalises with the training
 dataset's stats, so recovery training sees actions exactly as the base did) and a copy of the recipe with
 the source dataset and checkpoint in `meta/ccdp_recovery_recipe.yaml`. It is written atomically.
+
+On a camera dataset, eq. (6) perturbs the low-dimensional state only and keeps the frame's recorded images,
+which the base encodes into the state condition of eq. (7); eq. (5)'s state distance is over the
+low-dimensional state. The recovery stage reads only z and chunks, so no image is copied into the recovery
+dataset; it carries the cameras' normalisation stats, which the recovery checkpoint's preprocessor needs.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -44,6 +50,7 @@ from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.outcome_index import demo_chunks
 from lerobot_ccdp.outcome_table import read_columns
 from lerobot_ccdp.processor_ccdp import normalize_batch, unnormalize_batch
+from lerobot_ccdp.recipes.camera_windows import camera_windows
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 from lerobot_ccdp.recipes.staging import staged_dataset_root
 from lerobot_ccdp.recovery_pairs import pick_pairs, recovery_pair_mask
@@ -124,23 +131,40 @@ def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) ->
 
 
 def synthesised_samples(
-    policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator, progress: bool = True
+    policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator, progress: bool = True,
+    images: Callable[[Tensor], Tensor] | None = None,
 ) -> Samples:
-    """Eq. (6) and (7): demo states x_s perturbed by N(0, sigma^2), `chunks_per_state` chunks sampled at each."""
+    """Eq. (6) and (7): demo states x_s perturbed by N(0, sigma^2), `chunks_per_state` chunks sampled at each.
+
+    `images` maps demo frame indices to their encoded camera windows (b, n_obs, F), for checkpoints with cameras.
+    """
     cfg, k = policy.config, recipe.chunks_per_state
     picks = torch.randint(0, len(demos.windows), (recipe.n_states,), generator=generator)
     parts = []
     for batch in tqdm(picks.split(recipe.batch_states), desc="Sampling chunks (eq. 7)", disable=not progress):
         x_s = demos.windows[batch].repeat_interleave(k, dim=0)  # (b * k, n_obs, D)
         x = x_s + recipe.sigma * torch.randn(x_s.shape, generator=generator)  # eq. (6)
+        condition = x if images is None else torch.cat([x, images(batch).repeat_interleave(k, dim=0)], dim=-1)
         noise = torch.randn(len(x), cfg.horizon, cfg.action_dim, generator=generator)
-        chunks = policy.sample_exploratory(x.flatten(start_dim=1), recipe.w_s, noise)  # eq. (7)
+        chunks = policy.sample_exploratory(condition.flatten(start_dim=1), recipe.w_s, noise)  # eq. (7)
         if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
             near = policy.outcomes.rms_distance(chunks) <= recipe.outcome_radius
             x, chunks = x[near], chunks[near]
         z = policy.feature.from_chunk(chunks, policy.outcomes)
         parts.append(Samples(x, chunks, z, torch.full((len(x),), SYNTHESISED)))
     return Samples.cat(parts)
+
+
+def camera_encoder(policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata) -> Callable[[Tensor], Tensor]:
+    """Demo frame indices -> the base's encoding of their camera windows (b, n_obs, F), as at run time."""
+    cameras = list(policy.config.image_features)
+
+    def encode(frames: Tensor) -> Tensor:
+        images = normalize_batch(policy.config, stats, camera_windows(meta, cameras, frames, policy.config.n_obs_steps))
+        with torch.no_grad():
+            return policy.images([images[key] for key in cameras])
+
+    return encode
 
 
 def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator) -> Samples:
@@ -189,7 +213,8 @@ def synthesize_recovery_dataset(
     generator = torch.Generator().manual_seed(recipe.seed)
     torch.manual_seed(recipe.seed)
     sampling_started = time.perf_counter()
-    parts = [synthesised_samples(policy, recipe, demos, generator, progress)] if recipe.n_states else []
+    images = camera_encoder(policy, stats, meta) if config.image_features else None
+    parts = [synthesised_samples(policy, recipe, demos, generator, progress, images)] if recipe.n_states else []
     sampling_seconds = time.perf_counter() - sampling_started
     if recipe.demo_frames:
         parts.append(demo_samples(policy, recipe, demos, generator))
@@ -259,7 +284,7 @@ def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pool: Samp
         dataset.finalize()
     # The chunk columns' per-frame stats are meaningless for the normaliser: use the checkpoint's, per action dim.
     written = {**dataset.meta.stats}
-    for key in [*keys, ACTION, FAILURE_FEATURE_KEY]:
+    for key in [*keys, *config.image_features, ACTION, FAILURE_FEATURE_KEY]:
         written[key] = {k: v.numpy() for k, v in stats[key].items()}
     written[FAILURE_ACTION] = written[ACTION]
     write_stats(written, path)
