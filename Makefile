@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export HF_HUB_OFFLINE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: install test test-slow train-local clean quickstart benchmark
+.PHONY: install test test-slow train-local clean quickstart benchmark benchmark-pixels
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -39,3 +39,8 @@ quickstart: install
 # The paper's comparison: every task, DP / DP* / CCDP and the no-repeat oracle; report in outputs/benchmark.
 benchmark: install
 	$(PY) -m lerobot_ccdp.pipeline --tasks all --out outputs/benchmark
+
+# The same comparison on rendered cameras (64x64 front camera + robot state) for the two tasks with pixel configs.
+benchmark-pixels: install
+	$(PY) -m lerobot_ccdp.pipeline --tasks DoorOpening-v0 ButtonSearch-v0 --obs-type pixels_agent_pos \
+		--out outputs/benchmark_pixels

@@ -364,6 +364,8 @@ class CCDPPolicy(PreTrainedPolicy):
     def _camera(self, batch: dict[str, Tensor], key: str, lead: torch.Size) -> Tensor:
         """One camera's images (*lead, C, H, W), checked against the shape the encoder was built for."""
         image = self._input(batch, key)
+        if image.ndim == len(lead) + 2 and len(lead) > 1 and lead[-1] == 1:
+            image = image.unsqueeze(-4)  # LeRobotDataset squeezes a one-frame window of video to (B, C, H, W)
         expected = tuple(self.config.image_features[key].shape)
         if tuple(image.shape[-3:]) != expected or image.shape[:-3] != lead:
             raise ValueError(

@@ -6,7 +6,8 @@ seeds (lerobot-eval --policy.recovery_mode=...), run the no-repeat oracle on tho
 with 95% intervals (`lerobot_ccdp.comparison`) as markdown, JSON and a bar chart.
 
 Settings live in files a user can run by hand: `configs/<task>/{train_base,train_recovery,eval}.json` and
-`datasets_recipes/<task>.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
+`datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from `configs/<task>_pixels/`
+and `datasets_recipes/<task>_pixels.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
 checkpoints, eval_info.json, logs). A stage whose output exists is skipped, so an interrupted run resumes;
 `--fresh` starts over.
 """
@@ -35,6 +36,8 @@ from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 
 METHODS = ("dp", "dp_star", "ccdp")
+# Observation type -> suffix of the settings folder and recipe that hold its configs.
+OBS_VARIANTS = {"state": "", "pixels_agent_pos": "_pixels"}
 BIN = Path(sys.executable).parent
 CHECKPOINT = Path("checkpoints/last/pretrained_model")
 # lerobot-train's periodic log line: seconds per step spent updating and waiting for data.
@@ -63,19 +66,21 @@ class TaskFiles:
     out: Path
 
     @classmethod
-    def locate(cls, task: str, configs: Path, recipes: Path, out: Path) -> TaskFiles:
+    def locate(cls, task: str, configs: Path, recipes: Path, out: Path, obs_type: str = "state") -> TaskFiles:
         if task not in TASKS:
             raise ValueError(f"Unknown task {task!r}; choose among {', '.join(TASKS)}")
-        slug = task_slug(task)
+        slug = task_slug(task) + OBS_VARIANTS[obs_type]
         files = cls(task, recipes / f"{slug}.yaml", configs / slug / "train_base.json",
                     configs / slug / "train_recovery.json", configs / slug / "eval.json", out / slug)
         settings = (files.recipe, files.train_base, files.train_recovery, files.eval)
         missing = [str(p) for p in settings if not p.is_file()]
         if missing:
             raise FileNotFoundError(f"{task}: missing settings file(s) {', '.join(missing)}")
-        env_task = files.eval_config()["env"].get("task")
-        if env_task != task:
-            raise ValueError(f"{files.eval} evaluates env.task={env_task!r}, not {task!r}")
+        env = files.eval_config()["env"]
+        if env.get("task") != task:
+            raise ValueError(f"{files.eval} evaluates env.task={env.get('task')!r}, not {task!r}")
+        if env.get("obs_type", "state") != obs_type:
+            raise ValueError(f"{files.eval} evaluates env.obs_type={env.get('obs_type', 'state')!r}, not {obs_type!r}")
         return files
 
     def eval_config(self) -> dict[str, Any]:
@@ -98,7 +103,7 @@ class TaskRun:
 
     def __init__(self, files: TaskFiles):
         self.files = files
-        self.slug = task_slug(files.task)
+        self.slug = files.out.name
         self.logs = files.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
         timings_path = files.out / "timings.json"
@@ -154,11 +159,14 @@ class TaskRun:
         print(f"[{self.files.task}] {name}: {self.timings[name]:.0f} s", flush=True)
 
     def _oracle(self) -> Episodes:
-        """The no-repeat oracle on lerobot-eval's seeds (episode i gets seed `seed + i`) and env settings."""
+        """The no-repeat oracle on lerobot-eval's seeds (episode i gets seed `seed + i`) and env settings.
+
+        It reads the hidden state, never the observation, so cameras are not rendered for it."""
         path = self.files.out / "oracle.json"
         if not path.exists():
             config = self.files.eval_config()
-            env_config = CCDPEnvConfig(**{k: v for k, v in config["env"].items() if k != "type"})
+            env_settings = {k: v for k, v in config["env"].items() if k != "type"}
+            env_config = CCDPEnvConfig(**{**env_settings, "obs_type": "state"})
             env = gym.make(env_config.gym_id, **{**env_config.gym_kwargs, "render_mode": None})
             oracle = NoRepeatOracle(env)
             seed = config.get("seed", 1000)
@@ -231,11 +239,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=Path("outputs/pipeline"), help="root of every output")
     parser.add_argument("--configs", type=Path, default=Path("configs"), help="folder of <task>/*.json configs")
     parser.add_argument("--recipes", type=Path, default=Path("datasets_recipes"), help="folder of <task>.yaml recipes")
+    parser.add_argument("--obs-type", choices=list(OBS_VARIANTS), default="state",
+                        help="policy inputs: state vectors, or rendered cameras plus the robot state")
     parser.add_argument("--no-chart", action="store_true", help="skip the PNG bar chart (needs matplotlib)")
     parser.add_argument("--fresh", action="store_true", help="delete --out first instead of resuming")
     args = parser.parse_args(argv)
     tasks = list(TASKS) if args.tasks == ["all"] else args.tasks
-    files = [TaskFiles.locate(t, args.configs, args.recipes, args.out) for t in tasks]
+    files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type) for t in tasks]
     if args.fresh and args.out.exists():
         shutil.rmtree(args.out)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -7,6 +7,7 @@ import gymnasium as gym
 import pytest
 import torch
 import yaml
+from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.policies.factory import make_pre_post_processors
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
@@ -140,6 +141,22 @@ def test_synthesis_record_names_the_camera_dataset(synthesised):
     record = yaml.safe_load((root / RECIPE_COPY).read_text())
     assert record["source"]["policy_path"] == str(checkpoint) and record["result"]["rows"] > 0
 
+
+
+def test_a_one_frame_window_from_lerobot_dataset_trains(pixel_root, tmp_path):
+    """n_obs_steps=1 without history: LeRobotDataset squeezes the one-frame video window to (C, H, W) while the
+    state keeps its window axis; the policy restores the axis instead of refusing the camera."""
+    checkpoint = untrained_checkpoint(pixel_root, tmp_path, repo_id=REPO_ID, history_length=0, n_obs_steps=1,
+                                      **ENCODER, **Z_SETTINGS["primitive"])
+    policy = CCDPPolicy.from_pretrained(checkpoint).train()
+    meta = LeRobotDatasetMetadata(REPO_ID, root=pixel_root)
+    delta = resolve_delta_timestamps(policy.config, meta)
+    dataset = LeRobotDataset(REPO_ID, root=pixel_root, delta_timestamps=delta, video_backend=video_backend())
+    batch = next(iter(torch.utils.data.DataLoader(dataset, batch_size=4)))
+    assert batch[CAMERA].shape == (4, 3, SIZE, SIZE) and batch[OBS_STATE].shape[:2] == (4, 1)
+    preprocessor, _ = make_pre_post_processors(policy.config, checkpoint)
+    loss, _ = policy.forward(preprocessor(batch))
+    assert torch.isfinite(loss)
 
 # ----- bad input ---------------------------------------------------------------------------------------------
 

@@ -2,6 +2,7 @@
 outputs exist, load, and feed the next; the report and a resumed run agree."""
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -10,11 +11,13 @@ import pytest
 import torch
 import yaml
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.utils.constants import OBS_IMAGES
 
 from lerobot_ccdp.comparison import Episodes
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.pipeline import CHECKPOINT, TaskFiles, main, task_slug
+from lerobot_ccdp.recipes.camera_windows import video_backend
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "DoorOpening-v0"
@@ -30,30 +33,33 @@ def _shrink_json(src: Path, dst: Path, changes: dict) -> None:
     dst.write_text(json.dumps(config))
 
 
-@pytest.fixture(scope="module")
-def settings(tmp_path_factory) -> tuple[Path, Path]:
-    """The repository's configs and recipe for the task, shrunk to seconds per stage."""
-    root = tmp_path_factory.mktemp("settings")
+def _shrunk_settings(root: Path, slug: str, n_episodes: int = N_EPISODES) -> tuple[Path, Path]:
+    """The repository's configs and recipe of `slug`, shrunk to seconds per stage."""
     configs, recipes = root / "configs", root / "recipes"
-    (configs / SLUG).mkdir(parents=True)
+    (configs / slug).mkdir(parents=True)
     recipes.mkdir()
     train = {"steps": 10, "batch_size": 8, "save_freq": 10, "log_freq": 5}
     for name, changes in {"train_base": train, "train_recovery": train,
-                          "eval": {"eval": {"n_episodes": N_EPISODES, "batch_size": 2}}}.items():
-        _shrink_json(REPO / "configs" / SLUG / f"{name}.json", configs / SLUG / f"{name}.json", changes)
-    recipe = yaml.safe_load((REPO / "datasets_recipes" / f"{SLUG}.yaml").read_text())
+                          "eval": {"eval": {"n_episodes": n_episodes, "batch_size": 2}}}.items():
+        _shrink_json(REPO / "configs" / slug / f"{name}.json", configs / slug / f"{name}.json", changes)
+    recipe = yaml.safe_load((REPO / "datasets_recipes" / f"{slug}.yaml").read_text())
     recipe["record"]["n_episodes"] = N_DEMOS
     small = {"n_states": 8, "chunks_per_state": 4, "batch_states": 8, "pairs_per_state": 4, "pairs_per_failure": 4,
              "demo_pairs": 16, "demo_frames": 64}
     recipe["recovery"].update({k: v for k, v in small.items() if k in recipe["recovery"]})
-    (recipes / f"{SLUG}.yaml").write_text(yaml.safe_dump(recipe))
+    (recipes / f"{slug}.yaml").write_text(yaml.safe_dump(recipe))
     return configs, recipes
 
 
-def _run_pipeline(configs: Path, recipes: Path, out: Path) -> str:
+@pytest.fixture(scope="module")
+def settings(tmp_path_factory) -> tuple[Path, Path]:
+    return _shrunk_settings(tmp_path_factory.mktemp("settings"), SLUG)
+
+
+def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str) -> str:
     result = subprocess.run(
         [sys.executable, "-m", "lerobot_ccdp.pipeline", "--tasks", TASK, "--methods", *METHODS, "--out", str(out),
-         "--configs", str(configs), "--recipes", str(recipes)],
+         "--configs", str(configs), "--recipes", str(recipes), *extra],
         capture_output=True, text=True, cwd=REPO)
     if result.returncode != 0:
         pytest.fail(f"pipeline failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}")
@@ -129,3 +135,32 @@ def test_bad_task_and_missing_settings_are_named(settings, tmp_path):
         TaskFiles.locate("ButtonSearch-v0", configs, recipes, tmp_path)
     with pytest.raises(SystemExit):
         main(["--tasks", TASK, "--methods", "oracle"])
+
+
+def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
+    """--obs-type pixels_agent_pos: camera demos as video, a camera checkpoint, image-free recovery rows, and
+    every method evaluated on rendered frames."""
+    slug = f"{SLUG}_pixels"
+    configs, recipes = _shrunk_settings(tmp_path / "settings", slug, n_episodes=2)
+    out = tmp_path / "out"
+    _run_pipeline(configs, recipes, out, "--obs-type", "pixels_agent_pos", "--no-chart")
+    task_out = out / slug
+
+    demos = LeRobotDataset(f"local/{slug}", root=task_out / "demos", video_backend=video_backend())
+    assert demos.meta.video_keys == [f"{OBS_IMAGES}.front"]
+    recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
+    assert bool(recovery.recovery_trained) and list(recovery.config.image_features) == [f"{OBS_IMAGES}.front"]
+    recovery_meta = LeRobotDataset(f"local/{slug}_recovery", root=task_out / "recovery_data").meta
+    assert not recovery_meta.video_keys and f"{OBS_IMAGES}.front" in recovery_meta.stats
+    for method in METHODS:
+        assert len(Episodes.from_eval_info(task_out / "eval" / method / "eval_info.json")) == 2
+    assert "| DoorOpening-v0 | CCDP |" in (out / "report.md").read_text()
+
+
+def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):
+    """State configs filed under the pixel variant's name would train a state policy and report it as pixels."""
+    configs, recipes = settings
+    shutil.copytree(configs / SLUG, tmp_path / f"{SLUG}_pixels")
+    shutil.copy(recipes / f"{SLUG}.yaml", tmp_path / f"{SLUG}_pixels.yaml")
+    with pytest.raises(ValueError, match="obs_type='state', not 'pixels_agent_pos'"):
+        TaskFiles.locate(TASK, tmp_path, tmp_path, tmp_path / "out", "pixels_agent_pos")
