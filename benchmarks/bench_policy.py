@@ -225,8 +225,8 @@ def record_env_dataset(root: Path, n_episodes: int) -> None:
     dataset.finalize()
 
 
-def cli_args(policy_type: str, root: Path, out: Path, steps: int, log_freq: int, batch_size: int) -> list[str]:
-    common = [f"--dataset.repo_id={ENV_REPO_ID}", f"--dataset.root={root}", f"--output_dir={out}", f"--steps={steps}",
+def cli_args(policy_type: str, root: Path, steps: int, log_freq: int, batch_size: int) -> list[str]:
+    common = [f"--dataset.repo_id={ENV_REPO_ID}", f"--dataset.root={root}", f"--steps={steps}",
               f"--batch_size={batch_size}", "--policy.push_to_hub=false", "--num_workers=0", "--wandb.enable=false",
               f"--log_freq={log_freq}", f"--save_freq={steps}", "--save_checkpoint=false", "--seed=0",
               "--policy.device=cpu", f"--policy.type={policy_type}"]
@@ -242,19 +242,19 @@ def cli_args(policy_type: str, root: Path, out: Path, steps: int, log_freq: int,
 LOG_LINE = re.compile(r"step:(\S+) .*?updt_s:([\d.]+) data_s:([\d.]+)")
 
 
-def lerobot_train_speed(policy_type: str, root: Path, work: Path, steps: int, log_freq: int, batch_size: int) -> dict:
-    out = work / f"train_{policy_type}"
+def lerobot_train_speed(name: str, out: Path, train_args: list[str]) -> dict:
+    """Steps/s of one real lerobot-train run (`train_args` without --output_dir), from its own timers."""
     shutil.rmtree(out, ignore_errors=True)
-    cmd = [str(Path(sys.executable).parent / "lerobot-train"), *cli_args(policy_type, root, out, steps, log_freq, batch_size)]
+    cmd = [str(Path(sys.executable).parent / "lerobot-train"), f"--output_dir={out}", *train_args]
     start = time.perf_counter()
     result = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
     wall = time.perf_counter() - start
     if result.returncode != 0:
-        raise RuntimeError(f"lerobot-train ({policy_type}) failed:\n{result.stdout[-2000:]}\n{result.stderr[-4000:]}")
+        raise RuntimeError(f"lerobot-train ({name}) failed:\n{result.stdout[-2000:]}\n{result.stderr[-4000:]}")
     intervals = [(float(u), float(d)) for _, u, d in LOG_LINE.findall(result.stdout + result.stderr)]
     timed = intervals[1:] or intervals  # the first interval holds the warm-up steps
     if not timed:
-        raise RuntimeError(f"no training log lines from lerobot-train ({policy_type}):\n{result.stderr[-3000:]}")
+        raise RuntimeError(f"no training log lines from lerobot-train ({name}):\n{result.stderr[-3000:]}")
     update_s = statistics.mean(u for u, _ in timed)
     data_s = statistics.mean(d for _, d in timed)
     shutil.rmtree(out, ignore_errors=True)
@@ -333,7 +333,8 @@ def main(argv: list[str] | None = None) -> dict:
         for policy_type in ("diffusion", "ccdp"):
             print(f"(b') lerobot-train --policy.type={policy_type} --steps={args.cli_steps} ...", flush=True)
             cli["ccdp" if policy_type == "ccdp" else "diffusion"] = lerobot_train_speed(
-                policy_type, root, args.work, args.cli_steps, args.cli_log_freq, args.batch_size)
+                policy_type, args.work / f"train_{policy_type}",
+                cli_args(policy_type, root, args.cli_steps, args.cli_log_freq, args.batch_size))
         cli["ratio_step_time"] = cli["diffusion"]["steps_per_s"] / cli["ccdp"]["steps_per_s"]
         results["lerobot_train"] = cli
 
