@@ -11,6 +11,8 @@ crop), with bench_policy.py's UNet and sampling settings (SHARED).
     --repeats interleaved calls; CCDP at N = 0 and 4 failures (eps_z marked trained so the failure terms run).
 (b) Training step (forward, backward, Adam), batch --batch-size, interleaved medians: CCDP with
     history_length 0 and 2 (its default: the camera of every history frame is encoded too) against diffusion.
+(c) Render size: per --sizes, milliseconds to step DoorOpening-v0 with its front camera rendered, and the
+    training step of CCDP with the pixel task configs' encoder (3 ResNet stages) at that size.
 (b') Real lerobot-train runs on --cli-episodes recorded pixel demos of DoorOpening-v0 (video, decoded with
     pyav): steps/s from lerobot-train's own timers for diffusion, CCDP at history_length 0 and 2 (same encoder),
     and CCDP with the pixel task configs' encoder (`--policy.vision_backbone_stages=3`).
@@ -103,6 +105,36 @@ def training_step_time(size: int, batch_size: int, steps: int, warmup: int) -> d
     return {"median_ms": medians, "ratio": {k: v / medians["diffusion"] for k, v in medians.items()}}
 
 
+def render_sizes(sizes: list[int], batch_size: int, steps: int, warmup: int) -> dict:
+    """Why the tasks render 64 x 64: what each size costs per env step and per training step."""
+    import gymnasium as gym
+    import numpy as np
+
+    from lerobot_ccdp.envs import gym_id
+
+    results = {}
+    for size in sizes:
+        env = gym.make(gym_id(TASK), obs_type="pixels_agent_pos", observation_width=size, observation_height=size)
+        env.reset(seed=0)
+        action = np.zeros(env.action_space.shape, dtype=np.float32)
+        step_ms = interleaved_medians({"env": lambda e=env: e.step(action)}, 50, 5)["env"]
+        env.close()
+        torch.manual_seed(0)
+        policy = make_ccdp(size, history_length=0, vision_backbone_stages=3).train()
+        batch = {STATE: torch.rand(batch_size, 1, 4), CAMERA: torch.rand(batch_size, 1, 3, size, size),
+                 ACTION: torch.rand(batch_size, policy.config.horizon, 4),
+                 "action_is_pad": torch.zeros(batch_size, policy.config.horizon, dtype=torch.bool)}
+        optimizer = torch.optim.Adam(list(policy.get_optim_params()), lr=1e-4)
+
+        def train_step(p=policy, b=batch, o=optimizer):
+            o.zero_grad(set_to_none=True)
+            p.forward(b)[0].backward()
+            o.step()
+        results[size] = {"env_step_ms": step_ms,
+                         "train_step_ms": interleaved_medians({"train": train_step}, steps, warmup)["train"]}
+    return results
+
+
 def lerobot_train_runs(root: Path, work: Path, steps: int, batch_size: int) -> dict:
     common = [f"--dataset.repo_id={REPO_ID}", f"--dataset.root={root}", "--dataset.video_backend=pyav",
               f"--steps={steps}", f"--batch_size={batch_size}", "--policy.push_to_hub=false", "--num_workers=0",
@@ -135,6 +167,9 @@ def table(results: dict) -> str:
     for name, ms in train["median_ms"].items():
         lines.append(f"| train step fwd+bwd+Adam (ms, median) | {name} | {ms:.0f} | {train['ratio'][name]:.2f}x | "
                      f"{'<= %s' % TRAIN_TARGET if name.startswith('ccdp') else ''} |")
+    for size, r in results.get("render_sizes", {}).items():
+        lines.append(f"| render size {size}x{size} | env step with camera / ccdp train step (3 stages) (ms) | "
+                     f"{r['env_step_ms']:.1f} / {r['train_step_ms']:.0f} | | |")
     for name, r in results.get("lerobot_train", {}).items():
         lines.append(f"| lerobot-train s/step (update + data) | {name} | {1 / r['steps_per_s']:.3f} "
                      f"({100 * r['data_s'] * r['steps_per_s']:.0f}% data) | {r['ratio_step_time']:.2f}x | |")
@@ -152,6 +187,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--cli-steps", type=int, default=40)
     parser.add_argument("--cli-episodes", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true")
+    parser.add_argument("--sizes", type=int, nargs="*", default=[48, 64, 96], help="render sizes for (c); none skips")
     parser.add_argument("--work", type=Path, default=Path("outputs/bench_cameras"))
     parser.add_argument("--out", type=Path, default=Path("outputs/bench_cameras.json"))
     args = parser.parse_args(argv)
@@ -162,6 +198,9 @@ def main(argv: list[str] | None = None) -> dict:
     results["latency"] = planning_latency(args.size, args.repeats, args.warmup)
     print("(b) training step ...", flush=True)
     results["train_step"] = training_step_time(args.size, args.batch_size, args.train_steps, args.warmup)
+    if args.sizes:
+        print("(c) render sizes ...", flush=True)
+        results["render_sizes"] = render_sizes(args.sizes, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:
         from lerobot_ccdp.recipes.recipe_file import RecordRecipe
         from lerobot_ccdp.recipes.record import record_dataset
