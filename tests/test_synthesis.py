@@ -194,10 +194,29 @@ def test_refuses_a_demo_dataset_without_the_named_feature(reaching_root, tmp_pat
     ({"delta_x": -1.0}, "delta_x"),
     ({"outcome_radius": -0.1}, "outcome_radius"),
     ({"sigmaa": 0.1}, "unknown field"),
+    ({"sigma": "0.02"}, r"recovery.sigma must be float, got '0.02'"),
+    ({"chunks_per_state": 2.5}, "recovery.chunks_per_state must be int, got 2.5"),
 ])
 def test_recipe_validation(change, message):
     with pytest.raises(ValueError, match=message):
         RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **change})
+
+
+def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
+    """A wrong --out-root or --root is named at once, not after minutes of loading and sampling."""
+    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL})
+    missing_checkpoint = tmp_path / "no_such_checkpoint"
+    (tmp_path / "out").mkdir()
+    with pytest.raises(FileExistsError, match="out.*already exists"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, missing_checkpoint, "local/r",
+                                    tmp_path / "out", progress=False)
+    with pytest.raises(ValueError, match="only replaces a LeRobot dataset"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, missing_checkpoint, "local/r",
+                                    tmp_path / "out", overwrite=True, progress=False)
+    with pytest.raises(FileNotFoundError, match=f"No LeRobot dataset at --root {tmp_path / 'demos'}"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, tmp_path / "demos", missing_checkpoint, "local/r",
+                                    tmp_path / "new", progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
 def test_every_task_recipe_has_a_valid_recovery_section():

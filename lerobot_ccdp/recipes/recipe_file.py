@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
+import types
+import typing
 from typing import Any
 
 import yaml
@@ -25,7 +27,10 @@ def read_recipe_section(path: str | Path, section: str) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"Recipe file not found: {path}")
-    content = yaml.safe_load(path.read_text())
+    try:
+        content = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ValueError(f"Recipe {path} is not valid YAML: {error}") from None
     if not isinstance(content, dict) or section not in content:
         raise ValueError(f"Recipe {path} has no top-level `{section}:` section")
     if not isinstance(content[section], dict):
@@ -135,4 +140,33 @@ def _build(cls: type, values: dict[str, Any], section: str, source: str):
     missing = [n for n in required if n not in values]
     if missing:
         raise ValueError(f"{source}: `{section}:` is missing required field(s): {', '.join(missing)}")
+    hints = typing.get_type_hints(cls)
+    for name, value in values.items():
+        if not _has_type(value, hints[name]):
+            raise ValueError(f"{source}: {section}.{name} must be {_type_name(hints[name])}, got {value!r} "
+                             f"({type(value).__name__}); write it without quotes or decimals where a number is meant")
     return cls(**values)
+
+
+def _has_type(value: Any, hint: Any) -> bool:
+    """Whether a YAML value fits a recipe field's annotation (bools are not numbers, ints are floats)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_has_type(value, arg) for arg in args)
+    if hint is type(None):
+        return value is None
+    if hint is Any:
+        return True
+    if isinstance(value, bool):
+        return hint is bool
+    if hint is float:
+        return isinstance(value, int | float)
+    if origin is list:
+        return isinstance(value, list) and all(_has_type(v, args[0]) for v in value)
+    if origin is dict:
+        return isinstance(value, dict)
+    return isinstance(value, hint)
+
+
+def _type_name(hint: Any) -> str:
+    return str(hint).replace("typing.", "") if typing.get_origin(hint) else hint.__name__

@@ -52,7 +52,7 @@ from lerobot_ccdp.outcome_table import read_columns
 from lerobot_ccdp.processor_ccdp import normalize_batch, unnormalize_batch
 from lerobot_ccdp.recipes.camera_windows import camera_windows
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
-from lerobot_ccdp.recipes.staging import staged_dataset_root
+from lerobot_ccdp.recipes.staging import check_replaceable, staged_dataset_root
 from lerobot_ccdp.recovery_pairs import pick_pairs, recovery_pair_mask
 
 logger = logging.getLogger(__name__)
@@ -202,6 +202,10 @@ def synthesize_recovery_dataset(
 ) -> Path:
     """Write the recovery dataset of `recipe` at `out_root` (atomically) and return `out_root`."""
     started = time.perf_counter()
+    check_replaceable(out_root, overwrite)  # before minutes of loading and sampling, not after
+    if not (Path(demo_root) / "meta" / "info.json").is_file():
+        raise FileNotFoundError(f"No LeRobot dataset at --root {demo_root} (no meta/info.json): record the demos "
+                                "there first (lerobot-ccdp-record) or fix the path.")
     policy, stats = load_checkpoint(policy_path)
     config = policy.config
     check_recipe_matches(recipe, config, recipe_source)

@@ -92,3 +92,44 @@ def test_recipe_ignores_other_sections_and_names_problems(tmp_path):
         RecordRecipe.load(_write(tmp_path, {"recovery": {}}))
     with pytest.raises(ValueError, match="n_episodes must be a positive integer"):
         recipe.with_episodes(0)
+
+
+@pytest.mark.parametrize("field, value, expected", [
+    ("seed", "zero", "record.seed must be int, got 'zero'"),
+    ("n_episodes", True, "record.n_episodes must be int, got True"),
+    ("fps", "10", "record.fps must be int, got '10'"),
+    ("max_episode_steps", 2.5, r"record.max_episode_steps must be int \| None"),
+])
+def test_recipe_fields_of_the_wrong_type_are_named(tmp_path, field, value, expected):
+    content = {"task": "Bartender-v0", "n_episodes": 4, "seed": 0, field: value}
+    with pytest.raises(ValueError, match=expected):
+        RecordRecipe.load(_write(tmp_path, {"record": content}))
+
+
+def test_recipe_yaml_errors_name_the_file(tmp_path):
+    path = tmp_path / "broken.yaml"
+    path.write_text("record:\n  task: [DoorOpening-v0\n")
+    with pytest.raises(ValueError, match=f"Recipe {path} is not valid YAML"):
+        RecordRecipe.load(path)
+
+
+def test_overwrite_replaces_only_a_dataset(tmp_path, monkeypatch):
+    recipe = RecordRecipe(task="DoorOpening-v0", n_episodes=1, seed=0)
+    notes = tmp_path / "mydir" / "notes.txt"
+    notes.parent.mkdir()
+    notes.write_text("keep me")
+    with pytest.raises(ValueError, match=r"only replaces a LeRobot dataset .*nothing was deleted"):
+        record.record_dataset(recipe, "local/x", notes.parent, overwrite=True, progress=False)
+    monkeypatch.chdir(notes.parent)
+    for root in (Path("."), tmp_path):  # the working directory, and a folder holding it
+        with pytest.raises(ValueError, match="holds the working directory"):
+            record.record_dataset(recipe, "local/x", root, overwrite=True, progress=False)
+    assert notes.read_text() == "keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["mydir"]
+
+
+def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(tmp_path):
+    root = tmp_path / "ds"
+    stale = tmp_path / f".ds.{2**22 + 7}.abc.partial"  # a pid above Linux's pid_max: no such process
+    (stale / "dataset").mkdir(parents=True)
+    record.record_dataset(RecordRecipe(task="DoorOpening-v0", n_episodes=1, seed=0), "local/x", root, progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
