@@ -31,7 +31,8 @@ from typing import Any
 import gymnasium as gym
 import torch
 
-from lerobot_ccdp.comparison import Episodes, MethodMetrics, Results, bar_chart, markdown_table, target_checks
+from lerobot_ccdp.comparison import Episodes, MethodMetrics, Results, bar_chart, markdown_table
+from lerobot_ccdp.targets import target_checks
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 
@@ -211,13 +212,16 @@ def machine() -> str:
             f"({torch.get_num_threads()} threads), Python {platform.python_version()}")
 
 
-def write_report(runs: list[TaskRun], results: Results, out: Path, command: str, chart: bool) -> str:
+def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], out: Path, command: str,
+                 chart: bool) -> str:
+    results: Results = {task: {m: MethodMetrics.of(e) for m, e in methods.items()} for task, methods in episodes.items()}
     parts = [
         "# CCDP vs DP vs DP* (paper Fig. 5)",
         f"Command: `{command}`  \nMachine: {machine()}",
         markdown_table(results),
         "## Targets",
-        target_checks(results),
+        "Judged from paired 95% intervals (same seeds for every method): `docs/evaluation.md`.",
+        target_checks(episodes),
         "## Time per stage (s)",
         time_breakdown(runs),
     ]
@@ -251,18 +255,17 @@ def main(argv: list[str] | None = None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
 
     start = time.perf_counter()
-    runs, results = [], {}
+    runs, episodes = [], {}
     try:
         for f in files:
             run = TaskRun(f)
-            episodes = run.run(args.methods)
+            episodes[f.task] = run.run(args.methods)
             runs.append(run)
-            results[f.task] = {m: MethodMetrics.of(e) for m, e in episodes.items()}
-            print(markdown_table({f.task: results[f.task]}), flush=True)
+            print(markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}), flush=True)
     except PipelineError as error:
         sys.exit(str(error))
     command = "python -m lerobot_ccdp.pipeline " + shlex.join(argv if argv is not None else sys.argv[1:])
-    print(write_report(runs, results, args.out, command, chart=not args.no_chart))
+    print(write_report(runs, episodes, args.out, command, chart=not args.no_chart))
     print(f"Report: {args.out / 'report.md'}; total {time.perf_counter() - start:.0f} s")
 
 

@@ -212,7 +212,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             if int(forced) not in self.hidden_values():
                 raise ValueError(f"{self.name}: hidden_param {forced} not in {self.hidden_values()}")
             self.hidden_param = int(forced)
-        self._attempts = self._failures = self._repeated_failures = 0
+        self._attempts = self._failures = self._repeated_failures = self._attempts_after_failure = 0
         self._failed_options: set[int] = set()
         self._last_option = -1
         self._matched = True
@@ -232,6 +232,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         outcome = self._update_task()
         if outcome is not None:
             self._attempts += 1
+            self._attempts_after_failure += int(self._failures > 0)  # a chance to repeat a failed option
             self._last_option = outcome.option
             if outcome.kind is OutcomeKind.FAILURE:
                 failure = True
@@ -293,6 +294,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             "attempts": self._attempts,
             "failures": self._failures,
             "repeated_failures": self._repeated_failures,
+            "attempts_after_failure": self._attempts_after_failure,
             "preference_matched": self._success and self._matched,
             "option": self._last_option,
         }

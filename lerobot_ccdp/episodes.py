@@ -1,0 +1,78 @@
+"""Per-episode outcomes of an evaluation, and an estimate with its interval: what the statistics work on."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A point estimate with its 95% interval; `n` is the number of units it is computed over."""
+
+    value: float
+    low: float
+    high: float
+    n: int
+
+    def __str__(self) -> str:
+        if np.isnan(self.value):
+            return "n/a"
+        return f"{self.value:.2f} [{self.low:.2f}, {self.high:.2f}]"
+
+
+@dataclass(frozen=True)
+class Episodes:
+    """Per-episode outcomes of one method on one task."""
+
+    success: np.ndarray
+    attempts: np.ndarray
+    repeated_failures: np.ndarray
+    preference_matched: np.ndarray
+    attempts_after_failure: np.ndarray  # NaN where the run predates the metric
+
+    @classmethod
+    def from_infos(cls, infos: list[Mapping[str, Any]]) -> Episodes:
+        """From final env infos (as the envs report them: `is_success`, `attempts`, ...)."""
+        return cls(
+            success=np.array([bool(i["is_success"]) for i in infos]),
+            attempts=np.array([int(i["attempts"]) for i in infos]),
+            repeated_failures=np.array([int(i["repeated_failures"]) for i in infos]),
+            preference_matched=np.array([bool(i["preference_matched"]) for i in infos]),
+            attempts_after_failure=np.array([float(i.get("attempts_after_failure", np.nan)) for i in infos]),
+        )
+
+    @classmethod
+    def from_eval_info(cls, path: str | Path) -> Episodes:
+        """From the eval_info.json lerobot-eval writes (per-episode lists added by `lerobot_ccdp.eval_metrics`)."""
+        info = json.loads(Path(path).read_text())
+        tasks = info.get("per_task", [])
+        if len(tasks) != 1:
+            raise ValueError(f"{path}: expected one evaluated task, found {len(tasks)}")
+        metrics = tasks[0]["metrics"]
+        missing = [k for k in ("attempts", "repeated_failures", "preference_matched") if k not in metrics]
+        if missing:
+            raise ValueError(
+                f"{path} has no per-episode {missing}: it was not written by lerobot-eval with lerobot_ccdp "
+                "installed, or the env does not report them."
+            )
+        return cls(
+            success=np.asarray(metrics["successes"], dtype=bool),
+            attempts=np.asarray(metrics["attempts"], dtype=int),
+            repeated_failures=np.asarray(metrics["repeated_failures"], dtype=int),
+            preference_matched=np.asarray(metrics["preference_matched"], dtype=bool),
+            attempts_after_failure=np.asarray(
+                metrics.get("attempts_after_failure", [np.nan] * len(metrics["successes"])), dtype=float),
+        )
+
+    def subset(self, mask: np.ndarray) -> Episodes:
+        """The episodes where `mask` is true, in order (for paired comparisons on a common subset)."""
+        return Episodes(**{name: value[mask] for name, value in vars(self).items()})
+
+    def __len__(self) -> int:
+        return len(self.success)
