@@ -31,10 +31,17 @@ from typing import Any
 import gymnasium as gym
 import torch
 
-from lerobot_ccdp.comparison import Episodes, MethodMetrics, Results, bar_chart, markdown_table
-from lerobot_ccdp.targets import target_checks
+from lerobot_ccdp.comparison import (
+    Episodes,
+    MethodMetrics,
+    Results,
+    bar_chart,
+    markdown_table,
+)
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
+from lerobot_ccdp.stage_stamps import StampBook, stamp
+from lerobot_ccdp.targets import target_checks
 
 METHODS = ("dp", "dp_star", "ccdp")
 # Observation type -> suffix of the settings folder and recipe that hold its configs.
@@ -43,6 +50,8 @@ BIN = Path(sys.executable).parent
 CHECKPOINT = Path("checkpoints/last/pretrained_model")
 # lerobot-train's periodic log line: seconds per step spent updating and waiting for data.
 STEP_TIMES = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
+# A tqdm bar's state: description, percentage, count and timing, without the bar itself.
+PROGRESS = re.compile(r"([A-Za-z][\w ()=.-]*:\s+\d+%)\|[^|]*\|\s*(\d+/\d+ \[[^\]]*\])")
 
 
 class PipelineError(RuntimeError):
@@ -107,64 +116,76 @@ class TaskRun:
         self.slug = files.out.name
         self.logs = files.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
+        self.stamps = StampBook(files.out / "stamps.json")
         timings_path = files.out / "timings.json"
         self.timings: dict[str, float] = json.loads(timings_path.read_text()) if timings_path.exists() else {}
 
     def run(self, methods: list[str]) -> dict[str, Episodes]:
         f = self.files
-        self._stage("record", f.demos / "meta" / "info.json", [
-            "lerobot-ccdp-record", str(f.recipe), f"--repo-id=local/{self.slug}", f"--root={f.demos}"])
-        base = self._train("train_base", f.train_base, f.out / "base", f"local/{self.slug}", f.demos)
-        self._stage("synthesize", f.recovery_data / "meta" / "info.json", [
+        demos = self._stage("record", f.demos / "meta" / "info.json", [
+            "lerobot-ccdp-record", str(f.recipe), f"--repo-id=local/{self.slug}", f"--root={f.demos}"],
+            upstream=None, clear=f.demos)
+        base, base_stamp = self._train("train_base", f.train_base, f.out / "base", f"local/{self.slug}", f.demos,
+                                       upstream=demos)
+        recovery_data = self._stage("synthesize", f.recovery_data / "meta" / "info.json", [
             "lerobot-ccdp-synthesize", str(f.recipe), f"--repo-id=local/{self.slug}", f"--root={f.demos}",
-            f"--policy-path={base}", f"--out-repo-id=local/{self.slug}_recovery", f"--out-root={f.recovery_data}"])
-        recovery = self._train("train_recovery", f.train_recovery, f.out / "recovery", f"local/{self.slug}_recovery",
-                               f.recovery_data, f"--policy.path={base}", "--policy.training_stage=recovery")
+            f"--policy-path={base}", f"--out-repo-id=local/{self.slug}_recovery", f"--out-root={f.recovery_data}"],
+            upstream=base_stamp, clear=f.recovery_data)
+        recovery, recovery_stamp = self._train(
+            "train_recovery", f.train_recovery, f.out / "recovery", f"local/{self.slug}_recovery", f.recovery_data,
+            f"--policy.path={base}", "--policy.training_stage=recovery", upstream=recovery_data)
         episodes = {}
         for method in methods:
             out = f.eval_dir(method)
             self._stage(f"eval_{method}", out / "eval_info.json", [
                 "lerobot-eval", f"--config_path={f.eval}", f"--policy.path={recovery}",
-                f"--policy.recovery_mode={method}", f"--output_dir={out}"], clear=out)
+                f"--policy.recovery_mode={method}", f"--output_dir={out}"], upstream=recovery_stamp, clear=out)
             episodes[method] = Episodes.from_eval_info(out / "eval_info.json")
         episodes["oracle"] = self._oracle()
         return episodes
 
-    def _train(self, stage: str, config: Path, out: Path, repo_id: str, root: Path, *extra: str) -> Path:
+    def _train(self, stage: str, config: Path, out: Path, repo_id: str, root: Path, *extra: str,
+               upstream: str) -> tuple[Path, str]:
         checkpoint = out / CHECKPOINT
-        self._stage(stage, checkpoint / "model.safetensors", [
+        stamp_value = self._stage(stage, checkpoint / "model.safetensors", [
             "lerobot-train", f"--config_path={config}", f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
-            f"--output_dir={out}", *extra], clear=out)
-        return checkpoint
+            f"--output_dir={out}", *extra], upstream=upstream, clear=out)
+        return checkpoint, stamp_value
 
-    def _stage(self, name: str, output: Path, command: list[str], clear: Path | None = None) -> None:
-        """Run `command` unless `output` exists; `clear` (a half-written run folder) is removed first."""
-        if output.exists():
+    def _stage(self, name: str, output: Path, command: list[str], upstream: str | None, clear: Path) -> str:
+        """Run `command` unless `output` exists and was made from the same inputs; return the stage's stamp.
+
+        `clear` (the stage's own output folder, stale or half-written) is removed before the command runs."""
+        current = stamp(command, upstream)
+        if output.exists() and self.stamps.matches(name, current):
             print(f"[{self.files.task}] {name}: done already ({output})", flush=True)
-            return
-        if clear is not None and clear.exists():
+            return current
+        if output.exists():
+            print(f"[{self.files.task}] {name}: its inputs changed since {output} was made; running it again",
+                  flush=True)
+        if clear.exists():
             shutil.rmtree(clear)
         log = self.logs / f"{name}.log"
         print(f"[{self.files.task}] {name}: {shlex.join(command)}", flush=True)
         start = time.perf_counter()
-        env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-        with log.open("w") as handle:
-            result = subprocess.run([str(BIN / command[0]), *command[1:]], stdout=handle, stderr=subprocess.STDOUT,
-                                    env=env)
-        if result.returncode != 0 or not output.exists():
+        returncode = run_with_progress([str(BIN / command[0]), *command[1:]], log, f"[{self.files.task}] {name}")
+        if returncode != 0 or not output.exists():
             tail = log.read_text()[-4000:]
-            raise PipelineError(f"{self.files.task} {name} failed (exit {result.returncode}, expected {output}): "
+            raise PipelineError(f"{self.files.task} {name} failed (exit {returncode}, expected {output}): "
                                 f"{shlex.join(command)}\n--- end of {log} ---\n{tail}")
         self.timings[name] = round(time.perf_counter() - start, 1)
         (self.files.out / "timings.json").write_text(json.dumps(self.timings, indent=2))
+        self.stamps.record(name, current)
         print(f"[{self.files.task}] {name}: {self.timings[name]:.0f} s", flush=True)
+        return current
 
     def _oracle(self) -> Episodes:
         """The no-repeat oracle on lerobot-eval's seeds (episode i gets seed `seed + i`) and env settings.
 
         It reads the hidden state, never the observation, so cameras are not rendered for it."""
         path = self.files.out / "oracle.json"
-        if not path.exists():
+        current = stamp(["oracle", str(self.files.eval)], upstream=None)
+        if not (path.exists() and self.stamps.matches("oracle", current)):
             config = self.files.eval_config()
             env_settings = {k: v for k, v in config["env"].items() if k != "type"}
             env_config = CCDPEnvConfig(**{**env_settings, "obs_type": "state"})
@@ -173,6 +194,7 @@ class TaskRun:
             seed = config.get("seed", 1000)
             infos = [run_episode(env, oracle, seed=seed + i).info for i in range(config["eval"]["n_episodes"])]
             path.write_text(json.dumps([{k: _plain(v) for k, v in i.items()} for i in infos]))
+            self.stamps.record("oracle", current)
         return Episodes.from_infos(json.loads(path.read_text()))
 
     def step_times(self) -> dict[str, tuple[float, float]]:
@@ -184,6 +206,35 @@ class TaskRun:
             if found:
                 times[stage] = tuple(float(v) for v in found[-1])
         return times
+
+
+def run_with_progress(command: list[str], log: Path, label: str, every: float = 15.0) -> int:
+    """Run `command` with its output in `log`, printing its latest progress-bar state every `every` seconds
+    (a training stage is otherwise silent on the console for minutes); return its exit code."""
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    with log.open("w") as handle:
+        process = subprocess.Popen(command, stdout=handle, stderr=subprocess.STDOUT, env=env)
+        shown = ""
+        while True:
+            try:
+                return process.wait(timeout=every)
+            except subprocess.TimeoutExpired:
+                progress = latest_progress(log)
+                if progress and progress != shown:
+                    print(f"{label}: {progress}", flush=True)
+                    shown = progress
+            except BaseException:
+                process.kill()  # an interrupted pipeline leaves no training running into its folder
+                raise
+
+
+def latest_progress(log: Path) -> str:
+    """The last tqdm state in a log (`Training:  45%|...| 360/800 [02:10<02:39, 2.76step/s]`), compacted."""
+    with log.open("rb") as handle:
+        handle.seek(max(log.stat().st_size - 4096, 0))
+        tail = handle.read().decode(errors="replace")
+    found = PROGRESS.findall(tail)
+    return " ".join(" ".join(found[-1]).split()) if found else ""
 
 
 def _plain(value: Any) -> Any:

@@ -17,8 +17,9 @@ from lerobot.utils.constants import OBS_IMAGES
 from lerobot_ccdp.comparison import Episodes
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.pipeline import CHECKPOINT, TaskFiles, main, task_slug
+from lerobot_ccdp.pipeline import CHECKPOINT, TaskFiles, latest_progress, main, task_slug
 from lerobot_ccdp.recipes.camera_windows import video_backend
+from lerobot_ccdp.stage_stamps import stamp
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "DoorOpening-v0"
@@ -126,6 +127,41 @@ def test_a_second_run_resumes_every_stage(settings, pipeline_run):
     stdout = _run_pipeline(*settings, out)
     assert stdout.count("done already") == 4 + len(METHODS)
     assert (out / "summary.json").read_text() == summary
+
+
+def test_a_changed_config_reruns_its_stage_and_those_after_it(settings, pipeline_run):
+    out, _ = pipeline_run
+    configs, _ = settings
+    recovery_config = configs / SLUG / "train_recovery.json"
+    _shrink_json(recovery_config, recovery_config, {"steps": 12, "save_freq": 12})
+    base_weights = (out / SLUG / "base" / CHECKPOINT / "model.safetensors").read_bytes()
+    stdout = _run_pipeline(configs, settings[1], out)
+    assert stdout.count("done already") == 3  # record, base, synthesis
+    assert stdout.count("its inputs changed") == 1 + len(METHODS)  # the recovery stage and every evaluation
+    assert (out / SLUG / "base" / CHECKPOINT / "model.safetensors").read_bytes() == base_weights
+    step = json.loads((out / SLUG / "recovery" / "checkpoints" / "last" / "training_state" / "training_step.json")
+                      .read_text())
+    assert step["step"] == 12
+
+
+def test_stamps_follow_settings_files_and_upstream_stages(tmp_path):
+    config = tmp_path / "train.json"
+    config.write_text('{"steps": 10}')
+    command = ["lerobot-train", f"--config_path={config}", "--output_dir=x"]
+    first = stamp(command, upstream="a")
+    assert stamp(command, upstream="a") == first
+    assert stamp(command, upstream="b") != first  # a rerun upstream stage reruns this one
+    config.write_text('{"steps": 11}')
+    assert stamp(command, upstream="a") != first  # so does an edited config
+
+
+def test_console_progress_is_the_latest_bar_state_of_the_log(tmp_path):
+    log = tmp_path / "train.log"
+    log.write_text("INFO start\rTraining:  10%|█         | 80/800 [00:30<04:30,  2.66step/s]"
+                   "\rTraining:  11%|█▏        | 88/800 [00:33<04:27,  2.66step/s]\nINFO step:88 loss:0.1")
+    assert latest_progress(log) == "Training: 11% 88/800 [00:33<04:27, 2.66step/s]"
+    log.write_text("no bar yet")
+    assert latest_progress(log) == ""
 
 
 def test_bad_task_and_missing_settings_are_named(settings, tmp_path):
