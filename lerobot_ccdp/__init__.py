@@ -6,6 +6,6 @@ from lerobot_ccdp.eval_metrics import install_episode_metrics
 from lerobot_ccdp.failure_passthrough import install_failure_passthrough
 
 install_failure_passthrough()
-install_episode_metrics()
+install_episode_metrics(import_eval=False)
 
 __all__ = ["CCDPConfig"]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import sys
 from typing import Any
 
 import gymnasium as gym
@@ -102,8 +103,25 @@ def summary(metrics: dict[str, list]) -> str:
     )
 
 
-def install_episode_metrics() -> None:
-    """Wrap lerobot_eval.eval_one once (run_one looks it up at call time)."""
+def is_ccdp_env(env: gym.vector.VectorEnv) -> bool:
+    """Whether a vector env runs this package's tasks (other envs are left to LeRobot untouched)."""
+    from lerobot_ccdp.envs.tasks import GYM_NAMESPACE
+
+    try:
+        specs = env.get_attr("spec")
+    except AttributeError:
+        return False
+    return bool(specs) and all(spec is not None and spec.id.startswith(f"{GYM_NAMESPACE}/") for spec in specs)
+
+
+def install_episode_metrics(import_eval: bool = True) -> None:
+    """Wrap lerobot_eval.eval_one once (run_one looks it up at call time).
+
+    On plugin import (`import_eval=False`) only where lerobot_eval is already loaded (the lerobot-eval and
+    lerobot-train CLIs import it before plugins), so other CLIs never load it; a `ccdp` env config installs it
+    too, for evaluations started from Python."""
+    if not import_eval and "lerobot.scripts.lerobot_eval" not in sys.modules:
+        return
     import lerobot.scripts.lerobot_eval as lerobot_eval
 
     original = lerobot_eval.eval_one
@@ -112,6 +130,8 @@ def install_episode_metrics() -> None:
 
     @functools.wraps(original)
     def eval_one_with_episode_metrics(env: gym.vector.VectorEnv, **kwargs):
+        if not is_ccdp_env(env):
+            return original(env, **kwargs)
         if getattr(env, "render_mode", None) is None:
             kwargs["max_episodes_rendered"] = 0
         recorder = EpisodeInfoRecorder(env)

@@ -1,17 +1,16 @@
-"""Backport for LeRobot < 0.5: pass the env's `failure` key through to the policy as `observation.failure`.
+"""Pass the env's `failure` key through to the policy as `observation.failure` where LeRobot drops it.
 
-LeRobot >= 0.5 passes unknown env observation keys through; 0.4.x's `preprocess_observation` keeps only the
-keys it knows, so the policy would never see a failure during `lerobot-eval` or lerobot-train's periodic
-eval. Remove this module once the floor is lerobot 0.5.
+LeRobot's `preprocess_observation` (0.4.x and 0.5.x) keeps only the keys it knows, so the policy would never
+see a failure during `lerobot-eval` or lerobot-train's periodic eval. Whether the installed LeRobot drops it is
+detected by calling it, not read from its version number, so the wrapper disappears by itself on a LeRobot
+that passes the key through as `observation.failure`.
 """
 
 import functools
-import importlib.metadata
 import sys
 
 import numpy as np
 import torch
-from packaging.version import Version
 
 from lerobot_ccdp.configuration_ccdp import FAILURE_FLAG_KEY
 
@@ -19,18 +18,21 @@ ENV_FAILURE_KEY = "failure"
 
 
 def needs_backport() -> bool:
-    return Version(importlib.metadata.version("lerobot")) < Version("0.5")
+    """Whether LeRobot's preprocess_observation loses an env's `failure` key (probed with a tiny observation)."""
+    from lerobot.envs.utils import preprocess_observation
+
+    probe = {"agent_pos": np.zeros((1, 2), np.float32), ENV_FAILURE_KEY: np.ones((1, 1), np.float32)}
+    return FAILURE_FLAG_KEY not in preprocess_observation(probe)
 
 
 def install_failure_passthrough() -> None:
-    """Wrap lerobot.envs.utils.preprocess_observation, in every module that imported it, once."""
-    if not needs_backport():
-        return
+    """Wrap lerobot.envs.utils.preprocess_observation, and every already-imported binding of it, once.
+
+    Modules that import it later (lerobot_eval, on a lerobot-eval run) bind the wrapped function."""
     import lerobot.envs.utils as env_utils
-    import lerobot.scripts.lerobot_eval  # noqa: F401  (binds the name we must replace)
 
     original = env_utils.preprocess_observation
-    if getattr(original, "_ccdp_failure_passthrough", False):
+    if getattr(original, "_ccdp_failure_passthrough", False) or not needs_backport():
         return
 
     @functools.wraps(original)

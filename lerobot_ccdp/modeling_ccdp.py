@@ -56,6 +56,8 @@ class CCDPPolicy(PreTrainedPolicy):
         )
         self.feature = FailureFeature(config)
         self.weights = CompositionWeights(config.w_s, config.w_h, config.w_z, config.z_reference)
+        if dataset_stats is not None and config.training_stage == "base":
+            _refuse_non_finite_stats(config, dataset_stats)
         if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
         self._set_trainable()
@@ -340,8 +342,9 @@ class CCDPPolicy(PreTrainedPolicy):
             expected = cfg.input_features[key].shape[0]
             if value.shape[-1] != expected:
                 raise ValueError(f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}.")
-            if torch.isnan(value).any():
-                raise ValueError(f"{key!r} contains NaN; fix the dataset or env observation before calling the policy.")
+            if not torch.isfinite(value).all():
+                raise ValueError(f"{key!r} contains NaN or inf; fix the dataset or env observation before calling the "
+                                 "policy (a non-finite input would make that row's actions NaN).")
             parts.append(value)
         if self.images is not None:
             parts.append(self.images([self._camera(batch, key, parts[0].shape[:-1]) for key in self.images.keys]))
@@ -386,3 +389,13 @@ class CCDPPolicy(PreTrainedPolicy):
                 "new base stage on this dataset (--policy.type=ccdp, no --policy.path); to train without them, use a "
                 "dataset without those cameras."
             )
+
+
+def _refuse_non_finite_stats(config: CCDPConfig, stats: dict) -> None:
+    """NaN or inf in a dataset column makes its stats non-finite, and training would run to a NaN checkpoint
+    (LeRobot trains on, logging loss:nan): stop before the first step, naming the column."""
+    for key in [*config.input_features, *config.output_features]:
+        for name, value in stats.get(key, {}).items():
+            if not torch.isfinite(torch.as_tensor(value, dtype=torch.float64)).all():
+                raise ValueError(f"The dataset's {name} of {key!r} is not finite: the dataset holds NaN or inf in "
+                                 f"{key!r}. Remove or re-record those frames, then recompute its stats.")

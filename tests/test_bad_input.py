@@ -69,3 +69,17 @@ def test_recovery_batch_with_wrong_failure_feature_is_reported():
         policy.forward(batch)
     with pytest.raises(ValueError, match="lerobot-ccdp-synthesize"):
         policy.forward({"action": torch.zeros(4, 16, 2)})
+
+
+def test_inf_in_an_observation_is_refused_before_it_reaches_the_actions():
+    policy = make_policy()
+    with pytest.raises(ValueError, match="'observation.state' contains NaN or inf"):
+        policy.select_action({"observation.state": torch.tensor([[0.0, float("inf")]])})
+
+
+def test_a_dataset_with_nan_actions_is_refused_before_training():
+    config = make_policy().config
+    stats = {"observation.state": {"mean": torch.zeros(2), "std": torch.ones(2)},
+             "action": {"mean": torch.tensor([0.0, float("nan")]), "std": torch.ones(2)}}
+    with pytest.raises(ValueError, match=r"mean of 'action' is not finite.*NaN or inf in 'action'"):
+        CCDPPolicy(config, dataset_stats=stats)

@@ -61,3 +61,32 @@ def test_rollout_delivers_failures_to_the_policy(checkpoint):
     assert flags.shape == (20, 2)
     assert torch.nonzero(flags[:, 0]).flatten().tolist() == list(FAIL_AT)
     assert policy.failure_count().tolist() == [2, 2]
+
+
+def _keeping(observations):
+    """A LeRobot whose preprocess_observation passes the failure key through itself (as 0.6 is expected to)."""
+    return {"observation.state": torch.zeros(1, 2), "observation.failure": torch.ones(1, 1)}
+
+
+def _dropping(observations):
+    """A LeRobot whose preprocess_observation keeps only the keys it knows (0.4.x, 0.5.x)."""
+    return {"observation.state": torch.zeros(1, 2)}
+
+
+def test_the_passthrough_installs_only_where_lerobot_drops_the_key(monkeypatch):
+    import lerobot.envs.utils as env_utils
+
+    from lerobot_ccdp import failure_passthrough
+
+    monkeypatch.setattr(env_utils, "preprocess_observation", _keeping)
+    assert not failure_passthrough.needs_backport()
+    failure_passthrough.install_failure_passthrough()
+    assert env_utils.preprocess_observation is _keeping
+
+    monkeypatch.setattr(env_utils, "preprocess_observation", _dropping)
+    assert failure_passthrough.needs_backport()
+    failure_passthrough.install_failure_passthrough()
+    wrapped = env_utils.preprocess_observation
+    assert wrapped is not _dropping and not failure_passthrough.needs_backport()
+    out = wrapped({"agent_pos": np.zeros((1, 2), np.float32), "failure": np.ones((1, 1), np.float32)})
+    assert out["observation.failure"].tolist() == [[1.0]]

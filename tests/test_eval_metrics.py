@@ -1,5 +1,8 @@
 """lerobot-eval's episode order and the env's final info: what eval_metrics adds to eval_info.json."""
 
+import subprocess
+import sys
+
 import gymnasium as gym
 import numpy as np
 from lerobot.envs.factory import make_env
@@ -7,7 +10,7 @@ from lerobot.scripts import lerobot_eval
 
 from lerobot_ccdp.envs import CCDPEnvConfig, gym_id
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
-from lerobot_ccdp.eval_metrics import EPISODE_INFO_KEYS, EpisodeInfoRecorder
+from lerobot_ccdp.eval_metrics import EPISODE_INFO_KEYS, EpisodeInfoRecorder, is_ccdp_env
 
 TASK = "ButtonSearch-v0"
 
@@ -45,5 +48,19 @@ def test_recorder_keeps_every_episodes_final_info_in_eval_order():
     vec.close()
 
 
-def test_eval_one_is_wrapped_on_plugin_import():
+def test_eval_one_is_wrapped_once_a_ccdp_env_is_configured():
+    CCDPEnvConfig(task="DoorOpening-v0")
     assert getattr(lerobot_eval.eval_one, "_ccdp_episode_metrics", False)
+
+
+def test_other_envs_are_left_to_lerobot():
+    vec = gym.vector.SyncVectorEnv([lambda: gym.make("CartPole-v1")])
+    assert not is_ccdp_env(vec)
+    vec.close()
+
+
+def test_importing_the_plugin_loads_no_evaluation_code():
+    """lerobot-record or lerobot-teleoperate on a robot should not pay for (or be patched by) lerobot-eval."""
+    code = "import sys, lerobot_ccdp; print('lerobot.scripts.lerobot_eval' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "False"

@@ -8,8 +8,15 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
-from lerobot_ccdp.envs.base import ACTION_DIM, AGENT_POS_DIM, CONTROL_FPS, OBS_TYPES, OBSERVATION_SIZE
+from lerobot_ccdp.envs.base import (
+    ACTION_DIM,
+    AGENT_POS_DIM,
+    CONTROL_FPS,
+    OBS_TYPES,
+    OBSERVATION_SIZE,
+)
 from lerobot_ccdp.envs.tasks import gym_id, task_class
+from lerobot_ccdp.eval_metrics import install_episode_metrics
 
 
 @EnvConfig.register_subclass("ccdp")
@@ -42,6 +49,7 @@ class CCDPEnvConfig(EnvConfig):
     )
 
     def __post_init__(self):
+        install_episode_metrics()  # an evaluation of ccdp tasks reports their per-episode metrics
         if self.task is None:
             raise ValueError("--env.task is required for --env.type=ccdp")
         cls = task_class(self.task)
