@@ -210,7 +210,7 @@ class CCDPPolicy(PreTrainedPolicy):
             z_full[rows] = z.reshape(-1, self.config.failure_feature_dim).to(z_full.dtype)
             z = z_full
         self._failures.add(rows, z)
-        memory.restart_pending |= failed
+        memory.restart(failed)
 
     # ----- sampling -------------------------------------------------------------------------------------
 
