@@ -61,6 +61,15 @@ class CCDPPolicy(PreTrainedPolicy):
         self._set_trainable()
         self.reset()
 
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path, **kwargs) -> "CCDPPolicy":
+        """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
+        metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
+        recording dataset without the label column); they are dropped so that loading never reads a dataset."""
+        for key in ("dataset_meta", "dataset_stats"):
+            kwargs.pop(key, None)
+        return super().from_pretrained(pretrained_name_or_path, **kwargs)
+
     # ----- training -------------------------------------------------------------------------------------
 
     def _set_trainable(self) -> None:
