@@ -117,7 +117,9 @@ def load_checkpoint(
                          "(lerobot-train --policy.type=ccdp on the demo dataset).")
     config.device = synthesis_device(config.device, device)
     policy = CCDPPolicy.from_pretrained(policy_path, config=config).eval()
-    pre = PolicyProcessorPipeline.from_pretrained(policy_path, config_filename="policy_preprocessor.json")
+    # The saved preprocessor names the training device, which this machine may lack (LeRobot's scripts override it too).
+    pre = PolicyProcessorPipeline.from_pretrained(policy_path, config_filename="policy_preprocessor.json",
+                                                  overrides={"device_processor": {"device": config.device}})
     normalizers = [s for s in pre.steps if isinstance(s, NormalizerProcessorStep)]
     if not normalizers or not normalizers[0].stats:
         raise ValueError(f"{policy_path} has no normaliser stats in policy_preprocessor.json; save the checkpoint "
