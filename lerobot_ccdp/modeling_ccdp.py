@@ -1,6 +1,7 @@
 """CCDPPolicy: LeRobot's diffusion policy composed at every denoising step with failure-recovery heads."""
 
 import logging
+from pathlib import Path
 
 import torch
 import torch.nn.functional as F  # noqa: N812
@@ -62,7 +63,7 @@ class CCDPPolicy(PreTrainedPolicy):
         self.reset()
 
     @classmethod
-    def from_pretrained(cls, pretrained_name_or_path, **kwargs) -> "CCDPPolicy":
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "CCDPPolicy":
         """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
         metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
         recording dataset without the label column); they are dropped so that loading never reads a dataset."""
