@@ -179,9 +179,28 @@ class CCDPPolicy(PreTrainedPolicy):
         """
         if self._memory is None:
             raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
-        mask = torch.zeros(self._memory.batch_size, dtype=torch.bool, device=self._memory.frames.device)
-        mask[slice(None) if rows is None else torch.as_tensor(rows, device=mask.device)] = True
+        mask = self._failed_rows(rows)
+        dim = self.config.failure_feature_dim
+        if z is not None and z.numel() != int(mask.sum()) * dim:
+            raise ValueError(
+                f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed row, "
+                f"({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out to use the "
+                "attempt's own failure feature."
+            )
         self._record_failures(mask, z)
+
+    def _failed_rows(self, rows: int | list[int] | Tensor | None) -> Tensor:
+        """Bool mask (B,) of the failed rows, refusing rows outside the batch the policy is acting on."""
+        b = self._memory.batch_size
+        mask = torch.zeros(b, dtype=torch.bool, device=self._memory.frames.device)
+        try:
+            mask[slice(None) if rows is None else torch.as_tensor(rows, device=mask.device)] = True
+        except IndexError as error:
+            raise ValueError(
+                f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a bool mask of "
+                "that length). Pass the failed rows' indices, or None for every row."
+            ) from error
+        return mask
 
     def failure_count(self) -> Tensor:
         """How many failures each row currently remembers."""

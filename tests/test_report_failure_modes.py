@@ -62,3 +62,13 @@ def test_switching_modes_between_steps_keeps_acting():
             policy.select_action(obs)
             policy.report_failure()
     assert policy.failure_count().tolist() == [8]
+
+
+def test_bad_rows_or_z_name_the_expected_shape():
+    policy = make_policy()
+    policy.select_action({"observation.state": torch.zeros(2, 2)})
+    with pytest.raises(ValueError, match=r"acts on 2 row\(s\), indices 0..1"):
+        policy.report_failure(rows=[2])
+    with pytest.raises(ValueError, match=r"got shape \(2, 3\).*\(1, 32\)"):
+        policy.report_failure(rows=[0], z=torch.zeros(2, 3))
+    assert policy.failure_count().tolist() == [0, 0]
