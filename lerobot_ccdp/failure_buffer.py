@@ -3,14 +3,17 @@
 import torch
 from torch import Tensor
 
+from lerobot_ccdp.tensor_modes import ordinary_tensors
+
 
 class FailureBuffer:
     """Remembers up to `cap` failure features per batch row; beyond the cap the oldest is forgotten.
 
     Rows are independent: a failure in row i never shows up in another row, and clearing one row (a new
-    episode in that env) leaves the others as they are.
+    episode in that env) leaves the others as they are. Updates work in any grad or inference mode.
     """
 
+    @ordinary_tensors
     def __init__(self, batch_size: int, feature_dim: int, cap: int, device: torch.device | str = "cpu"):
         self.cap = cap
         self.z = torch.zeros(batch_size, cap, feature_dim, device=device)
@@ -20,6 +23,7 @@ class FailureBuffer:
     def batch_size(self) -> int:
         return self.z.shape[0]
 
+    @ordinary_tensors
     def add(self, rows: Tensor, z: Tensor) -> None:
         """Append z[i] to row i for every i where `rows` (bool, (B,)) is set; z is (B, feature_dim)."""
         for i in torch.nonzero(rows).flatten().tolist():
@@ -29,6 +33,7 @@ class FailureBuffer:
             self.z[i, self.count[i]] = z[i]
             self.count[i] += 1
 
+    @ordinary_tensors
     def clear(self, rows: Tensor | None = None) -> None:
         """Forget the failures of `rows` (bool, (B,)), or of every row."""
         rows = torch.ones_like(self.count, dtype=torch.bool) if rows is None else rows

@@ -1,6 +1,7 @@
 """CCDPPolicy: LeRobot's diffusion policy composed at every denoising step with failure-recovery heads."""
 
 import logging
+from pathlib import Path
 
 import torch
 import torch.nn.functional as F  # noqa: N812
@@ -62,6 +63,15 @@ class CCDPPolicy(PreTrainedPolicy):
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
         self._set_trainable()
         self.reset()
+
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "CCDPPolicy":
+        """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
+        metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
+        recording dataset without the label column); they are dropped so that loading never reads a dataset."""
+        for key in ("dataset_meta", "dataset_stats"):
+            kwargs.pop(key, None)
+        return super().from_pretrained(pretrained_name_or_path, **kwargs)
 
     # ----- training -------------------------------------------------------------------------------------
 
@@ -171,9 +181,28 @@ class CCDPPolicy(PreTrainedPolicy):
         """
         if self._memory is None:
             raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
-        mask = torch.zeros(self._memory.batch_size, dtype=torch.bool, device=self._memory.frames.device)
-        mask[slice(None) if rows is None else torch.as_tensor(rows, device=mask.device)] = True
+        mask = self._failed_rows(rows)
+        dim = self.config.failure_feature_dim
+        if z is not None and z.numel() != int(mask.sum()) * dim:
+            raise ValueError(
+                f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed row, "
+                f"({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out to use the "
+                "attempt's own failure feature."
+            )
         self._record_failures(mask, z)
+
+    def _failed_rows(self, rows: int | list[int] | Tensor | None) -> Tensor:
+        """Bool mask (B,) of the failed rows, refusing rows outside the batch the policy is acting on."""
+        b = self._memory.batch_size
+        mask = torch.zeros(b, dtype=torch.bool, device=self._memory.frames.device)
+        try:
+            mask[slice(None) if rows is None else torch.as_tensor(rows, device=mask.device)] = True
+        except IndexError as error:
+            raise ValueError(
+                f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a bool mask of "
+                "that length). Pass the failed rows' indices, or None for every row."
+            ) from error
+        return mask
 
     def failure_count(self) -> Tensor:
         """How many failures each row currently remembers."""
@@ -212,7 +241,7 @@ class CCDPPolicy(PreTrainedPolicy):
             z_full[rows] = z.reshape(-1, self.config.failure_feature_dim).to(z_full.dtype)
             z = z_full
         self._failures.add(rows, z)
-        memory.restart_pending |= failed
+        memory.restart(failed)
 
     # ----- sampling -------------------------------------------------------------------------------------
 

@@ -4,6 +4,7 @@ import torch
 from torch import Tensor
 
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.tensor_modes import ordinary_tensors
 
 
 class RolloutMemory:
@@ -14,6 +15,7 @@ class RolloutMemory:
     frame, as at an episode start, and its plan dropped) while the other rows keep executing their plans.
     """
 
+    @ordinary_tensors
     def __init__(self, config: CCDPConfig, batch_size: int, device: torch.device):
         self.n_obs, self.history = config.n_obs_steps, config.history_length
         window = self.history + self.n_obs
@@ -35,6 +37,7 @@ class RolloutMemory:
     def last_frame(self) -> Tensor:
         return self.frames[:, -1]
 
+    @ordinary_tensors
     def push_frame(self, frame: Tensor) -> None:
         """Append the current frame; rows that are new or restarting get their windows refilled with it."""
         restart = ~self.started | self.restart_pending
@@ -45,6 +48,11 @@ class RolloutMemory:
         self.attempt_planned[restart] = False
         self.started[:] = True
         self.restart_pending[:] = False
+
+    @ordinary_tensors
+    def restart(self, rows: Tensor) -> None:
+        """Restart `rows` (bool, (B,)) at their next frame, as after a failed attempt."""
+        self.restart_pending |= rows
 
     def needs_plan(self) -> Tensor:
         return self.plan_pos >= self.plan.shape[1]
@@ -57,6 +65,7 @@ class RolloutMemory:
         actions = self.actions[rows, : self.history].flatten(start_dim=1)
         return torch.cat([frames, actions], dim=-1)
 
+    @ordinary_tensors
     def set_plan(self, rows: Tensor, chunk: Tensor, start: int) -> None:
         """Store a freshly sampled chunk (R, horizon, A) for `rows`; the attempt's first chunk is kept apart."""
         self.plan[rows] = chunk[:, start : start + self.plan.shape[1]]
@@ -67,6 +76,7 @@ class RolloutMemory:
         self.latest_chunk[index] = chunk
         self.attempt_planned[index] = True
 
+    @ordinary_tensors
     def pop_action(self) -> Tensor:
         action = self.plan[torch.arange(self.batch_size, device=self.plan.device), self.plan_pos]
         self.plan_pos += 1

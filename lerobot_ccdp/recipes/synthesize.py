@@ -37,10 +37,12 @@ from pathlib import Path
 import numpy as np
 import torch
 import yaml
+from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.utils import write_stats
 from lerobot.processor import NormalizerProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from lerobot.utils.utils import is_torch_device_available
 from torch import Tensor
 from tqdm import tqdm
 
@@ -90,10 +92,34 @@ class Demos:
     chunks: Tensor  # (N, horizon, A): the chunk each frame starts (as in training)
 
 
-def load_checkpoint(policy_path: str | Path) -> tuple[CCDPPolicy, dict[str, dict[str, Tensor]]]:
-    """The base policy and the normalisation stats of its saved preprocessor."""
-    policy = CCDPPolicy.from_pretrained(policy_path).eval()
-    pre = PolicyProcessorPipeline.from_pretrained(policy_path, config_filename="policy_preprocessor.json")
+def synthesis_device(saved: str | None, requested: str | None) -> str:
+    """`requested` (--device) if this machine has it; else the checkpoint's saved device, or the CPU where that one
+    is absent (a base trained on a GPU is synthesised from on any machine)."""
+    if requested is None:
+        return saved if saved and is_torch_device_available(saved) else "cpu"
+    try:
+        available = is_torch_device_available(requested)
+    except ValueError:
+        available = False
+    if not available:
+        raise ValueError(f"--device {requested!r} is not available on this machine. Pass --device cpu (or cuda, "
+                         "mps where present), or leave --device out to follow the checkpoint's device.")
+    return requested
+
+
+def load_checkpoint(
+    policy_path: str | Path, device: str | None = None
+) -> tuple[CCDPPolicy, dict[str, dict[str, Tensor]]]:
+    """The base policy on the device `synthesis_device` picks, and the normalisation stats of its saved preprocessor."""
+    config = PreTrainedConfig.from_pretrained(policy_path)
+    if not isinstance(config, CCDPConfig):
+        raise ValueError(f"{policy_path} holds a {config.type!r} policy; synthesis needs a ccdp base checkpoint "
+                         "(lerobot-train --policy.type=ccdp on the demo dataset).")
+    config.device = synthesis_device(config.device, device)
+    policy = CCDPPolicy.from_pretrained(policy_path, config=config).eval()
+    # The saved preprocessor names the training device, which this machine may lack (LeRobot's scripts override it too).
+    pre = PolicyProcessorPipeline.from_pretrained(policy_path, config_filename="policy_preprocessor.json",
+                                                  overrides={"device_processor": {"device": config.device}})
     normalizers = [s for s in pre.steps if isinstance(s, NormalizerProcessorStep)]
     if not normalizers or not normalizers[0].stats:
         raise ValueError(f"{policy_path} has no normaliser stats in policy_preprocessor.json; save the checkpoint "
@@ -137,8 +163,9 @@ def synthesised_samples(
     """Eq. (6) and (7): demo states x_s perturbed by N(0, sigma^2), `chunks_per_state` chunks sampled at each.
 
     `images` maps demo frame indices to their encoded camera windows (b, n_obs, F), for checkpoints with cameras.
+    Random draws come from `generator` on the CPU, so a seed gives the same inputs on every device.
     """
-    cfg, k = policy.config, recipe.chunks_per_state
+    cfg, k, device = policy.config, recipe.chunks_per_state, torch.device(policy.config.device)
     picks = torch.randint(0, len(demos.windows), (recipe.n_states,), generator=generator)
     parts = []
     for batch in tqdm(picks.split(recipe.batch_states), desc="Sampling chunks (eq. 7)", disable=not progress):
@@ -146,12 +173,13 @@ def synthesised_samples(
         x = x_s + recipe.sigma * torch.randn(x_s.shape, generator=generator)  # eq. (6)
         condition = x if images is None else torch.cat([x, images(batch).repeat_interleave(k, dim=0)], dim=-1)
         noise = torch.randn(len(x), cfg.horizon, cfg.action_dim, generator=generator)
-        chunks = policy.sample_exploratory(condition.flatten(start_dim=1), recipe.w_s, noise)  # eq. (7)
+        condition, noise = condition.flatten(start_dim=1).to(device), noise.to(device)
+        chunks = policy.sample_exploratory(condition, recipe.w_s, noise)  # eq. (7), on the policy's device
         if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
             near = policy.outcomes.rms_distance(chunks) <= recipe.outcome_radius
-            x, chunks = x[near], chunks[near]
+            x, chunks = x[near.cpu()], chunks[near]
         z = policy.feature.from_chunk(chunks, policy.outcomes)
-        parts.append(Samples(x, chunks, z, torch.full((len(x),), SYNTHESISED)))
+        parts.append(Samples(x, chunks.cpu(), z.cpu(), torch.full((len(x),), SYNTHESISED)))
     return Samples.cat(parts)
 
 
@@ -162,7 +190,7 @@ def camera_encoder(policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata
     def encode(frames: Tensor) -> Tensor:
         images = normalize_batch(policy.config, stats, camera_windows(meta, cameras, frames, policy.config.n_obs_steps))
         with torch.no_grad():
-            return policy.images([images[key] for key in cameras])
+            return policy.images([images[key].to(policy.config.device) for key in cameras]).cpu()
 
     return encode
 
@@ -171,7 +199,7 @@ def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, gener
     """Up to `demo_frames` demonstrated chunks, with their z computed like any other chunk's."""
     pick = torch.randperm(len(demos.windows), generator=generator)[: recipe.demo_frames]
     chunks = demos.chunks[pick]
-    z = policy.feature.from_chunk(chunks, policy.outcomes)
+    z = policy.feature.from_chunk(chunks.to(policy.config.device), policy.outcomes).cpu()
     return Samples(demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS))
 
 
@@ -199,14 +227,16 @@ def synthesize_recovery_dataset(
     overwrite: bool = False,
     progress: bool = True,
     recipe_source: str = "recipe",
+    device: str | None = None,
 ) -> Path:
-    """Write the recovery dataset of `recipe` at `out_root` (atomically) and return `out_root`."""
+    """Write the recovery dataset of `recipe` at `out_root` (atomically) and return `out_root`. The pool and the
+    dataset are built on the CPU; the policy's networks run on `device` (see `synthesis_device`)."""
     started = time.perf_counter()
     check_replaceable(out_root, overwrite)  # before minutes of loading and sampling, not after
     if not (Path(demo_root) / "meta" / "info.json").is_file():
         raise FileNotFoundError(f"No LeRobot dataset at --root {demo_root} (no meta/info.json): record the demos "
                                 "there first (lerobot-ccdp-record) or fix the path.")
-    policy, stats = load_checkpoint(policy_path)
+    policy, stats = load_checkpoint(policy_path, device)
     config = policy.config
     check_recipe_matches(recipe, config, recipe_source)
     if config.failure_feature != "action" and len(policy.outcomes) == 0:
@@ -304,11 +334,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out-repo-id", required=True, help="repo id of the recovery dataset, e.g. local/door_opening_recovery")
     parser.add_argument("--out-root", required=True, type=Path, help="folder to write the recovery dataset to")
     parser.add_argument("--overwrite", action="store_true", help="replace --out-root if it exists (once the new one is done)")
+    parser.add_argument("--device", default=None,
+                        help="device to run the base policy on, e.g. cpu or cuda (default: the checkpoint's saved "
+                             "device, or cpu where that one is absent)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     recipe = RecoveryRecipe.load(args.recipe)
     synthesize_recovery_dataset(recipe, args.repo_id, args.root, args.policy_path, args.out_repo_id, args.out_root,
-                                overwrite=args.overwrite, recipe_source=str(args.recipe))
+                                overwrite=args.overwrite, recipe_source=str(args.recipe), device=args.device)
 
 
 if __name__ == "__main__":
