@@ -134,13 +134,20 @@ class TaskRun:
         recovery, recovery_stamp = self._train(
             "train_recovery", f.train_recovery, f.out / "recovery", f"local/{self.slug}_recovery", f.recovery_data,
             f"--policy.path={base}", "--policy.training_stage=recovery", upstream=recovery_data)
-        episodes = {}
         for method in methods:
             out = f.eval_dir(method)
             self._stage(f"eval_{method}", out / "eval_info.json", [
                 "lerobot-eval", f"--config_path={f.eval}", f"--policy.path={recovery}",
                 f"--policy.recovery_mode={method}", f"--output_dir={out}"], upstream=recovery_stamp, clear=out)
-            episodes[method] = Episodes.from_eval_info(out / "eval_info.json")
+        return self.episodes(methods)
+
+    def episodes(self, methods: list[str]) -> dict[str, Episodes]:
+        """Every method's evaluated episodes, and the oracle's on the same seeds (run here if missing)."""
+        missing = [m for m in methods if not (self.files.eval_dir(m) / "eval_info.json").exists()]
+        if missing:
+            raise PipelineError(f"{self.files.task}: no evaluation of {missing} under {self.files.out / 'eval'}; "
+                                "run the pipeline without --report-only first.")
+        episodes = {m: Episodes.from_eval_info(self.files.eval_dir(m) / "eval_info.json") for m in methods}
         episodes["oracle"] = self._oracle()
         return episodes
 
@@ -298,9 +305,13 @@ def main(argv: list[str] | None = None) -> None:
                         help="policy inputs: state vectors, or rendered cameras plus the robot state")
     parser.add_argument("--no-chart", action="store_true", help="skip the PNG bar chart (needs matplotlib)")
     parser.add_argument("--fresh", action="store_true", help="delete --out first instead of resuming")
+    parser.add_argument("--report-only", action="store_true",
+                        help="write the report from the evaluations already in --out, running no stage")
     args = parser.parse_args(argv)
     tasks = list(TASKS) if args.tasks == ["all"] else args.tasks
     files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type) for t in tasks]
+    if args.fresh and args.report_only:
+        parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")
     if args.fresh and args.out.exists():
         shutil.rmtree(args.out)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -310,7 +321,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         for f in files:
             run = TaskRun(f)
-            episodes[f.task] = run.run(args.methods)
+            episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
             runs.append(run)
             print(markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}), flush=True)
     except PipelineError as error:
