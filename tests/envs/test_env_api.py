@@ -31,7 +31,7 @@ def test_observation_keys_dtypes_and_action_space(task):
     assert obs["failure"].tolist() == [0.0]
     assert env.action_space.shape == (4,) and env.action_space.dtype == np.float32
     assert info == {"is_success": False, "attempts": 0, "failures": 0, "repeated_failures": 0,
-                    "preference_matched": False, "option": -1}
+                    "attempts_after_failure": 0, "preference_matched": False, "option": -1}
 
 
 @pytest.mark.parametrize("task", ALL)

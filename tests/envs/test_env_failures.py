@@ -53,6 +53,7 @@ def test_repeating_a_failed_option_is_counted_and_ends_at_the_budget(task, hidde
     episode = run_episode(env, FixedOptions(env, [option]), seed=0, hidden_param=hidden)
     assert episode.info["failures"] == 3
     assert episode.info["repeated_failures"] == 2
+    assert episode.info["attempts_after_failure"] == 2  # the first attempt could repeat nothing
     assert episode.info["is_success"] is False
     assert len(episode.actions) < env.spec.max_episode_steps  # terminated by the budget, not truncated
 
