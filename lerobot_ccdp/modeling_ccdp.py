@@ -5,6 +5,7 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F  # noqa: N812
+from huggingface_hub import ModelCard
 from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
@@ -16,6 +17,7 @@ from lerobot_ccdp.denoisers import BaseDenoiser, make_recovery_denoiser
 from lerobot_ccdp.failure_buffer import FailureBuffer
 from lerobot_ccdp.failure_features import FailureFeature
 from lerobot_ccdp.image_encoder import ImageEncoder
+from lerobot_ccdp.model_card import make_model_card
 from lerobot_ccdp.outcome_index import OutcomeIndex
 from lerobot_ccdp.outcome_table import build_outcome_table
 from lerobot_ccdp.rollout_memory import RolloutMemory
@@ -72,6 +74,12 @@ class CCDPPolicy(PreTrainedPolicy):
         for key in ("dataset_meta", "dataset_stats"):
             kwargs.pop(key, None)
         return super().from_pretrained(pretrained_name_or_path, **kwargs)
+
+    def generate_model_card(
+        self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
+    ) -> ModelCard:
+        """Called by push_model_to_hub (lerobot-train --policy.push_to_hub): LeRobot's template has no ccdp text."""
+        return make_model_card(self.config, dataset_repo_id, license, tags, bool(self.recovery_trained))
 
     # ----- training -------------------------------------------------------------------------------------
 
