@@ -123,6 +123,7 @@ def _check_model_card(card: str) -> None:
     assert "lerobot-ccdp-synthesize" in card and "--policy.training_stage=recovery" in card  # stage 2
     assert f"lerobot-eval --policy.path={REPO_ID} --env.type=ccdp" in card
     assert "--policy.recovery_mode=ccdp" in card and "dp_star" in card
+    assert "report_failure()" in card and "--policy.failure_signal_file=" in card  # on a robot
     # This checkpoint as pushed: after both stages, with its failure feature.
     assert "recovery head trained" in card and "failure feature `primitive`" in card
 
