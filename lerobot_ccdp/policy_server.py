@@ -7,8 +7,7 @@ so the server's code, flags and LeRobot's robot client stay exactly LeRobot's.
 
 from types import ModuleType
 
-import lerobot_ccdp  # noqa: F401  (registers the ccdp policy type before the server looks it up)
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.modeling_ccdp import CCDPPolicy  # importing the package registers the ccdp policy type
 
 INSTALL_HINT = "pip install 'lerobot_policy_ccdp[async]' (or pip install 'lerobot[async]')"
 
