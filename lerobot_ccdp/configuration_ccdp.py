@@ -104,6 +104,9 @@ class CCDPConfig(PreTrainedConfig):
     # primitive: the dataset column holding the per-frame primitive label, and how many labels exist.
     primitive_key: str = "primitive"
     num_primitives: int = 0
+    # A file whose appearance reports a failure of every row (then deleted), for LeRobot loops such as
+    # lerobot-record that pass the policy no failure signal (lerobot_ccdp/failure_signal.py).
+    failure_signal_file: str | None = None
     # Most failures remembered per batch row; the oldest is forgotten beyond it.
     max_failures: int = 8
     # DP*: candidates drawn per plan, and the squared distance in z under which a candidate repeats a failure.

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F  # noqa: N812
+from huggingface_hub import ModelCard
 from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
@@ -15,7 +16,9 @@ from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KE
 from lerobot_ccdp.denoisers import BaseDenoiser, make_recovery_denoiser
 from lerobot_ccdp.failure_buffer import FailureBuffer
 from lerobot_ccdp.failure_features import FailureFeature
+from lerobot_ccdp.failure_signal import FailureSignalFile
 from lerobot_ccdp.image_encoder import ImageEncoder
+from lerobot_ccdp.model_card import make_model_card
 from lerobot_ccdp.outcome_index import OutcomeIndex
 from lerobot_ccdp.outcome_table import build_outcome_table
 from lerobot_ccdp.rollout_memory import RolloutMemory
@@ -61,6 +64,10 @@ class CCDPPolicy(PreTrainedPolicy):
             _refuse_non_finite_stats(config, dataset_stats)
         if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
+        self.failure_signal = FailureSignalFile(config.failure_signal_file) if config.failure_signal_file else None
+        # Whether anything could tell this policy about a failure (warned about once otherwise).
+        self._heard_failure_source = self.failure_signal is not None
+        self._warned_deaf = False
         self._set_trainable()
         self.reset()
 
@@ -72,6 +79,12 @@ class CCDPPolicy(PreTrainedPolicy):
         for key in ("dataset_meta", "dataset_stats"):
             kwargs.pop(key, None)
         return super().from_pretrained(pretrained_name_or_path, **kwargs)
+
+    def generate_model_card(
+        self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
+    ) -> ModelCard:
+        """Called by push_model_to_hub (lerobot-train --policy.push_to_hub): LeRobot's template has no ccdp text."""
+        return make_model_card(self.config, dataset_repo_id, license, tags, bool(self.recovery_trained))
 
     # ----- training -------------------------------------------------------------------------------------
 
@@ -150,6 +163,8 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def reset(self) -> None:
         """Forget everything about the rollout: windows, plans and every row's failures."""
+        if getattr(self, "_memory", None) is not None:
+            self._warn_if_deaf()
         self._memory: RolloutMemory | None = None
         self._failures: FailureBuffer | None = None
         self._warned_untrained = False
@@ -179,6 +194,7 @@ class CCDPPolicy(PreTrainedPolicy):
         latest observation and the attempt's chunks; pass `z` (len(rows), z_dim), normalised, to override it.
         Those rows re-plan from their next observation, which should be the attempt's restored start pose.
         """
+        self._heard_failure_source = True
         if self._memory is None:
             raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
         mask = self._failed_rows(rows)
@@ -190,6 +206,18 @@ class CCDPPolicy(PreTrainedPolicy):
                 "attempt's own failure feature."
             )
         self._record_failures(mask, z)
+
+    def _warn_if_deaf(self) -> None:
+        """An episode ended with recovery on and nothing that could report a failure: say so, once."""
+        if self._heard_failure_source or self._warned_deaf or self.config.recovery_mode == "dp":
+            return
+        self._warned_deaf = True
+        logger.warning(
+            "ccdp ran an episode with recovery_mode=%s but nothing could tell it about a failure: no %s in its "
+            "inputs, no report_failure() call, no failure_signal_file. It acted as plain diffusion policy. In "
+            "lerobot-record, pass --policy.failure_signal_file=/tmp/ccdp_failed and create that file when an "
+            "attempt fails (docs/robot.md).", self.config.recovery_mode, FAILURE_FLAG_KEY,
+        )
 
     def _failed_rows(self, rows: int | list[int] | Tensor | None) -> Tensor:
         """Bool mask (B,) of the failed rows, refusing rows outside the batch the policy is acting on."""
@@ -213,15 +241,23 @@ class CCDPPolicy(PreTrainedPolicy):
         frame = self.frames(batch)
         if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
             frame = frame[:, -1]
-        if self._memory is None or self._memory.batch_size != frame.shape[0]:
+        fresh = self._memory is None or self._memory.batch_size != frame.shape[0]
+        if fresh:
             cfg = self.config
             self._memory = RolloutMemory(cfg, frame.shape[0], frame.device)
             self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, cfg.max_failures, frame.device)
         flag = batch.get(FAILURE_FLAG_KEY)
         if flag is not None:
+            self._heard_failure_source = True
             failed = flag.reshape(frame.shape[0], -1)[:, 0] > 0.5
             if failed.any():
                 self._record_failures(failed)
+        if self.failure_signal is not None and self.failure_signal.poll():
+            if fresh:
+                logger.warning("%s appeared before any action since reset(): no attempt to remember, ignored.",
+                               self.failure_signal.path)
+            else:
+                self._record_failures(torch.ones(frame.shape[0], dtype=torch.bool, device=frame.device))
         self._memory.push_frame(frame)
         return self._memory
 
