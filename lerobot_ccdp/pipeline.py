@@ -40,6 +40,7 @@ from lerobot_ccdp.comparison import (
 )
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
+from lerobot_ccdp.run_lock import PipelineRunning, die_with_parent, exclusive
 from lerobot_ccdp.stage_stamps import StampBook, stamp
 from lerobot_ccdp.targets import target_checks
 
@@ -220,7 +221,8 @@ def run_with_progress(command: list[str], log: Path, label: str, every: float = 
     (a training stage is otherwise silent on the console for minutes); return its exit code."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     with log.open("w") as handle:
-        process = subprocess.Popen(command, stdout=handle, stderr=subprocess.STDOUT, env=env)
+        process = subprocess.Popen(command, stdout=handle, stderr=subprocess.STDOUT, env=env,
+                                   preexec_fn=die_with_parent)  # noqa: PLW1509 (one prctl call, no locks)
         shown = ""
         while True:
             try:
@@ -293,6 +295,20 @@ def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], 
     return report
 
 
+def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[TaskRun], dict[str, dict[str, Episodes]]]:
+    """Every task's stages (or, with --report-only, its finished evaluations), in order."""
+    if args.fresh and args.out.exists():
+        shutil.rmtree(args.out)
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs, episodes = [], {}
+    for f in files:
+        run = TaskRun(f)
+        episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
+        runs.append(run)
+        print(markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}), flush=True)
+    return runs, episodes
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", required=True, help=f"task ids, or `all` ({', '.join(TASKS)})")
@@ -312,19 +328,11 @@ def main(argv: list[str] | None = None) -> None:
     files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type) for t in tasks]
     if args.fresh and args.report_only:
         parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")
-    if args.fresh and args.out.exists():
-        shutil.rmtree(args.out)
-    args.out.mkdir(parents=True, exist_ok=True)
-
     start = time.perf_counter()
-    runs, episodes = [], {}
     try:
-        for f in files:
-            run = TaskRun(f)
-            episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
-            runs.append(run)
-            print(markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}), flush=True)
-    except PipelineError as error:
+        with exclusive(args.out):
+            runs, episodes = run_tasks(files, args)
+    except (PipelineError, PipelineRunning) as error:
         sys.exit(str(error))
     command = "python -m lerobot_ccdp.pipeline " + shlex.join(argv if argv is not None else sys.argv[1:])
     print(write_report(runs, episodes, args.out, command, chart=not args.no_chart))

@@ -5,6 +5,7 @@ import json
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.pipeline import CHECKPOINT, TaskFiles, latest_progress, main, task_slug
 from lerobot_ccdp.recipes.camera_windows import video_backend
+from lerobot_ccdp.run_lock import exclusive
 from lerobot_ccdp.stage_stamps import stamp
 
 REPO = Path(__file__).resolve().parents[1]
@@ -162,6 +164,44 @@ def test_console_progress_is_the_latest_bar_state_of_the_log(tmp_path):
     assert latest_progress(log) == "Training: 11% 88/800 [00:33<04:27, 2.66step/s]"
     log.write_text("no bar yet")
     assert latest_progress(log) == ""
+
+
+def test_a_second_pipeline_on_the_same_folder_is_refused(settings, tmp_path):
+    configs, recipes = settings
+    with exclusive(tmp_path / "out"), pytest.raises(SystemExit, match=r"Another pipeline \(pid \d+\) is running"):
+        main(["--tasks", TASK, "--out", str(tmp_path / "out"), "--configs", str(configs), "--recipes", str(recipes)])
+
+
+def test_a_killed_pipeline_leaves_no_stage_running_and_a_rerun_resumes(settings, tmp_path):
+    configs, recipes = settings
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "lerobot_ccdp.pipeline", "--tasks", TASK, "--methods", "dp", "--out", str(out),
+               "--configs", str(configs), "--recipes", str(recipes), "--no-chart"]
+    pipeline = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, text=True)
+    for line in pipeline.stdout:  # wait until the base stage's lerobot-train is running
+        if "train_base: lerobot-train" in line:
+            break
+    children_file = Path(f"/proc/{pipeline.pid}/task/{pipeline.pid}/children")
+    children: list[int] = []
+    while not children and pipeline.poll() is None:  # the command is printed just before it starts
+        children = [int(pid) for pid in children_file.read_text().split()]
+    assert children, "the stage runs as a child process"
+    pipeline.kill()  # SIGKILL: no handler of the pipeline runs
+    pipeline.wait()
+    while any(_running(pid) for pid in children):  # the kernel delivers the child's death signal
+        time.sleep(0.2)
+    assert "End of training" not in (out / SLUG / "logs" / "train_base.log").read_text()  # killed, not finished
+    stdout = _run_pipeline(configs, recipes, out, "--no-chart")
+    assert "record: done already" in stdout and "train_base: lerobot-train" in stdout  # the killed stage reruns
+    assert (out / SLUG / "eval" / "dp" / "eval_info.json").exists()
+
+
+def _running(pid: int) -> bool:
+    """Whether `pid` is alive and not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
 
 
 def test_bad_task_and_missing_settings_are_named(settings, tmp_path):

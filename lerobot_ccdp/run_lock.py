@@ -1,0 +1,50 @@
+"""One pipeline per output folder, and no stage outliving the pipeline that started it.
+
+Two pipelines on one folder would train into the same checkpoints; a stage left running after its pipeline was
+killed (kill -9 reaches no handler) would keep writing there while a rerun starts over it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import fcntl
+import os
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+
+PR_SET_PDEATHSIG = 1
+
+
+class PipelineRunning(RuntimeError):
+    """Another pipeline holds the output folder."""
+
+
+@contextlib.contextmanager
+def exclusive(out: Path) -> Iterator[None]:
+    """Hold the lock of output folder `out` (a file beside it, so --fresh may delete the folder) while running."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    path = out.parent / f".{out.name}.pipeline.lock"
+    with path.open("a+") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            pid = handle.read().strip() or "unknown"
+            raise PipelineRunning(f"Another pipeline (pid {pid}) is running on {out}: wait for it to finish, or stop "
+                                  f"it (kill {pid}) before starting this one.") from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(str(os.getpid()))
+        handle.flush()
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def die_with_parent() -> None:
+    """`preexec_fn` of a stage: the kernel kills it when the pipeline process dies, however it dies (Linux)."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
