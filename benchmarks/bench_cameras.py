@@ -21,14 +21,18 @@ crop), with bench_policy.py's UNet and sampling settings (SHARED).
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import shutil
 import sys
 from pathlib import Path
 
 import torch
-from bench_policy import SHARED, interleaved_medians, lerobot_train_speed
+from bench_policy import (
+    SHARED,
+    interleaved_medians,
+    lerobot_train_speed,
+    recorded_once,
+    write_results,
+)
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
@@ -205,19 +209,12 @@ def main(argv: list[str] | None = None) -> dict:
         from lerobot_ccdp.recipes.recipe_file import RecordRecipe
         from lerobot_ccdp.recipes.record import record_dataset
 
-        root = args.work / "demos"
-        if not (root / "meta" / "info.json").exists():
-            shutil.rmtree(root, ignore_errors=True)
-            pixels = {"obs_type": "pixels_agent_pos", "observation_width": args.size, "observation_height": args.size}
-            record_dataset(RecordRecipe(task=TASK, n_episodes=args.cli_episodes, seed=0, env_kwargs=pixels),
-                           REPO_ID, root, progress=False)
+        pixels = {"obs_type": "pixels_agent_pos", "observation_width": args.size, "observation_height": args.size}
+        recipe = RecordRecipe(task=TASK, n_episodes=args.cli_episodes, seed=0, env_kwargs=pixels)
+        root = recorded_once(args.work / "demos", lambda path: record_dataset(recipe, REPO_ID, path, progress=False))
         results["lerobot_train"] = lerobot_train_runs(root, args.work, args.cli_steps, args.batch_size)
     results["table"] = table(results)
-    print("\n" + results["table"])
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2))
-    print(f"\nwrote {args.out}")
-    return results
+    return write_results(results, args.out)
 
 
 if __name__ == "__main__":

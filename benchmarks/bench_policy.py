@@ -35,6 +35,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +76,23 @@ def make_diffusion(env_dim: int) -> DiffusionPolicy:
 
 def n_params(module: torch.nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
+
+
+def write_results(results: dict, out: Path) -> dict:
+    """Print the table and keep every figure as JSON at `out`."""
+    print("\n" + results["table"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(results, indent=2))
+    print(f"\nwrote {out}")
+    return results
+
+
+def recorded_once(root: Path, record: Callable[[Path], object]) -> Path:
+    """`root`, recorded by `record` unless a complete dataset is there already (reruns reuse their demos)."""
+    if not (root / "meta" / "info.json").exists():
+        shutil.rmtree(root, ignore_errors=True)
+        record(root)
+    return root
 
 
 def interleaved_medians(calls: dict[str, callable], repeats: int, warmup: int) -> dict[str, float]:
@@ -325,10 +343,7 @@ def main(argv: list[str] | None = None) -> dict:
     print("(b) training step ...", flush=True)
     results["train_step"] = training_step_time(args.env_dim, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:
-        root = args.work / "reaching2d_env"
-        if not (root / "meta" / "info.json").exists():
-            shutil.rmtree(root, ignore_errors=True)
-            record_env_dataset(root, n_episodes=60)
+        root = recorded_once(args.work / "reaching2d_env", lambda path: record_env_dataset(path, n_episodes=60))
         cli = {}
         for policy_type in ("diffusion", "ccdp"):
             print(f"(b') lerobot-train --policy.type={policy_type} --steps={args.cli_steps} ...", flush=True)
@@ -338,14 +353,8 @@ def main(argv: list[str] | None = None) -> dict:
         cli["ratio_step_time"] = cli["diffusion"]["steps_per_s"] / cli["ccdp"]["steps_per_s"]
         results["lerobot_train"] = cli
 
-    report = table(results)
-    print()
-    print(report)
-    results["table"] = report
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2))
-    print(f"\nwrote {args.out}")
-    return results
+    results["table"] = table(results)
+    return write_results(results, args.out)
 
 
 if __name__ == "__main__":
