@@ -243,6 +243,10 @@ class CCDPPolicy(PreTrainedPolicy):
             frame = frame[:, -1]
         fresh = self._memory is None or self._memory.batch_size != frame.shape[0]
         if fresh:
+            if self._failures is not None and bool((self._failures.count > 0).any()):
+                logger.warning("The batch went from %d to %d rows without reset(): the %d remembered failure(s) "
+                               "are dropped, as rows cannot be matched. Call policy.reset() between rollouts.",
+                               self._memory.batch_size, frame.shape[0], int(self._failures.count.sum()))
             cfg = self.config
             self._memory = RolloutMemory(cfg, frame.shape[0], frame.device)
             self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, cfg.max_failures, frame.device)

@@ -83,3 +83,13 @@ def test_a_dataset_with_nan_actions_is_refused_before_training():
              "action": {"mean": torch.tensor([0.0, float("nan")]), "std": torch.ones(2)}}
     with pytest.raises(ValueError, match=r"mean of 'action' is not finite.*NaN or inf in 'action'"):
         CCDPPolicy(config, dataset_stats=stats)
+
+
+def test_a_batch_size_change_that_drops_failures_says_so(caplog):
+    policy = make_policy()
+    policy.select_action({"observation.state": torch.zeros(2, 2)})
+    policy.report_failure(rows=[0], z=torch.zeros(1, policy.config.failure_feature_dim))
+    with caplog.at_level("WARNING"):
+        policy.select_action({"observation.state": torch.zeros(3, 2)})
+    assert "from 2 to 3 rows without reset(): the 1 remembered failure(s) are dropped" in caplog.text
+    assert policy.failure_count().tolist() == [0, 0, 0]
