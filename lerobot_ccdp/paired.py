@@ -45,20 +45,22 @@ def _ratio(numerator: float, denominator: float) -> float:
     return float(numerator / denominator) if denominator else float("nan")
 
 
-def _indices(n: int, n_resamples: int, seed: int) -> np.ndarray:
-    return np.random.default_rng(seed).integers(0, n, size=(n_resamples, n))
+def _bootstrap(n: int, of_indices: Callable[[np.ndarray], float], n_resamples: int, seed: int) -> Estimate:
+    """of_indices(all episodes) with the percentile interval of of_indices over resampled episode indices."""
+    if n == 0:
+        return Estimate(float("nan"), float("nan"), float("nan"), 0)
+    value = of_indices(np.arange(n))
+    if np.isnan(value):
+        return Estimate(value, float("nan"), float("nan"), n)
+    indices = np.random.default_rng(seed).integers(0, n, size=(n_resamples, n))
+    low, high = np.nanpercentile([of_indices(idx) for idx in indices], [2.5, 97.5])
+    return Estimate(float(value), float(low), float(high), n)
 
 
 def cluster_bootstrap(episodes: Episodes, statistic: Statistic, n_resamples: int = N_RESAMPLES,
                       seed: int = 0) -> Estimate:
     """`statistic` with a percentile interval from resampling whole episodes."""
-    n = len(episodes)
-    value = statistic(episodes, np.arange(n))
-    if n == 0 or np.isnan(value):
-        return Estimate(value, float("nan"), float("nan"), n)
-    draws = np.array([statistic(episodes, idx) for idx in _indices(n, n_resamples, seed)])
-    low, high = np.nanpercentile(draws, [2.5, 97.5])
-    return Estimate(value, float(low), float(high), n)
+    return _bootstrap(len(episodes), lambda idx: statistic(episodes, idx), n_resamples, seed)
 
 
 def paired_difference(a: Episodes, b: Episodes, statistic: Statistic, n_resamples: int = N_RESAMPLES,
@@ -67,24 +69,14 @@ def paired_difference(a: Episodes, b: Episodes, statistic: Statistic, n_resample
     if len(a) != len(b):
         raise ValueError(f"Paired comparison needs the same episodes (seeds) for both methods; got {len(a)} and "
                          f"{len(b)}. Evaluate every method with the same eval config.")
-    n = len(a)
-    value = statistic(a, np.arange(n)) - statistic(b, np.arange(n))
-    if n == 0 or np.isnan(value):
-        return Estimate(value, float("nan"), float("nan"), n)
-    draws = np.array([statistic(a, idx) - statistic(b, idx) for idx in _indices(n, n_resamples, seed)])
-    low, high = np.nanpercentile(draws, [2.5, 97.5])
-    return Estimate(value, float(low), float(high), n)
+    return _bootstrap(len(a), lambda idx: statistic(a, idx) - statistic(b, idx), n_resamples, seed)
 
 
 def attempts_ratio(a: Episodes, b: Episodes, n_resamples: int = N_RESAMPLES, seed: int = 0) -> Estimate:
     """Mean attempts of `a` over those of `b`, on the episodes both solved, with a paired-bootstrap interval."""
     both = a.success & b.success
     x, y = a.attempts[both].astype(float), b.attempts[both].astype(float)
-    if not both.any():
-        return Estimate(float("nan"), float("nan"), float("nan"), 0)
-    draws = [x[idx].mean() / y[idx].mean() for idx in _indices(len(x), n_resamples, seed)]
-    low, high = np.percentile(draws, [2.5, 97.5])
-    return Estimate(float(x.mean() / y.mean()), float(low), float(high), int(both.sum()))
+    return _bootstrap(len(x), lambda idx: x[idx].mean() / y[idx].mean(), n_resamples, seed)
 
 
 def verdict(estimate: Estimate, low_bound: float = -np.inf, high_bound: float = np.inf, strict: bool = False) -> str:
