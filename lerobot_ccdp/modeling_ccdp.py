@@ -421,7 +421,7 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def _input(self, batch: dict[str, Tensor], key: str) -> Tensor:
         if key not in batch:
-            cameras = sorted(k for k in batch if k.startswith(OBS_IMAGES) or k == OBS_IMAGE)
+            cameras = _camera_keys(batch)
             hint = ""
             if cameras and key not in self.config.image_features:
                 hint = (f" The batch holds cameras {cameras} instead: this checkpoint was trained on other observations "
@@ -449,8 +449,7 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def _refuse_unknown_cameras(self, batch: dict[str, Tensor]) -> None:
         """A camera dataset given to a checkpoint that never saw those cameras would silently train without them."""
-        unknown = sorted(k for k in batch if (k.startswith(f"{OBS_IMAGES}.") or k == OBS_IMAGE)
-                         and k not in self.config.image_features and not k.endswith("_is_pad"))
+        unknown = [k for k in _camera_keys(batch) if k not in self.config.image_features]
         if unknown:
             raise ValueError(
                 f"The dataset has cameras {unknown} that this policy does not encode (its inputs: "
@@ -458,6 +457,11 @@ class CCDPPolicy(PreTrainedPolicy):
                 "new base stage on this dataset (--policy.type=ccdp, no --policy.path); to train without them, use a "
                 "dataset without those cameras."
             )
+
+
+def _camera_keys(batch: dict[str, Tensor]) -> list[str]:
+    """The batch's camera entries (`observation.image` or `observation.images.<name>`, not their pad masks)."""
+    return sorted(k for k in batch if (k.startswith(f"{OBS_IMAGES}.") or k == OBS_IMAGE) and not k.endswith("_is_pad"))
 
 
 def _refuse_non_finite_stats(config: CCDPConfig, stats: dict) -> None:

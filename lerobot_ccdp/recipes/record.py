@@ -26,7 +26,7 @@ from lerobot_ccdp.envs.base import ACTION_NAMES, AGENT_POS_NAMES, CCDPTaskEnv
 from lerobot_ccdp.envs.scripted import Episode, Expert, run_episode
 from lerobot_ccdp.envs.tasks import gym_id
 from lerobot_ccdp.recipes.recipe_file import RecordRecipe
-from lerobot_ccdp.recipes.staging import check_replaceable, staged_dataset_root
+from lerobot_ccdp.recipes.staging import staged_dataset_root
 
 logger = logging.getLogger(__name__)
 
@@ -82,7 +82,6 @@ def record_dataset(
     recipe: RecordRecipe, repo_id: str, root: str | Path, overwrite: bool = False, progress: bool = True
 ) -> Path:
     """Record `recipe.n_episodes` expert successes into a LeRobot dataset at `root`; return `root`."""
-    check_replaceable(root, overwrite)  # before any episode is recorded
     env = gym.make(gym_id(recipe.task), **_env_kwargs(recipe))
     try:
         with staged_dataset_root(root, overwrite) as staging:
