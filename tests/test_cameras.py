@@ -18,10 +18,9 @@ from lerobot_ccdp.envs import gym_id
 from lerobot_ccdp.envs.scripted import Expert, run_episode
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.processor_ccdp import normalize_batch
-from lerobot_ccdp.recipes.camera_windows import camera_windows, video_backend
+from lerobot_ccdp.recipes.camera_windows import CameraWindows, video_backend
 from lerobot_ccdp.recipes.recipe_file import RecordRecipe, RecoveryRecipe
 from lerobot_ccdp.recipes.record import record_dataset
-from lerobot_ccdp.recipes import synthesize
 from lerobot_ccdp.recipes.synthesize import FAILURE_ACTION, RECIPE_COPY, synthesize_recovery_dataset
 from lerobot_ccdp.reaching2d import record_reaching_dataset
 from policy_factory import untrained_checkpoint
@@ -61,7 +60,7 @@ def test_pixel_demos_are_stored_as_video_and_decode_to_the_rendered_frames(pixel
 
 def test_camera_windows_pad_episode_starts_like_lerobot(pixel_root):
     meta = LeRobotDatasetMetadata(REPO_ID, root=pixel_root)
-    windows = camera_windows(meta, [CAMERA], torch.tensor([0, 5]), n_obs_steps=2)[CAMERA]
+    windows = CameraWindows(meta, [CAMERA], n_obs_steps=2)(torch.tensor([0, 5]))[CAMERA]
     assert windows.shape == (2, 2, 3, SIZE, SIZE)
     torch.testing.assert_close(windows[0, 0], windows[0, 1])  # frame 0: nothing before it in its episode
     dataset = LeRobotDataset(REPO_ID, root=pixel_root, video_backend=video_backend())
@@ -77,19 +76,19 @@ def synthesised(request, pixel_root, tmp_path_factory):
     tmp = tmp_path_factory.mktemp(f"pixel_synth_{request.param}")
     checkpoint = untrained_checkpoint(pixel_root, tmp / "base", repo_id=REPO_ID, **ENCODER, **settings)
     conditions, frames = [], []
-    sample, windows = CCDPPolicy.sample_exploratory, synthesize.camera_windows
+    sample, windows = CCDPPolicy.sample_exploratory, CameraWindows.__call__
 
     def recording_sample(self, state, w_s, noise=None):
         conditions.append(state.clone())
         return sample(self, state, w_s, noise)
 
-    def recording_windows(meta, cameras, picked, n_obs_steps):
+    def recording_windows(self, picked):
         frames.append(picked.repeat_interleave(SMALL["chunks_per_state"]))
-        return windows(meta, cameras, picked, n_obs_steps)
+        return windows(self, picked)
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(CCDPPolicy, "sample_exploratory", recording_sample)
-        patch.setattr(synthesize, "camera_windows", recording_windows)
+        patch.setattr(CameraWindows, "__call__", recording_windows)
         root = synthesize_recovery_dataset(RecoveryRecipe.from_dict({**settings, **SMALL}), REPO_ID, pixel_root,
                                            checkpoint, "local/recovery", tmp / "recovery", progress=False)
     return checkpoint, root, torch.cat(conditions), torch.cat(frames)

@@ -52,7 +52,7 @@ from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.outcome_index import demo_chunks
 from lerobot_ccdp.outcome_table import read_columns
 from lerobot_ccdp.processor_ccdp import normalize_batch, unnormalize_batch
-from lerobot_ccdp.recipes.camera_windows import camera_windows
+from lerobot_ccdp.recipes.camera_windows import CameraWindows
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 from lerobot_ccdp.recipes.staging import check_replaceable, staged_dataset_root
 from lerobot_ccdp.recovery_pairs import pick_pairs, recovery_pair_mask
@@ -186,9 +186,10 @@ def synthesised_samples(
 def camera_encoder(policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata) -> Callable[[Tensor], Tensor]:
     """Demo frame indices -> the base's encoding of their camera windows (b, n_obs, F), as at run time."""
     cameras = list(policy.config.image_features)
+    windows = CameraWindows(meta, cameras, policy.config.n_obs_steps)
 
     def encode(frames: Tensor) -> Tensor:
-        images = normalize_batch(policy.config, stats, camera_windows(meta, cameras, frames, policy.config.n_obs_steps))
+        images = normalize_batch(policy.config, stats, windows(frames))
         with torch.no_grad():
             return policy.images([images[key].to(policy.config.device) for key in cameras]).cpu()
 
