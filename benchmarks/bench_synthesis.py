@@ -101,9 +101,8 @@ def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
     shares = {}
     for ax, (title, mode, failed) in zip(axes, PANELS, strict=True):
         policy.config.recovery_mode = mode
-        chunk, goals = chunks_after_failures(policy, pre, failed, FIG2_ROWS)
+        path, goals = chunks_after_failures(policy, pre, post, failed, FIG2_ROWS)
         shares[title] = shares_per_goal(goals).tolist()
-        path = post(chunk).reshape(FIG2_ROWS, -1, 2)
         for trajectory in path:
             ax.plot(trajectory[:, 0], trajectory[:, 1], color="tab:blue", alpha=0.25, lw=1)
         ax.scatter(path[:, -1, 0], path[:, -1, 1], s=8, color="navy", zorder=3)
@@ -133,10 +132,10 @@ def sampler_shares(checkpoint: Path) -> dict[str, dict[str, list[float]]]:
         config = PreTrainedConfig.from_pretrained(checkpoint)
         config.noise_scheduler_type = scheduler
         policy = CCDPPolicy.from_pretrained(checkpoint, config=config).eval()
-        pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+        pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
         for label, mode, failed in PANELS:
             policy.config.recovery_mode = mode
-            _, goals = chunks_after_failures(policy, pre, failed, SHARE_ROWS)
+            _, goals = chunks_after_failures(policy, pre, post, failed, SHARE_ROWS)
             table.setdefault(label, {})[scheduler] = shares_per_goal(goals).tolist()
     return table
 

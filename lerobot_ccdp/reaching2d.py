@@ -78,17 +78,21 @@ if __name__ == "__main__":
     main()
 
 
-def chunks_after_failures(policy, preprocessor, failed_goals: list[int], rows: int, seed: int = 0):
+def chunks_after_failures(policy, preprocessor, postprocessor, failed_goals: list[int], rows: int, seed: int = 0):
     """Plan one chunk per row from the start state after reporting failures at `failed_goals` in every row.
 
-    Returns the normalised chunks (rows, horizon, 2) and the goal each heads to (the primitive of its nearest
-    demonstrated chunk): the measurement behind the recovery tests and the Fig. 2 benchmark.
+    Returns the chunks in positions (rows, horizon, 2) and the goal each heads to, read from where the chunk
+    ends (`goal_of`), not from the demonstrated-chunk labeller that DP* and the failure feature use, so the
+    measurement behind the recovery tests and the Fig. 2 benchmark is independent of what it measures.
     """
     import torch
 
     from lerobot_ccdp.outcome_index import options_after_failures
 
-    return options_after_failures(policy, preprocessor({"observation.state": torch.zeros(rows, 2)}), failed_goals, seed)
+    batch = preprocessor({"observation.state": torch.zeros(rows, 2)})
+    chunks, _ = options_after_failures(policy, batch, failed_goals, seed)
+    positions = postprocessor(chunks).reshape(rows, -1, 2).cpu()
+    return positions, torch.from_numpy(goal_of(positions[:, -1].numpy()))
 
 
 def shares_per_goal(goals):

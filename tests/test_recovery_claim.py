@@ -52,20 +52,20 @@ def recovery_checkpoint(reaching_root, tmp_path_factory) -> Path:
     return tmp / "run" / "checkpoints" / "last" / "pretrained_model"
 
 
-def goal_shares(policy: CCDPPolicy, pre, mode: str, failed: list[int]) -> torch.Tensor:
+def goal_shares(policy: CCDPPolicy, pre, post, mode: str, failed: list[int]) -> torch.Tensor:
     """Share of freshly planned chunks per goal after `failed` goals were reported as failures in every row."""
     policy.config.recovery_mode = mode
-    _, goals = chunks_after_failures(policy, pre, failed, ROWS)
+    _, goals = chunks_after_failures(policy, pre, post, failed, ROWS)
     return shares_per_goal(goals)
 
 
 @pytest.mark.slow
 def test_ccdp_avoids_failed_goals(recovery_checkpoint):
     policy = CCDPPolicy.from_pretrained(recovery_checkpoint).eval()
-    pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(recovery_checkpoint))
-    dp = goal_shares(policy, pre, "dp", failed=[0])
-    one = goal_shares(policy, pre, "ccdp", failed=[0])
-    two = goal_shares(policy, pre, "ccdp", failed=[0, 1])
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(recovery_checkpoint))
+    dp = goal_shares(policy, pre, post, "dp", failed=[0])
+    one = goal_shares(policy, pre, post, "ccdp", failed=[0])
+    two = goal_shares(policy, pre, post, "ccdp", failed=[0, 1])
     report = f"dp {dp.tolist()}, ccdp after goal 0 failed {one.tolist()}, after goals 0 and 1 {two.tolist()}"
     assert dp[0] > 0.3, report  # demonstrated share 0.4: DP resamples the failed goal
     assert one[0] < dp[0] / 4, report
