@@ -38,9 +38,9 @@ quickstart: install
 
 # The paper's comparison: every task, DP / DP* / CCDP and the no-repeat oracle; report in outputs/benchmark.
 benchmark: install
-	$(PY) -m lerobot_ccdp.pipeline --tasks all --out outputs/benchmark
+	$(PY) -m lerobot_ccdp.pipeline --tasks all --out outputs/benchmark --publish docs/benchmark_report.md
 
 # The same comparison on rendered cameras (64x64 front camera + robot state) for the two tasks with pixel configs.
 benchmark-pixels: install
 	$(PY) -m lerobot_ccdp.pipeline --tasks DoorOpening-v0 ButtonSearch-v0 --obs-type pixels_agent_pos \
-		--out outputs/benchmark_pixels
+		--out outputs/benchmark_pixels --publish docs/benchmark_pixels_report.md

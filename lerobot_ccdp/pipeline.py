@@ -112,8 +112,9 @@ class TaskFiles:
 class TaskRun:
     """Runs one task's stages, skipping those whose output exists, and times each stage."""
 
-    def __init__(self, files: TaskFiles):
+    def __init__(self, files: TaskFiles, eval_seed: int | None = None):
         self.files = files
+        self.eval_seed = files.eval_config().get("seed", 1000) if eval_seed is None else eval_seed
         self.slug = files.out.name
         self.logs = files.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
@@ -139,7 +140,8 @@ class TaskRun:
             out = f.eval_dir(method)
             self._stage(f"eval_{method}", out / "eval_info.json", [
                 "lerobot-eval", f"--config_path={f.eval}", f"--policy.path={recovery}",
-                f"--policy.recovery_mode={method}", f"--output_dir={out}"], upstream=recovery_stamp, clear=out)
+                f"--policy.recovery_mode={method}", f"--seed={self.eval_seed}", f"--output_dir={out}"],
+                upstream=recovery_stamp, clear=out)
         return self.episodes(methods)
 
     def episodes(self, methods: list[str]) -> dict[str, Episodes]:
@@ -192,15 +194,14 @@ class TaskRun:
 
         It reads the hidden state, never the observation, so cameras are not rendered for it."""
         path = self.files.out / "oracle.json"
-        current = stamp(["oracle", str(self.files.eval)], upstream=None)
+        current = stamp(["oracle", str(self.files.eval), str(self.eval_seed)], upstream=None)
         if not (path.exists() and self.stamps.matches("oracle", current)):
             config = self.files.eval_config()
             env_settings = {k: v for k, v in config["env"].items() if k != "type"}
             env_config = CCDPEnvConfig(**{**env_settings, "obs_type": "state"})
             env = gym.make(env_config.gym_id, **{**env_config.gym_kwargs, "render_mode": None})
             oracle = NoRepeatOracle(env)
-            seed = config.get("seed", 1000)
-            infos = [run_episode(env, oracle, seed=seed + i).info for i in range(config["eval"]["n_episodes"])]
+            infos = [run_episode(env, oracle, seed=self.eval_seed + i).info for i in range(config["eval"]["n_episodes"])]
             path.write_text(json.dumps([{k: _plain(v) for k, v in i.items()} for i in infos]))
             self.stamps.record("oracle", current)
         return Episodes.from_infos(json.loads(path.read_text()))
@@ -295,6 +296,17 @@ def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], 
     return report
 
 
+def publish_report(report: str, out: Path, target: Path) -> None:
+    """Copy the report (and its chart, renamed after it) to `target`, so the docs show a run's own output."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    chart = out / "comparison.png"
+    if chart.exists():
+        shutil.copyfile(chart, target.with_suffix(".png"))
+        report = report.replace("](comparison.png)", f"]({target.with_suffix('.png').name})")
+    note = f"<!-- Written by the command below ({time.strftime('%Y-%m-%d')}); rerun it rather than editing. -->\n"
+    target.write_text(note + report)
+
+
 def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[TaskRun], dict[str, dict[str, Episodes]]]:
     """Every task's stages (or, with --report-only, its finished evaluations), in order."""
     if args.fresh and args.out.exists():
@@ -302,7 +314,7 @@ def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[Ta
     args.out.mkdir(parents=True, exist_ok=True)
     runs, episodes = [], {}
     for f in files:
-        run = TaskRun(f)
+        run = TaskRun(f, args.eval_seed)
         episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
         runs.append(run)
         print(markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}), flush=True)
@@ -321,6 +333,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="policy inputs: state vectors, or rendered cameras plus the robot state")
     parser.add_argument("--no-chart", action="store_true", help="skip the PNG bar chart (needs matplotlib)")
     parser.add_argument("--fresh", action="store_true", help="delete --out first instead of resuming")
+    parser.add_argument("--eval-seed", type=int, default=None,
+                        help="first evaluation seed (episode i gets seed + i); default: the eval config's, the test "
+                             "range. Tune settings on another range, e.g. the development seeds 1000-1099")
+    parser.add_argument("--publish", type=Path, default=None,
+                        help="also write the report here (its chart beside it), e.g. docs/benchmark_report.md")
     parser.add_argument("--report-only", action="store_true",
                         help="write the report from the evaluations already in --out, running no stage")
     args = parser.parse_args(argv)
@@ -335,7 +352,11 @@ def main(argv: list[str] | None = None) -> None:
     except (PipelineError, PipelineRunning) as error:
         sys.exit(str(error))
     command = "python -m lerobot_ccdp.pipeline " + shlex.join(argv if argv is not None else sys.argv[1:])
-    print(write_report(runs, episodes, args.out, command, chart=not args.no_chart))
+    report = write_report(runs, episodes, args.out, command, chart=not args.no_chart)
+    print(report)
+    if args.publish:
+        publish_report(report, args.out, args.publish)
+        print(f"Published: {args.publish}")
     print(f"Report: {args.out / 'report.md'}; total {time.perf_counter() - start:.0f} s")
 
 

@@ -28,6 +28,7 @@ TASK = "DoorOpening-v0"
 SLUG = task_slug(TASK)
 METHODS = ["dp", "ccdp"]
 N_DEMOS, N_EPISODES = 8, 4
+EVAL_SEED = 3000  # not the configs' test range: --eval-seed must reach lerobot-eval and the oracle
 
 
 def _shrink_json(src: Path, dst: Path, changes: dict) -> None:
@@ -62,7 +63,7 @@ def settings(tmp_path_factory) -> tuple[Path, Path]:
 def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str) -> str:
     result = subprocess.run(
         [sys.executable, "-m", "lerobot_ccdp.pipeline", "--tasks", TASK, "--methods", *METHODS, "--out", str(out),
-         "--configs", str(configs), "--recipes", str(recipes), *extra],
+         "--configs", str(configs), "--recipes", str(recipes), "--eval-seed", str(EVAL_SEED), *extra],
         capture_output=True, text=True, cwd=REPO)
     if result.returncode != 0:
         pytest.fail(f"pipeline failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}")
@@ -72,7 +73,7 @@ def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str) -> str:
 @pytest.fixture(scope="module")
 def pipeline_run(settings, tmp_path_factory) -> tuple[Path, str]:
     out = tmp_path_factory.mktemp("pipeline")
-    return out, _run_pipeline(*settings, out)
+    return out, _run_pipeline(*settings, out, "--publish", str(out / "docs" / "benchmark.md"))
 
 
 def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
@@ -119,6 +120,12 @@ def test_report_table_chart_and_timings(pipeline_run):
     assert set(summary[TASK]) == {*METHODS, "oracle"}
     assert summary[TASK]["oracle"]["success"]["value"] == 1.0
     assert (out / "comparison.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    published = (out / "docs" / "benchmark.md").read_text()
+    assert published.split("\n", 1)[1] == report.replace("](comparison.png)", "](benchmark.png)")
+    assert (out / "docs" / "benchmark.png").read_bytes() == (out / "comparison.png").read_bytes()
+    for method in METHODS:
+        per_episode = json.loads((out / SLUG / "eval" / method / "eval_info.json").read_text())["per_episode"]
+        assert [e["seed"] for e in per_episode] == [EVAL_SEED + i for i in range(N_EPISODES)]
     timings = json.loads((out / SLUG / "timings.json").read_text())
     assert set(timings) == {"record", "train_base", "synthesize", "train_recovery", *(f"eval_{m}" for m in METHODS)}
 
