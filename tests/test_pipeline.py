@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from PIL import Image
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import OBS_IMAGES
 
@@ -104,7 +105,7 @@ def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
         assert len(episodes) == N_EPISODES
         # One-stage task: every attempt after the first follows a failure (the env's count reached eval_info.json).
         assert (episodes.attempts_after_failure == np.maximum(episodes.attempts - 1, 0)).all()
-        assert not list((task_out / "eval" / method).rglob("*.mp4"))  # render_mode null: no videos
+        assert len(list((task_out / "eval" / method).rglob("eval_episode_*.mp4"))) == N_EPISODES  # rendered
     oracle = Episodes.from_infos(json.loads((task_out / "oracle.json").read_text()))
     assert len(oracle) == N_EPISODES and oracle.success.all() and not oracle.repeated_failures.any()
 
@@ -128,6 +129,15 @@ def test_report_table_chart_and_timings(pipeline_run):
         assert [e["seed"] for e in per_episode] == [EVAL_SEED + i for i in range(N_EPISODES)]
     timings = json.loads((out / SLUG / "timings.json").read_text())
     assert set(timings) == {"record", "train_base", "synthesize", "train_recovery", *(f"eval_{m}" for m in METHODS)}
+
+
+def test_watch_shows_both_methods_on_the_same_rendered_episode(pipeline_run, tmp_path):
+    out, _ = pipeline_run
+    gif = tmp_path / "watch.gif"
+    subprocess.run([sys.executable, "-m", "lerobot_ccdp.watch", "--eval-root", str(out / SLUG / "eval"),
+                    "--episode", "1", "--out", str(gif)], check=True, cwd=REPO)
+    with Image.open(gif) as image:
+        assert image.n_frames > 5 and image.width > 2 * 160 and image.height > 120  # two 160x120 panels, titled
 
 
 def test_a_second_run_resumes_every_stage(settings, pipeline_run):

@@ -35,6 +35,8 @@ class CCDPEnvConfig(EnvConfig):
     episode_length: int | None = None
     max_failures: int | None = None
     render_mode: str | None = "rgb_array"  # null: no rendering (lerobot-eval then saves no videos)
+    render_width: int = 320  # size of the frames lerobot-eval's videos show
+    render_height: int = 240
     obs_type: str = "state"
     cameras: list[str] = field(default_factory=lambda: ["front"])
     observation_width: int = OBSERVATION_SIZE
@@ -82,6 +84,8 @@ class CCDPEnvConfig(EnvConfig):
     @property
     def gym_kwargs(self) -> dict:
         kwargs = {"render_mode": self.render_mode, "max_episode_steps": self.episode_length, "obs_type": self.obs_type}
+        if self.render_mode is not None:
+            kwargs.update(render_width=self.render_width, render_height=self.render_height)
         if self.obs_type != "state":
             kwargs.update(cameras=tuple(self.cameras), observation_width=self.observation_width,
                           observation_height=self.observation_height)
