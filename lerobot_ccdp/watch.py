@@ -16,7 +16,11 @@ import av
 import numpy as np
 from PIL import Image, ImageDraw
 
+from lerobot.utils.utils import init_logging
+
 from lerobot_ccdp.episodes import Episodes
+
+logger = logging.getLogger(__name__)
 
 
 def rendered_videos(eval_dir: Path) -> dict[int, Path]:
@@ -86,7 +90,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--every", type=int, default=2, help="keep every n-th frame (a smaller GIF)")
     parser.add_argument("--fps", type=float, default=10.0, help="GIF frame rate (the tasks run at 10 Hz)")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    init_logging()
     dirs = [args.eval_root / m for m in args.methods]
     outcomes = [Episodes.from_eval_info(d / "eval_info.json") for d in dirs]
     videos = [rendered_videos(d) for d in dirs]
@@ -98,7 +102,7 @@ def main(argv: list[str] | None = None) -> None:
                    for m, o in zip(args.methods, outcomes, strict=True))
     images = side_by_side(frames(videos[0][episode]), frames(videos[1][episode]), titles, args.every)
     write_gif(images, args.out, args.fps / args.every)
-    logging.info("Wrote %s: episode %d (%d frames); %s | %s", args.out, episode, len(images), *titles)
+    logger.info("Wrote %s: episode %d (%d frames); %s | %s", args.out, episode, len(images), *titles)
 
 
 if __name__ == "__main__":
