@@ -14,9 +14,8 @@ from pathlib import Path
 
 import av
 import numpy as np
-from PIL import Image, ImageDraw
-
 from lerobot.utils.utils import init_logging
+from PIL import Image, ImageDraw
 
 from lerobot_ccdp.episodes import Episodes
 

@@ -12,14 +12,20 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from PIL import Image
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import OBS_IMAGES
+from PIL import Image
 
 from lerobot_ccdp.comparison import Episodes
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.pipeline import CHECKPOINT, TaskFiles, latest_progress, main, task_slug
+from lerobot_ccdp.pipeline import (
+    CHECKPOINT,
+    TaskFiles,
+    latest_progress,
+    main,
+    task_slug,
+)
 from lerobot_ccdp.recipes.camera_windows import video_backend
 from lerobot_ccdp.run_lock import exclusive
 from lerobot_ccdp.stage_stamps import stamp
