@@ -8,17 +8,28 @@ import torch.nn.functional as F  # noqa: N812
 from huggingface_hub import ModelCard
 from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
 from lerobot.policies.pretrained import PreTrainedPolicy
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
+from lerobot.utils.constants import (
+    ACTION,
+)
 from torch import Tensor
 
 from lerobot_ccdp.composition import CompositionWeights, compose_eps
-from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
+from lerobot_ccdp.configuration_ccdp import (
+    FAILURE_FEATURE_KEY,
+    FAILURE_FLAG_KEY,
+    CCDPConfig,
+)
 from lerobot_ccdp.denoisers import BaseDenoiser, make_recovery_denoiser
 from lerobot_ccdp.failure_buffer import FailureBuffer
 from lerobot_ccdp.failure_features import FailureFeature
 from lerobot_ccdp.failure_signal import FailureSignalFile
 from lerobot_ccdp.image_encoder import ImageEncoder
 from lerobot_ccdp.model_card import make_model_card
+from lerobot_ccdp.observations import (
+    observation_frames,
+    refuse_non_finite_stats,
+    refuse_unknown_cameras,
+)
 from lerobot_ccdp.outcome_index import OutcomeIndex
 from lerobot_ccdp.outcome_table import build_outcome_table
 from lerobot_ccdp.rollout_memory import RolloutMemory
@@ -61,7 +72,7 @@ class CCDPPolicy(PreTrainedPolicy):
         self.feature = FailureFeature(config)
         self.weights = CompositionWeights(config.w_s, config.w_h, config.w_z, config.z_reference)
         if dataset_stats is not None and config.training_stage == "base":
-            _refuse_non_finite_stats(config, dataset_stats)
+            refuse_non_finite_stats(config, dataset_stats)
         if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
         self.failure_signal = FailureSignalFile(config.failure_signal_file) if config.failure_signal_file else None
@@ -107,7 +118,7 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def _base_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config
-        self._refuse_unknown_cameras(batch)
+        refuse_unknown_cameras(self.config, batch)
         frames = self.frames(batch)
         if frames.ndim != 3 or batch[ACTION].ndim != 3:
             raise ValueError(
@@ -401,74 +412,5 @@ class CCDPPolicy(PreTrainedPolicy):
     # ----- inputs ---------------------------------------------------------------------------------------
 
     def frames(self, batch: dict[str, Tensor]) -> Tensor:
-        """Observation frames (B, [T,] frame_dim) as the networks see them: robot state, environment state, then
-        the encoded cameras. `batch` holds normalised inputs, one frame (B, ...) or a window (B, T, ...) each."""
-        cfg = self.config
-        keys = [OBS_STATE] + ([OBS_ENV_STATE] if cfg.env_state_feature else [])
-        parts = []
-        for key in keys:
-            value = self._input(batch, key)
-            expected = cfg.input_features[key].shape[0]
-            if value.shape[-1] != expected:
-                raise ValueError(f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}.")
-            if not torch.isfinite(value).all():
-                raise ValueError(f"{key!r} contains NaN or inf; fix the dataset or env observation before calling the "
-                                 "policy (a non-finite input would make that row's actions NaN).")
-            parts.append(value)
-        if self.images is not None:
-            parts.append(self.images([self._camera(batch, key, parts[0].shape[:-1]) for key in self.images.keys]))
-        return torch.cat(parts, dim=-1)
-
-    def _input(self, batch: dict[str, Tensor], key: str) -> Tensor:
-        if key not in batch:
-            cameras = _camera_keys(batch)
-            hint = ""
-            if cameras and key not in self.config.image_features:
-                hint = (f" The batch holds cameras {cameras} instead: this checkpoint was trained on other observations "
-                        "(for a ccdp task, evaluate it with the --env.obs_type it was trained with).")
-            raise KeyError(
-                f"CCDP needs {key!r} in every batch (it was trained with inputs "
-                f"{sorted(k for k in self.config.input_features if k != FAILURE_FEATURE_KEY)}); got keys "
-                f"{sorted(batch)}.{hint}"
-            )
-        return batch[key]
-
-    def _camera(self, batch: dict[str, Tensor], key: str, lead: torch.Size) -> Tensor:
-        """One camera's images (*lead, C, H, W), checked against the shape the encoder was built for."""
-        image = self._input(batch, key)
-        if image.ndim == len(lead) + 2 and len(lead) > 1 and lead[-1] == 1:
-            image = image.unsqueeze(-4)  # LeRobotDataset squeezes a one-frame window of video to (B, C, H, W)
-        expected = tuple(self.config.image_features[key].shape)
-        if tuple(image.shape[-3:]) != expected or image.shape[:-3] != lead:
-            raise ValueError(
-                f"{key!r} has shape {tuple(image.shape)}; the policy expects {(*lead, *expected)} (channels, height, "
-                "width as in its training data). Render or resize this camera to that size (for a ccdp task: "
-                "--env.observation_height/--env.observation_width), or train on images of this size."
-            )
-        return image
-
-    def _refuse_unknown_cameras(self, batch: dict[str, Tensor]) -> None:
-        """A camera dataset given to a checkpoint that never saw those cameras would silently train without them."""
-        unknown = [k for k in _camera_keys(batch) if k not in self.config.image_features]
-        if unknown:
-            raise ValueError(
-                f"The dataset has cameras {unknown} that this policy does not encode (its inputs: "
-                f"{sorted(k for k in self.config.input_features if k != FAILURE_FEATURE_KEY)}). To use them, train a "
-                "new base stage on this dataset (--policy.type=ccdp, no --policy.path); to train without them, use a "
-                "dataset without those cameras."
-            )
-
-
-def _camera_keys(batch: dict[str, Tensor]) -> list[str]:
-    """The batch's camera entries (`observation.image` or `observation.images.<name>`, not their pad masks)."""
-    return sorted(k for k in batch if (k.startswith(f"{OBS_IMAGES}.") or k == OBS_IMAGE) and not k.endswith("_is_pad"))
-
-
-def _refuse_non_finite_stats(config: CCDPConfig, stats: dict) -> None:
-    """NaN or inf in a dataset column makes its stats non-finite, and training would run to a NaN checkpoint
-    (LeRobot trains on, logging loss:nan): stop before the first step, naming the column."""
-    for key in [*config.input_features, *config.output_features]:
-        for name, value in stats.get(key, {}).items():
-            if not torch.isfinite(torch.as_tensor(value, dtype=torch.float64)).all():
-                raise ValueError(f"The dataset's {name} of {key!r} is not finite: the dataset holds NaN or inf in "
-                                 f"{key!r}. Remove or re-record those frames, then recompute its stats.")
+        """Observation frames (B, [T,] frame_dim) as the networks see them (`observations.observation_frames`)."""
+        return observation_frames(self.config, self.images, batch)

@@ -1,0 +1,85 @@
+"""How a batch becomes the frames the networks see (robot state, environment state, encoded cameras), and the
+checks that turn a wrong input into an error naming the key and the fix rather than a NaN or a silent skip."""
+
+import torch
+from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
+from torch import Tensor
+
+from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
+from lerobot_ccdp.image_encoder import ImageEncoder
+
+
+def observation_frames(config: CCDPConfig, images: ImageEncoder | None, batch: dict[str, Tensor]) -> Tensor:
+    """Observation frames (B, [T,] frame_dim): robot state, environment state, then the encoded cameras.
+    `batch` holds normalised inputs, one frame (B, ...) or a window (B, T, ...) each."""
+    keys = [OBS_STATE] + ([OBS_ENV_STATE] if config.env_state_feature else [])
+    parts = []
+    for key in keys:
+        value = _input(config, batch, key)
+        expected = config.input_features[key].shape[0]
+        if value.shape[-1] != expected:
+            raise ValueError(f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}.")
+        if not torch.isfinite(value).all():
+            raise ValueError(f"{key!r} contains NaN or inf; fix the dataset or env observation before calling the "
+                             "policy (a non-finite input would make that row's actions NaN).")
+        parts.append(value)
+    if images is not None:
+        parts.append(images([_camera(config, batch, key, parts[0].shape[:-1]) for key in images.keys]))
+    return torch.cat(parts, dim=-1)
+
+
+def refuse_unknown_cameras(config: CCDPConfig, batch: dict[str, Tensor]) -> None:
+    """A camera dataset given to a checkpoint that never saw those cameras would silently train without them."""
+    unknown = [k for k in _camera_keys(batch) if k not in config.image_features]
+    if unknown:
+        raise ValueError(
+            f"The dataset has cameras {unknown} that this policy does not encode (its inputs: {_inputs(config)}). "
+            "To use them, train a new base stage on this dataset (--policy.type=ccdp, no --policy.path); to train "
+            "without them, use a dataset without those cameras."
+        )
+
+
+def refuse_non_finite_stats(config: CCDPConfig, stats: dict) -> None:
+    """NaN or inf in a dataset column makes its stats non-finite, and training would run to a NaN checkpoint
+    (LeRobot trains on, logging loss:nan): stop before the first step, naming the column."""
+    for key in [*config.input_features, *config.output_features]:
+        for name, value in stats.get(key, {}).items():
+            if not torch.isfinite(torch.as_tensor(value, dtype=torch.float64)).all():
+                raise ValueError(f"The dataset's {name} of {key!r} is not finite: the dataset holds NaN or inf in "
+                                 f"{key!r}. Remove or re-record those frames, then recompute its stats.")
+
+
+def _input(config: CCDPConfig, batch: dict[str, Tensor], key: str) -> Tensor:
+    if key not in batch:
+        cameras = _camera_keys(batch)
+        hint = ""
+        if cameras and key not in config.image_features:
+            hint = (f" The batch holds cameras {cameras} instead: this checkpoint was trained on other observations "
+                    "(for a ccdp task, evaluate it with the --env.obs_type it was trained with).")
+        raise KeyError(f"CCDP needs {key!r} in every batch (it was trained with inputs {_inputs(config)}); got keys "
+                       f"{sorted(batch)}.{hint}")
+    return batch[key]
+
+
+def _camera(config: CCDPConfig, batch: dict[str, Tensor], key: str, lead: torch.Size) -> Tensor:
+    """One camera's images (*lead, C, H, W), checked against the shape the encoder was built for."""
+    image = _input(config, batch, key)
+    if image.ndim == len(lead) + 2 and len(lead) > 1 and lead[-1] == 1:
+        image = image.unsqueeze(-4)  # LeRobotDataset squeezes a one-frame window of video to (B, C, H, W)
+    expected = tuple(config.image_features[key].shape)
+    if tuple(image.shape[-3:]) != expected or image.shape[:-3] != lead:
+        raise ValueError(
+            f"{key!r} has shape {tuple(image.shape)}; the policy expects {(*lead, *expected)} (channels, height, "
+            "width as in its training data). Render or resize this camera to that size (for a ccdp task: "
+            "--env.observation_height/--env.observation_width), or train on images of this size."
+        )
+    return image
+
+
+def _inputs(config: CCDPConfig) -> list[str]:
+    return sorted(k for k in config.input_features if k != FAILURE_FEATURE_KEY)
+
+
+def _camera_keys(batch: dict[str, Tensor]) -> list[str]:
+    """The batch's camera entries (`observation.image` or `observation.images.<name>`, not their pad masks)."""
+    return sorted(k for k in batch if (k.startswith(f"{OBS_IMAGES}.") or k == OBS_IMAGE) and not k.endswith("_is_pad"))
