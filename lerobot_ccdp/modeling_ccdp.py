@@ -11,6 +11,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
 from torch import Tensor
 
+from lerobot_ccdp.checkpoint_files import checkpoint_loading
 from lerobot_ccdp.composition import CompositionWeights, compose_eps
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
 from lerobot_ccdp.denoisers import BaseDenoiser, make_recovery_denoiser
@@ -75,10 +76,12 @@ class CCDPPolicy(PreTrainedPolicy):
     def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "CCDPPolicy":
         """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
         metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
-        recording dataset without the label column); they are dropped so that loading never reads a dataset."""
+        recording dataset without the label column); they are dropped so that loading never reads a dataset. A local
+        folder is checked first (`checkpoint_loading`): a wrong path or a damaged file is named with the fix."""
         for key in ("dataset_meta", "dataset_stats"):
             kwargs.pop(key, None)
-        return super().from_pretrained(pretrained_name_or_path, **kwargs)
+        with checkpoint_loading(pretrained_name_or_path):
+            return super().from_pretrained(pretrained_name_or_path, **kwargs)
 
     def generate_model_card(
         self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
