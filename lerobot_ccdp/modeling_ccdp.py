@@ -202,7 +202,7 @@ class CCDPPolicy(PreTrainedPolicy):
             raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
         mask = self._failed_rows(rows)
         dim = self.config.failure_feature_dim
-        if z is not None and z.numel() != int(mask.sum()) * dim:
+        if z is not None and (z.shape[-1:] != (dim,) or z.numel() != int(mask.sum()) * dim):
             raise ValueError(
                 f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed row, "
                 f"({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out to use the "

@@ -7,10 +7,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from lerobot.processor import ProcessorStep, ProcessorStepRegistry
-
 from conftest import REACHING_REPO_ID
+from lerobot.processor import ProcessorStep, ProcessorStepRegistry
 from policy_factory import untrained_checkpoint
+
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 from lerobot_ccdp.recipes.synthesize import synthesize_recovery_dataset
