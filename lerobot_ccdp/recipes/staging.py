@@ -63,6 +63,7 @@ def staged_dataset_root(root: str | Path, overwrite: bool = False) -> Iterator[P
 
     If the block raises (or is interrupted), nothing appears at `root` and the staging folder is removed,
     so a crashed run never leaves a half-written dataset behind; one killed outright is cleaned by the next run.
+    A full disk is reported as such, naming the folder, whatever error LeRobot's writers raised last.
     """
     root = Path(root)
     check_replaceable(root, overwrite)
