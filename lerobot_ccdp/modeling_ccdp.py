@@ -13,6 +13,7 @@ from lerobot.utils.constants import (
 )
 from torch import Tensor
 
+from lerobot_ccdp.checkpoint_files import checkpoint_loading
 from lerobot_ccdp.composition import CompositionWeights, compose_eps
 from lerobot_ccdp.configuration_ccdp import (
     FAILURE_FEATURE_KEY,
@@ -86,10 +87,12 @@ class CCDPPolicy(PreTrainedPolicy):
     def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "CCDPPolicy":
         """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
         metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
-        recording dataset without the label column); they are dropped so that loading never reads a dataset."""
+        recording dataset without the label column); they are dropped so that loading never reads a dataset. A local
+        folder is checked first (`checkpoint_loading`): a wrong path or a damaged file is named with the fix."""
         for key in ("dataset_meta", "dataset_stats"):
             kwargs.pop(key, None)
-        return super().from_pretrained(pretrained_name_or_path, **kwargs)
+        with checkpoint_loading(pretrained_name_or_path):
+            return super().from_pretrained(pretrained_name_or_path, **kwargs)
 
     def generate_model_card(
         self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
@@ -210,7 +213,7 @@ class CCDPPolicy(PreTrainedPolicy):
             raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
         mask = self._failed_rows(rows)
         dim = self.config.failure_feature_dim
-        if z is not None and z.numel() != int(mask.sum()) * dim:
+        if z is not None and (z.shape[-1:] != (dim,) or z.numel() != int(mask.sum()) * dim):
             raise ValueError(
                 f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed row, "
                 f"({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out to use the "

@@ -1,12 +1,20 @@
 """Bad configuration and bad input give errors that name the problem and the fix."""
 
+import errno
+import gc
+import os
+
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
+from policy_factory import make_policy
 
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from policy_factory import make_policy
+from lerobot_ccdp.recipes.recipe_file import RecordRecipe
+from lerobot_ccdp.recipes.record import record_dataset
 
 
 @pytest.mark.parametrize(
@@ -93,3 +101,51 @@ def test_a_batch_size_change_that_drops_failures_says_so(caplog):
         policy.select_action({"observation.state": torch.zeros(3, 2)})
     assert "from 2 to 3 rows without reset(): the 1 remembered failure(s) are dropped" in caplog.text
     assert policy.failure_count().tolist() == [0, 0, 0]
+
+
+def fill_the_disk(monkeypatch: pytest.MonkeyPatch, at_open: bool) -> list[int]:
+    """Make pyarrow's parquet writers see a disk that fills at the third table written (the second episode's
+    frames): that write fails with ENOSPC and later ones with "Operation on closed file"; with `at_open`, opening a
+    writer then fails with ENOSPC once its file exists, as a real one does. Returns the count of writes, live."""
+    write_table, open_writer, writes = pq.ParquetWriter.write_table, pq.ParquetWriter.__init__, [0]
+
+    def write(writer, table, row_group_size=None):
+        writes[0] += 1
+        if writes[0] < 3:
+            return write_table(writer, table, row_group_size)
+        if writes[0] == 3:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        raise pa.ArrowInvalid("Operation on closed file")
+
+    def open_(writer, *args, **kwargs):
+        open_writer(writer, *args, **kwargs)
+        if at_open and writes[0] >= 3:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(pq.ParquetWriter, "write_table", write)
+    monkeypatch.setattr(pq.ParquetWriter, "__init__", open_)
+    return writes
+
+
+@pytest.mark.parametrize("at_open", [False, True])
+def test_a_full_disk_while_writing_a_dataset_is_named_and_leaves_nothing(tmp_path, monkeypatch, at_open):
+    """Neither LeRobot's later "Operation on closed file" nor its own ENOSPC on closing the dataset hides the full
+    disk, and no destructor run after the failure writes a new partial folder."""
+    writes = fill_the_disk(monkeypatch, at_open)
+    out = tmp_path / "out"
+    with pytest.raises(OSError, match=f"No space left on device in {out} while writing demos.*Free space") as error:
+        record_dataset(RecordRecipe(task="DoorOpening-v0", n_episodes=2, seed=0), "local/d", out / "demos",
+                       progress=False)
+    assert error.value.errno == errno.ENOSPC and writes[0] >= 3
+    del error
+    gc.collect()
+    assert list(out.iterdir()) == [], "no dataset and no .partial staging folder"
+
+
+def test_a_z_of_the_wrong_shape_is_refused_even_with_the_right_size():
+    policy = make_policy()
+    policy.select_action({"observation.state": torch.zeros(1, 2)})
+    dim = policy.config.failure_feature_dim
+    with pytest.raises(ValueError, match=rf"got shape \(4, {dim // 4}\).*\(1, {dim}\)"):
+        policy.report_failure(z=torch.zeros(4, dim // 4))
+    assert policy.failure_count().tolist() == [0]

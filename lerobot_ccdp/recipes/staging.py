@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import contextlib
+import errno
+import gc
 import logging
 import os
 import shutil
+import sys
 import tempfile
+import traceback
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -59,6 +63,7 @@ def staged_dataset_root(root: str | Path, overwrite: bool = False) -> Iterator[P
 
     If the block raises (or is interrupted), nothing appears at `root` and the staging folder is removed,
     so a crashed run never leaves a half-written dataset behind; one killed outright is cleaned by the next run.
+    A full disk is reported as such, naming the folder, whatever error LeRobot's writers raised last.
     """
     root = Path(root)
     check_replaceable(root, overwrite)
@@ -70,5 +75,40 @@ def staged_dataset_root(root: str | Path, overwrite: bool = False) -> Iterator[P
         if root.exists():
             shutil.rmtree(root)
         (staging / "dataset").rename(root)
+    except BaseException as error:
+        _release_frames(error)
+        if any(_is_disk_full(e) for e in _chain(error)):
+            raise OSError(errno.ENOSPC, f"No space left on device in {root.parent} while writing {root.name}: nothing "
+                          "was written there and the partial copy is removed. Free space on that disk, or write the "
+                          "dataset to another one.") from error
+        raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def _chain(error: BaseException) -> list[BaseException]:
+    """`error` and the exceptions it was raised while handling."""
+    chain = [error]
+    while (cause := chain[-1].__cause__ or chain[-1].__context__) is not None and cause not in chain:
+        chain.append(cause)
+    return chain
+
+
+def _is_disk_full(error: BaseException) -> bool:
+    """A full disk often surfaces second-hand: a writer that failed on ENOSPC is closed by a `finally` whose own
+    error ("Operation on closed file") is the one raised, so the whole chain is searched."""
+    return isinstance(error, OSError) and (error.errno == errno.ENOSPC or os.strerror(errno.ENOSPC) in str(error))
+
+
+def _release_frames(error: BaseException) -> None:
+    """Free what the failed block's frames still hold before the staging folder is removed: a LeRobot dataset's
+    destructor flushes its writers, and run later it would write a new partial folder (or fail on the full disk
+    again, with a message that buries ours)."""
+    hook = sys.unraisablehook
+    sys.unraisablehook = lambda failed: logger.debug("A failed dataset's writer: %s", failed.exc_value)
+    try:
+        for link in _chain(error):
+            traceback.clear_frames(link.__traceback__)
+        gc.collect()
+    finally:
+        sys.unraisablehook = hook

@@ -46,6 +46,7 @@ from lerobot.utils.utils import is_torch_device_available
 from torch import Tensor
 from tqdm import tqdm
 
+from lerobot_ccdp.checkpoint_files import checkpoint_loading
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
 from lerobot_ccdp.failure_features import failure_feature_stats
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
@@ -107,11 +108,21 @@ def synthesis_device(saved: str | None, requested: str | None) -> str:
     return requested
 
 
+def check_demo_root(root: str | Path) -> None:
+    """The demos must be a local dataset: named here, a wrong --root is not mistaken for a Hub download."""
+    root = Path(root)
+    if not (root / "meta" / "info.json").is_file():
+        problem = "the folder does not exist" if not root.exists() else "it has no meta/info.json"
+        raise FileNotFoundError(f"No LeRobot dataset at --root {root}: {problem}. Record the demos there first "
+                                "(lerobot-ccdp-record) or fix the path.")
+
+
 def load_checkpoint(
     policy_path: str | Path, device: str | None = None
 ) -> tuple[CCDPPolicy, dict[str, dict[str, Tensor]]]:
     """The base policy on the device `synthesis_device` picks, and the normalisation stats of its saved preprocessor."""
-    config = PreTrainedConfig.from_pretrained(policy_path)
+    with checkpoint_loading(policy_path):  # names a missing or damaged folder; refuses unknown processor classes
+        config = PreTrainedConfig.from_pretrained(policy_path)
     if not isinstance(config, CCDPConfig):
         raise ValueError(f"{policy_path} holds a {config.type!r} policy; synthesis needs a ccdp base checkpoint "
                          "(lerobot-train --policy.type=ccdp on the demo dataset).")
@@ -234,9 +245,7 @@ def synthesize_recovery_dataset(
     dataset are built on the CPU; the policy's networks run on `device` (see `synthesis_device`)."""
     started = time.perf_counter()
     check_replaceable(out_root, overwrite)  # before minutes of loading and sampling, not after
-    if not (Path(demo_root) / "meta" / "info.json").is_file():
-        raise FileNotFoundError(f"No LeRobot dataset at --root {demo_root} (no meta/info.json): record the demos "
-                                "there first (lerobot-ccdp-record) or fix the path.")
+    check_demo_root(demo_root)
     policy, stats = load_checkpoint(policy_path, device)
     config = policy.config
     check_recipe_matches(recipe, config, recipe_source)
