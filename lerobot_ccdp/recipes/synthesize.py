@@ -27,7 +27,6 @@ dataset; it carries the cameras' normalisation stats, which the recovery checkpo
 
 from __future__ import annotations
 
-import argparse
 import logging
 import time
 from collections.abc import Callable
@@ -37,6 +36,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import yaml
+from lerobot.configs import parser
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.utils import write_stats
@@ -53,6 +53,7 @@ from lerobot_ccdp.outcome_index import demo_chunks
 from lerobot_ccdp.outcome_table import read_columns
 from lerobot_ccdp.processor_ccdp import normalize_batch, unnormalize_batch
 from lerobot_ccdp.recipes.camera_windows import CameraWindows
+from lerobot_ccdp.recipes.configs import SynthesizeConfig, parse_cli
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 from lerobot_ccdp.recipes.staging import check_replaceable, staged_dataset_root
 from lerobot_ccdp.recovery_pairs import pick_pairs, recovery_pair_mask
@@ -93,8 +94,8 @@ class Demos:
 
 
 def synthesis_device(saved: str | None, requested: str | None) -> str:
-    """`requested` (--device) if this machine has it; else the checkpoint's saved device, or the CPU where that one
-    is absent (a base trained on a GPU is synthesised from on any machine)."""
+    """`requested` (--policy.device) if this machine has it; else the checkpoint's saved device, or the CPU where that
+    one is absent (a base trained on a GPU is synthesised from on any machine)."""
     if requested is None:
         return saved if saved and is_torch_device_available(saved) else "cpu"
     try:
@@ -102,8 +103,8 @@ def synthesis_device(saved: str | None, requested: str | None) -> str:
     except ValueError:
         available = False
     if not available:
-        raise ValueError(f"--device {requested!r} is not available on this machine. Pass --device cpu (or cuda, "
-                         "mps where present), or leave --device out to follow the checkpoint's device.")
+        raise ValueError(f"--policy.device={requested} is not available on this machine. Pass --policy.device=cpu (or "
+                         "cuda, mps where present), or leave it out to follow the checkpoint's device.")
     return requested
 
 
@@ -235,8 +236,8 @@ def synthesize_recovery_dataset(
     started = time.perf_counter()
     check_replaceable(out_root, overwrite)  # before minutes of loading and sampling, not after
     if not (Path(demo_root) / "meta" / "info.json").is_file():
-        raise FileNotFoundError(f"No LeRobot dataset at --root {demo_root} (no meta/info.json): record the demos "
-                                "there first (lerobot-ccdp-record) or fix the path.")
+        raise FileNotFoundError(f"No LeRobot dataset at --dataset.root={demo_root} (no meta/info.json): record the "
+                                "demos there first (lerobot-ccdp-record) or fix the path.")
     policy, stats = load_checkpoint(policy_path, device)
     config = policy.config
     check_recipe_matches(recipe, config, recipe_source)
@@ -325,24 +326,14 @@ def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pool: Samp
     write_stats(written, path)
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("recipe", type=Path, help="recipe YAML with a `recovery:` section, e.g. datasets_recipes/door_opening.yaml")
-    parser.add_argument("--repo-id", required=True, help="repo id of the local demo dataset, e.g. local/door_opening")
-    parser.add_argument("--root", required=True, type=Path, help="folder of the demo dataset")
-    parser.add_argument("--policy-path", required=True, type=Path,
-                        help="base ccdp checkpoint (a pretrained_model folder written by lerobot-train)")
-    parser.add_argument("--out-repo-id", required=True, help="repo id of the recovery dataset, e.g. local/door_opening_recovery")
-    parser.add_argument("--out-root", required=True, type=Path, help="folder to write the recovery dataset to")
-    parser.add_argument("--overwrite", action="store_true", help="replace --out-root if it exists (once the new one is done)")
-    parser.add_argument("--device", default=None,
-                        help="device to run the base policy on, e.g. cpu or cuda (default: the checkpoint's saved "
-                             "device, or cpu where that one is absent)")
-    args = parser.parse_args(argv)
+def main(args: list[str] | None = None) -> None:
+    """`lerobot-ccdp-synthesize --config_path=<recipe yaml> --dataset.* --policy.path=... --output.*` (see --help)."""
+    cfg = parse_cli(SynthesizeConfig, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    recipe = RecoveryRecipe.load(args.recipe)
-    synthesize_recovery_dataset(recipe, args.repo_id, args.root, args.policy_path, args.out_repo_id, args.out_root,
-                                overwrite=args.overwrite, recipe_source=str(args.recipe), device=args.device)
+    source = parser.parse_arg("config_path", args) or "given by --recovery.* flags"
+    synthesize_recovery_dataset(cfg.recovery, cfg.dataset.repo_id, cfg.dataset.root, cfg.policy.path,
+                                cfg.output.repo_id, cfg.output.root, overwrite=cfg.overwrite, recipe_source=source,
+                                device=cfg.policy.device)
 
 
 if __name__ == "__main__":
