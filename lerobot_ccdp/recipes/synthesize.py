@@ -23,6 +23,11 @@ On a camera dataset, eq. (6) perturbs the low-dimensional state only and keeps t
 which the base encodes into the state condition of eq. (7); eq. (5)'s state distance is over the
 low-dimensional state. The recovery stage reads only z and chunks, so no image is copied into the recovery
 dataset; it carries the cameras' normalisation stats, which the recovery checkpoint's preprocessor needs.
+
+    lerobot-ccdp-synthesize --config_path=datasets_recipes/door_opening.yaml \
+        --dataset.repo_id=local/door_opening --dataset.root=data/door_opening \
+        --policy.path=<base run>/checkpoints/last/pretrained_model \
+        --output.repo_id=local/door_opening_recovery --output.root=data/door_opening_recovery [--recovery.sigma=0.05]
 """
 
 from __future__ import annotations
