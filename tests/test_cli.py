@@ -151,6 +151,8 @@ def test_a_missing_or_unfit_recipe_file_is_named(tmp_path):
     missing = tmp_path / "no_such_recipe.yaml"
     with pytest.raises(SystemExit, match=f"lerobot-ccdp-record: error: Recipe file not found: {missing}"):
         parse_cli(RecordConfig, [f"--config_path={missing}", *DEMOS])
+    with pytest.raises(SystemExit, match="--config_path=<recipe yaml>, with '='"):
+        parse_cli(RecordConfig, ["--config_path", str(DOOR), *DEMOS])
     reaching = DOOR.with_name("reaching2d.yaml")  # a `recovery:` section only: its demos come from another recorder
     with pytest.raises(SystemExit, match=f"Recipe {reaching} has no top-level `record:` section"):
         parse_cli(RecordConfig, [f"--config_path={reaching}", *DEMOS])

@@ -113,6 +113,8 @@ def parse_cli(config_class: type[T], args: Sequence[str] | None = None) -> T:
     config_path, args = parser.parse_arg("config_path", args), parser.filter_arg("config_path", args)
     section = config_class.section
     try:
+        if "--config_path" in args:  # draccus would read the whole file, both sections, as this command's config
+            raise ValueError("write the recipe as --config_path=<recipe yaml>, with '='")
         file_values = {section: read_recipe_section(config_path, section)} if config_path else {}
         missing = [f"--{name}" for name in _required_fields(config_class) if not _given(name, args)]
         if config_path:  # the section's own check names what the file lacks, after any unknown (misspelt) field
