@@ -64,15 +64,16 @@ def bench_task(task: str, work: Path, base: Path | None, base_steps: int, recove
         if task == "reaching2d":
             row["record_s"] = run("python", "-m", "lerobot_ccdp.reaching2d", f"--root={demos}")
         else:
-            row["record_s"] = run("lerobot-ccdp-record", str(recipe_path), f"--repo-id=local/{name}", f"--root={demos}")
+            row["record_s"] = run("lerobot-ccdp-record", f"--config_path={recipe_path}",
+                                  f"--dataset.repo_id=local/{name}", f"--dataset.root={demos}")
     if base is None:
         flags = [f"--policy.{k}={v}" for k, v in recovery.items() if k in ("failure_feature", "num_primitives")]
         base, row["base_train_s"] = train(["--policy.type=ccdp", *flags], f"local/{name}", demos,
                                           work / name / "base", base_steps)
     data = work / name / "recovery_data"
-    row["synthesis_s"] = run("lerobot-ccdp-synthesize", str(recipe_path), f"--repo-id=local/{name}", f"--root={demos}",
-                             f"--policy-path={base}", f"--out-repo-id=local/{name}_recovery", f"--out-root={data}",
-                             "--overwrite")
+    row["synthesis_s"] = run("lerobot-ccdp-synthesize", f"--config_path={recipe_path}",
+                             f"--dataset.repo_id=local/{name}", f"--dataset.root={demos}", f"--policy.path={base}",
+                             f"--output.repo_id=local/{name}_recovery", f"--output.root={data}", "--overwrite=true")
     result = yaml.safe_load((data / "meta" / "ccdp_recovery_recipe.yaml").read_text())["result"]
     row.update(result)
     row["chunks_per_s"] = result["pool_synthesised"] / result["sampling_seconds"]

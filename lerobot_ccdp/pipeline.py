@@ -125,13 +125,14 @@ class TaskRun:
     def run(self, methods: list[str]) -> dict[str, Episodes]:
         f = self.files
         demos = self._stage("record", f.demos / "meta" / "info.json", [
-            "lerobot-ccdp-record", str(f.recipe), f"--repo-id=local/{self.slug}", f"--root={f.demos}"],
-            upstream=None, clear=f.demos)
+            "lerobot-ccdp-record", f"--config_path={f.recipe}", f"--dataset.repo_id=local/{self.slug}",
+            f"--dataset.root={f.demos}"], upstream=None, clear=f.demos)
         base, base_stamp = self._train("train_base", f.train_base, f.out / "base", f"local/{self.slug}", f.demos,
                                        upstream=demos)
         recovery_data = self._stage("synthesize", f.recovery_data / "meta" / "info.json", [
-            "lerobot-ccdp-synthesize", str(f.recipe), f"--repo-id=local/{self.slug}", f"--root={f.demos}",
-            f"--policy-path={base}", f"--out-repo-id=local/{self.slug}_recovery", f"--out-root={f.recovery_data}"],
+            "lerobot-ccdp-synthesize", f"--config_path={f.recipe}", f"--dataset.repo_id=local/{self.slug}",
+            f"--dataset.root={f.demos}", f"--policy.path={base}", f"--output.repo_id=local/{self.slug}_recovery",
+            f"--output.root={f.recovery_data}"],
             upstream=base_stamp, clear=f.recovery_data)
         recovery, recovery_stamp = self._train(
             "train_recovery", f.train_recovery, f.out / "recovery", f"local/{self.slug}_recovery", f.recovery_data,

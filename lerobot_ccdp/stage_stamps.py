@@ -17,7 +17,7 @@ DISTRIBUTION = "lerobot_policy_ccdp"
 
 
 def settings_files(command: list[str]) -> list[Path]:
-    """Files a command line names as arguments (`--config_path=x.json`, a positional recipe)."""
+    """Files a command line names as arguments (`--config_path=x.json`, `--config_path=recipe.yaml`)."""
     values = [arg.split("=", 1)[-1] for arg in command[1:]]
     return [Path(v) for v in values if Path(v).is_file()]
 

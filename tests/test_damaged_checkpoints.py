@@ -72,7 +72,7 @@ def test_a_folder_that_is_no_checkpoint_is_named(reaching_root):
 
 
 def test_a_missing_demo_folder_says_it_does_not_exist(checkpoint, tmp_path):
-    with pytest.raises(FileNotFoundError, match=f"--root {tmp_path / 'demos'}: the folder does not exist"):
+    with pytest.raises(FileNotFoundError, match=f"--dataset.root={tmp_path / 'demos'}: the folder does not exist"):
         synthesize_from(checkpoint, tmp_path / "demos", tmp_path / "recovery")
 
 

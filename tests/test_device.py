@@ -1,5 +1,5 @@
-"""Devices: a checkpoint saved from CUDA loads and is synthesised from on a CPU-only machine; --device picks the
-synthesis device and names the fix when this machine lacks it. Nothing here needs a GPU."""
+"""Devices: a checkpoint saved from CUDA loads and is synthesised from on a CPU-only machine; --policy.device picks
+the synthesis device and names the fix when this machine lacks it. Nothing here needs a GPU."""
 
 import json
 from pathlib import Path
@@ -42,8 +42,8 @@ def synthesize_cli(checkpoint: Path, demos: Path, out: Path, *device: str) -> Le
     out.parent.mkdir(parents=True)
     recipe = out.parent / "recipe.yaml"
     recipe.write_text(yaml.safe_dump({"recovery": {**SETTINGS, **SMALL}}))
-    synthesize.main([str(recipe), f"--repo-id={REACHING_REPO_ID}", f"--root={demos}", f"--policy-path={checkpoint}",
-                     "--out-repo-id=local/recovery", f"--out-root={out}", *device])
+    synthesize.main([f"--config_path={recipe}", f"--dataset.repo_id={REACHING_REPO_ID}", f"--dataset.root={demos}",
+                     f"--policy.path={checkpoint}", "--output.repo_id=local/recovery", f"--output.root={out}", *device])
     return LeRobotDataset("local/recovery", root=out)
 
 
@@ -68,7 +68,7 @@ def test_a_cuda_checkpoint_acts_in_a_loop_that_loads_its_processors_like_lerobot
 
 def test_synthesis_from_a_cuda_checkpoint_follows_it_or_takes_device(cuda_checkpoint, reaching_root, tmp_path):
     followed = synthesize_cli(cuda_checkpoint, reaching_root, tmp_path / "followed" / "out")
-    on_cpu = synthesize_cli(cuda_checkpoint, reaching_root, tmp_path / "cpu" / "out", "--device=cpu")
+    on_cpu = synthesize_cli(cuda_checkpoint, reaching_root, tmp_path / "cpu" / "out", "--policy.device=cpu")
     assert followed.num_frames > 0 and on_cpu.num_frames > 0
     if HERE == "cpu":  # the same device and seed: the same dataset
         actions = [d.hf_dataset.with_format("torch")["action"] for d in (followed, on_cpu)]
@@ -86,8 +86,8 @@ def test_synthesis_device_choice():
     assert synthesis_device(None, None) == "cpu"
     assert synthesis_device("cuda", None) == HERE
     assert synthesis_device("cuda", "cpu") == "cpu"
-    with pytest.raises(ValueError, match="'tpu' is not available.*--device cpu"):
+    with pytest.raises(ValueError, match="--policy.device=tpu is not available.*--policy.device=cpu"):
         synthesis_device("cpu", "tpu")
     if not torch.cuda.is_available():
-        with pytest.raises(ValueError, match="'cuda' is not available.*leave --device out"):
+        with pytest.raises(ValueError, match="--policy.device=cuda is not available.*leave it out"):
             synthesis_device("cpu", "cuda")

@@ -41,8 +41,9 @@ def recovery_checkpoint(reaching_root, tmp_path_factory) -> Path:
     tmp = tmp_path_factory.mktemp("recovery")
     run_cli(*train_args(reaching_root, tmp / "base", 1000, "--save_freq=1000", batch_size=64))
     checkpoint = tmp / "base" / "checkpoints" / "last" / "pretrained_model"
-    run_cli("lerobot-ccdp-synthesize", str(RECIPE), f"--repo-id={REACHING_REPO_ID}", f"--root={reaching_root}",
-            f"--policy-path={checkpoint}", "--out-repo-id=local/reaching2d_recovery", f"--out-root={tmp / 'data'}")
+    run_cli("lerobot-ccdp-synthesize", f"--config_path={RECIPE}", f"--dataset.repo_id={REACHING_REPO_ID}",
+            f"--dataset.root={reaching_root}", f"--policy.path={checkpoint}",
+            "--output.repo_id=local/reaching2d_recovery", f"--output.root={tmp / 'data'}")
     run_cli("lerobot-train", f"--policy.path={checkpoint}", "--policy.training_stage=recovery",
             f"--policy.w_z={W_Z}",
             "--dataset.repo_id=local/reaching2d_recovery", f"--dataset.root={tmp / 'data'}",

@@ -203,7 +203,7 @@ def test_recipe_validation(change, message):
 
 
 def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
-    """A wrong --out-root or --root is named at once, not after minutes of loading and sampling."""
+    """A wrong --output.root or --dataset.root is named at once, not after minutes of loading and sampling."""
     recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL})
     missing_checkpoint = tmp_path / "no_such_checkpoint"
     (tmp_path / "out").mkdir()
@@ -213,7 +213,7 @@ def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
     with pytest.raises(ValueError, match="only replaces a LeRobot dataset"):
         synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, missing_checkpoint, "local/r",
                                     tmp_path / "out", overwrite=True, progress=False)
-    with pytest.raises(FileNotFoundError, match=f"No LeRobot dataset at --root {tmp_path / 'demos'}"):
+    with pytest.raises(FileNotFoundError, match=f"No LeRobot dataset at --dataset.root={tmp_path / 'demos'}"):
         synthesize_recovery_dataset(recipe, REACHING_REPO_ID, tmp_path / "demos", missing_checkpoint, "local/r",
                                     tmp_path / "new", progress=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]

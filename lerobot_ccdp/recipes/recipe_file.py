@@ -1,20 +1,21 @@
 """Recipe files (`datasets_recipes/<task>.yaml`): one top-level section per job; each job reads only its own.
 
 `record:` holds what `lerobot-ccdp-record` records, `recovery:` how `lerobot-ccdp-synthesize` builds the
-recovery dataset (paper eq. 5-7).
+recovery dataset (paper eq. 5-7). The CLIs (`recipes/configs.py`) build these dataclasses from the file's
+section merged with `--record.<field>` / `--recovery.<field>` flags through `from_dict`, so a value is checked
+the same way wherever it comes from.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
-from pathlib import Path
 import types
 import typing
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import yaml
-
 from lerobot.utils.constants import OBS_STATE
 
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURES
@@ -42,32 +43,29 @@ def read_recipe_section(path: str | Path, section: str) -> dict[str, Any]:
 class RecordRecipe:
     """What `lerobot-ccdp-record` records: `n_episodes` expert successes of `task`, seeds from `seed` on."""
 
-    task: str
-    n_episodes: int
-    seed: int
-    fps: int = CONTROL_FPS
-    max_episode_steps: int | None = None  # default: the task's own step limit
-    task_description: str | None = None  # default: the task's own description
-    env_kwargs: dict[str, Any] = field(default_factory=dict)  # extra keyword arguments of the env
+    task: str  # required: a task of docs/tasks.md, e.g. DoorOpening-v0
+    n_episodes: int  # required: successful expert episodes to keep (failed ones are discarded)
+    seed: int  # required: seed of the first episode; each next attempt takes the next seed
+    fps: int = CONTROL_FPS  # the tasks' control rate; no other value is accepted
+    max_episode_steps: int | None = None  # step limit of an episode; null: the task's own
+    task_description: str | None = None  # the dataset's task text; null: the task's own description
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # extra env arguments, e.g. {obs_type: pixels_agent_pos}
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any], source: str = "recipe") -> RecordRecipe:
-        recipe = _build(cls, values, "record", source)
+    def from_dict(cls, values: dict[str, Any], source: str | None = None) -> RecordRecipe:
+        """The recipe of a `record:` mapping, checked; errors start with `source` (the file) where given."""
+        at = f"{source}: " if source else ""
+        recipe = _build(cls, values, "record", at)
         task_class(recipe.task)  # names the known tasks if this one is not
-        if not isinstance(recipe.n_episodes, int) or recipe.n_episodes < 1:
-            raise ValueError(f"{source}: record.n_episodes must be a positive integer, got {recipe.n_episodes!r}")
+        if recipe.n_episodes < 1:
+            raise ValueError(f"{at}record.n_episodes must be a positive integer, got {recipe.n_episodes!r}")
         if recipe.fps != CONTROL_FPS:
-            raise ValueError(f"{source}: record.fps must be {CONTROL_FPS} (the tasks' control rate), got {recipe.fps}")
+            raise ValueError(f"{at}record.fps must be {CONTROL_FPS} (the tasks' control rate), got {recipe.fps}")
         return recipe
 
     @classmethod
     def load(cls, path: str | Path) -> RecordRecipe:
         return cls.from_dict(read_recipe_section(path, "record"), source=str(path))
-
-    def with_episodes(self, n_episodes: int | None) -> RecordRecipe:
-        if n_episodes is None:
-            return self
-        return self.from_dict({**dataclasses.asdict(self), "n_episodes": n_episodes}, source="override")
 
 
 @dataclass(frozen=True)
@@ -78,12 +76,12 @@ class RecoveryRecipe:
     other fields are the synthesis parameters. Distances are in the policy's normalised space.
     """
 
-    failure_feature: str
-    failure_state_key: str = OBS_STATE
-    failure_state_dims: list[int] = field(default_factory=list)
-    failure_action_steps: list[int] = field(default_factory=list)
-    primitive_key: str = "primitive"
-    num_primitives: int = 0
+    failure_feature: str  # required: what z is, one of final_state, action, primitive (as --policy.failure_feature)
+    failure_state_key: str = OBS_STATE  # final_state z: the observation that forms z
+    failure_state_dims: list[int] = field(default_factory=list)  # final_state z: which of its dims; []: all
+    failure_action_steps: list[int] = field(default_factory=list)  # action z: which steps of the chunk; []: all
+    primitive_key: str = "primitive"  # primitive z: the dataset column of the option label
+    num_primitives: int = 0  # primitive z: the number of options (z is one-hot)
     n_states: int = 512  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
     chunks_per_state: int = 16  # chunks sampled around each x_s from eq. (7)
     sigma: float = 0.02  # std of the state noise xi_x (eq. 6)
@@ -94,25 +92,27 @@ class RecoveryRecipe:
     delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
     pairs_per_failure: int = 2  # recoveries drawn per pool sample taken as a failure
     batch_states: int = 32  # states sampled per batched denoising call
-    seed: int = 0
+    seed: int = 0  # seed of every random draw (states, noise, pairs)
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any], source: str = "recipe") -> RecoveryRecipe:
-        recipe = _build(cls, values, "recovery", source)
+    def from_dict(cls, values: dict[str, Any], source: str | None = None) -> RecoveryRecipe:
+        """The recipe of a `recovery:` mapping, checked; errors start with `source` (the file) where given."""
+        at = f"{source}: " if source else ""
+        recipe = _build(cls, values, "recovery", at)
         if recipe.failure_feature not in FAILURE_FEATURES:
-            raise ValueError(f"{source}: recovery.failure_feature must be one of {list(FAILURE_FEATURES)}, "
+            raise ValueError(f"{at}recovery.failure_feature must be one of {list(FAILURE_FEATURES)}, "
                              f"got {recipe.failure_feature!r}")
         if not 0.0 < recipe.w_s <= 1.0:
-            raise ValueError(f"{source}: recovery.w_s must be in (0, 1] (eq. 7), got {recipe.w_s}")
+            raise ValueError(f"{at}recovery.w_s must be in (0, 1] (eq. 7), got {recipe.w_s}")
         counts = ("chunks_per_state", "pairs_per_failure", "batch_states")
         bad = [name for name in counts if getattr(recipe, name) < 1] + [
             name for name in ("n_states", "demo_frames", "sigma", "delta_z", "delta_x", "outcome_radius")
             if getattr(recipe, name) < 0
         ]
         if bad:
-            raise ValueError(f"{source}: recovery field(s) {', '.join(bad)} out of range (counts >= 1, the rest >= 0)")
+            raise ValueError(f"{at}recovery field(s) {', '.join(bad)} out of range (counts >= 1, the rest >= 0)")
         if recipe.n_states == 0 and recipe.demo_frames == 0:
-            raise ValueError(f"{source}: recovery.n_states and recovery.demo_frames are both 0: the pool is empty")
+            raise ValueError(f"{at}recovery.n_states and recovery.demo_frames are both 0: the pool is empty")
         return recipe
 
     @classmethod
@@ -130,20 +130,20 @@ class RecoveryRecipe:
         return {name: getattr(self, name) for name in names}
 
 
-def _build(cls: type, values: dict[str, Any], section: str, source: str):
-    """Instantiate a recipe dataclass from its section, naming unknown and missing fields."""
+def _build(cls: type, values: dict[str, Any], section: str, at: str):
+    """Instantiate a recipe dataclass from its section, naming unknown and missing fields and wrong types."""
     known = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(values) - set(known))
     if unknown:
-        raise ValueError(f"{source}: unknown field(s) in `{section}:`: {', '.join(unknown)}; known: {', '.join(known)}")
+        raise ValueError(f"{at}unknown field(s) in `{section}:`: {', '.join(unknown)}; known: {', '.join(known)}")
     required = [n for n, f in known.items() if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
     missing = [n for n in required if n not in values]
     if missing:
-        raise ValueError(f"{source}: `{section}:` is missing required field(s): {', '.join(missing)}")
+        raise ValueError(f"{at}`{section}:` is missing required field(s): {', '.join(missing)}")
     hints = typing.get_type_hints(cls)
     for name, value in values.items():
         if not _has_type(value, hints[name]):
-            raise ValueError(f"{source}: {section}.{name} must be {_type_name(hints[name])}, got {value!r} "
+            raise ValueError(f"{at}{section}.{name} must be {_type_name(hints[name])}, got {value!r} "
                              f"({type(value).__name__}); write it without quotes or decimals where a number is meant")
     return cls(**values)
 

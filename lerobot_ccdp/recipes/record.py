@@ -4,13 +4,15 @@ The dataset holds what the env observes: `observation.state` and `observation.en
 `state`), or `observation.state` and one `observation.images.<camera>` video per camera (obs_type
 `pixels_agent_pos`, set in the recipe's `env_kwargs`), then `action`, plus two per-frame labels: `primitive` (the option the expert executes in that frame) and `hidden_param` (the
 episode's hidden parameter, for analysis; no policy input reads it). Only successful episodes are kept.
-It is written to a temporary folder next to `--root` and renamed into place when complete, so an
-interrupted run leaves nothing half-written at `--root`.
+It is written to a temporary folder next to `--dataset.root` and renamed into place when complete, so an
+interrupted run leaves nothing half-written there.
+
+    lerobot-ccdp-record --config_path=datasets_recipes/door_opening.yaml \
+        --dataset.repo_id=local/door_opening --dataset.root=data/door_opening [--record.n_episodes=20]
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import time
 from pathlib import Path
@@ -25,6 +27,7 @@ from tqdm import tqdm
 from lerobot_ccdp.envs.base import ACTION_NAMES, AGENT_POS_NAMES, CCDPTaskEnv
 from lerobot_ccdp.envs.scripted import Episode, Expert, run_episode
 from lerobot_ccdp.envs.tasks import gym_id
+from lerobot_ccdp.recipes.configs import RecordConfig, parse_cli
 from lerobot_ccdp.recipes.recipe_file import RecordRecipe
 from lerobot_ccdp.recipes.staging import staged_dataset_root
 
@@ -135,18 +138,12 @@ def _as_dict(recipe: RecordRecipe) -> dict:
     return {k: v for k, v in vars(recipe).items() if v is not None and v != {}}
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("recipe", type=Path, help="recipe YAML with a `record:` section, e.g. datasets_recipes/door_opening.yaml")
-    parser.add_argument("--repo-id", required=True, help="dataset repo id, e.g. local/door_opening (never pushed)")
-    parser.add_argument("--root", required=True, type=Path, help="folder to write the dataset to (must not exist)")
-    parser.add_argument("--n-episodes", type=int, default=None, help="override record.n_episodes")
-    parser.add_argument("--overwrite", action="store_true", help="replace --root if it exists (once the new one is done)")
-    args = parser.parse_args(argv)
+def main(args: list[str] | None = None) -> None:
+    """`lerobot-ccdp-record --config_path=<recipe yaml> --dataset.repo_id=... --dataset.root=...` (see --help)."""
+    cfg = parse_cli(RecordConfig, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    recipe = RecordRecipe.load(args.recipe).with_episodes(args.n_episodes)
     start = time.perf_counter()
-    record_dataset(recipe, args.repo_id, args.root, overwrite=args.overwrite)
+    record_dataset(cfg.record, cfg.dataset.repo_id, cfg.dataset.root, overwrite=cfg.overwrite)
     logger.info("Done in %.1f s", time.perf_counter() - start)
 
 

@@ -28,7 +28,7 @@ def check_replaceable(root: str | Path, overwrite: bool) -> None:
     if not root.exists():
         return
     if not overwrite:
-        raise FileExistsError(f"{root} already exists; pass --overwrite to replace it or choose another --root")
+        raise FileExistsError(f"{root} already exists; pass --overwrite=true to replace it, or choose another root")
     resolved, cwd = root.resolve(), Path.cwd().resolve()
     if resolved == cwd or resolved in cwd.parents:
         raise ValueError(f"--overwrite refuses {root}: it holds the working directory. Name the dataset's own folder.")

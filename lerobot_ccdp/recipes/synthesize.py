@@ -23,11 +23,15 @@ On a camera dataset, eq. (6) perturbs the low-dimensional state only and keeps t
 which the base encodes into the state condition of eq. (7); eq. (5)'s state distance is over the
 low-dimensional state. The recovery stage reads only z and chunks, so no image is copied into the recovery
 dataset; it carries the cameras' normalisation stats, which the recovery checkpoint's preprocessor needs.
+
+    lerobot-ccdp-synthesize --config_path=datasets_recipes/door_opening.yaml \
+        --dataset.repo_id=local/door_opening --dataset.root=data/door_opening \
+        --policy.path=<base run>/checkpoints/last/pretrained_model \
+        --output.repo_id=local/door_opening_recovery --output.root=data/door_opening_recovery [--recovery.sigma=0.05]
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import time
 from collections.abc import Callable
@@ -37,6 +41,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import yaml
+from lerobot.configs import parser
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.utils import write_stats
@@ -54,6 +59,7 @@ from lerobot_ccdp.outcome_index import demo_chunks
 from lerobot_ccdp.outcome_table import read_columns
 from lerobot_ccdp.processor_ccdp import normalize_batch, unnormalize_batch
 from lerobot_ccdp.recipes.camera_windows import CameraWindows
+from lerobot_ccdp.recipes.configs import SynthesizeConfig, parse_cli
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 from lerobot_ccdp.recipes.staging import check_replaceable, staged_dataset_root
 from lerobot_ccdp.recovery_pairs import pick_pairs, recovery_pair_mask
@@ -94,8 +100,8 @@ class Demos:
 
 
 def synthesis_device(saved: str | None, requested: str | None) -> str:
-    """`requested` (--device) if this machine has it; else the checkpoint's saved device, or the CPU where that one
-    is absent (a base trained on a GPU is synthesised from on any machine)."""
+    """`requested` (--policy.device) if this machine has it; else the checkpoint's saved device, or the CPU where that
+    one is absent (a base trained on a GPU is synthesised from on any machine)."""
     if requested is None:
         return saved if saved and is_torch_device_available(saved) else "cpu"
     try:
@@ -103,17 +109,17 @@ def synthesis_device(saved: str | None, requested: str | None) -> str:
     except ValueError:
         available = False
     if not available:
-        raise ValueError(f"--device {requested!r} is not available on this machine. Pass --device cpu (or cuda, "
-                         "mps where present), or leave --device out to follow the checkpoint's device.")
+        raise ValueError(f"--policy.device={requested} is not available on this machine. Pass --policy.device=cpu (or "
+                         "cuda, mps where present), or leave it out to follow the checkpoint's device.")
     return requested
 
 
 def check_demo_root(root: str | Path) -> None:
-    """The demos must be a local dataset: named here, a wrong --root is not mistaken for a Hub download."""
+    """The demos must be a local dataset: named here, a wrong --dataset.root is not mistaken for a Hub download."""
     root = Path(root)
     if not (root / "meta" / "info.json").is_file():
         problem = "the folder does not exist" if not root.exists() else "it has no meta/info.json"
-        raise FileNotFoundError(f"No LeRobot dataset at --root {root}: {problem}. Record the demos there first "
+        raise FileNotFoundError(f"No LeRobot dataset at --dataset.root={root}: {problem}. Record the demos there first "
                                 "(lerobot-ccdp-record) or fix the path.")
 
 
@@ -334,24 +340,14 @@ def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pool: Samp
     write_stats(written, path)
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("recipe", type=Path, help="recipe YAML with a `recovery:` section, e.g. datasets_recipes/door_opening.yaml")
-    parser.add_argument("--repo-id", required=True, help="repo id of the local demo dataset, e.g. local/door_opening")
-    parser.add_argument("--root", required=True, type=Path, help="folder of the demo dataset")
-    parser.add_argument("--policy-path", required=True, type=Path,
-                        help="base ccdp checkpoint (a pretrained_model folder written by lerobot-train)")
-    parser.add_argument("--out-repo-id", required=True, help="repo id of the recovery dataset, e.g. local/door_opening_recovery")
-    parser.add_argument("--out-root", required=True, type=Path, help="folder to write the recovery dataset to")
-    parser.add_argument("--overwrite", action="store_true", help="replace --out-root if it exists (once the new one is done)")
-    parser.add_argument("--device", default=None,
-                        help="device to run the base policy on, e.g. cpu or cuda (default: the checkpoint's saved "
-                             "device, or cpu where that one is absent)")
-    args = parser.parse_args(argv)
+def main(args: list[str] | None = None) -> None:
+    """`lerobot-ccdp-synthesize --config_path=<recipe yaml> --dataset.* --policy.path=... --output.*` (see --help)."""
+    cfg = parse_cli(SynthesizeConfig, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    recipe = RecoveryRecipe.load(args.recipe)
-    synthesize_recovery_dataset(recipe, args.repo_id, args.root, args.policy_path, args.out_repo_id, args.out_root,
-                                overwrite=args.overwrite, recipe_source=str(args.recipe), device=args.device)
+    source = parser.parse_arg("config_path", args) or "given by --recovery.* flags"
+    synthesize_recovery_dataset(cfg.recovery, cfg.dataset.repo_id, cfg.dataset.root, cfg.policy.path,
+                                cfg.output.repo_id, cfg.output.root, overwrite=cfg.overwrite, recipe_source=source,
+                                device=cfg.policy.device)
 
 
 if __name__ == "__main__":

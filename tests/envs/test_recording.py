@@ -49,18 +49,6 @@ def test_recorded_dataset_loads_with_labels(task, tmp_path):
     assert list(tmp_path.iterdir()) == [root]  # no staging folder left behind
 
 
-def test_cli_records_with_episode_override(tmp_path):
-    root = tmp_path / "door"
-    record.main([str(RECIPES / "door_opening.yaml"), "--repo-id", "local/door", "--root", str(root), "--n-episodes", "2"])
-    assert LeRobotDataset("local/door", root=root).num_episodes == 2
-    with pytest.raises(FileExistsError, match="--overwrite"):
-        record.main([str(RECIPES / "door_opening.yaml"), "--repo-id", "local/door", "--root", str(root), "--n-episodes", "1"])
-    record.main(
-        [str(RECIPES / "door_opening.yaml"), "--repo-id", "local/door", "--root", str(root), "--n-episodes", "1", "--overwrite"]
-    )
-    assert LeRobotDataset("local/door", root=root).num_episodes == 1
-
-
 def test_crash_leaves_nothing_half_written(tmp_path, monkeypatch):
     calls = []
 
@@ -91,7 +79,7 @@ def test_recipe_ignores_other_sections_and_names_problems(tmp_path):
     with pytest.raises(ValueError, match="no top-level `record:` section"):
         RecordRecipe.load(_write(tmp_path, {"recovery": {}}))
     with pytest.raises(ValueError, match="n_episodes must be a positive integer"):
-        recipe.with_episodes(0)
+        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-v0", "n_episodes": 0, "seed": 0}}))
 
 
 @pytest.mark.parametrize("field, value, expected", [
