@@ -1,7 +1,7 @@
 """Recovery synthesis and recovery training: throughput, recovery-set size, training time, and the paper's Fig. 2.
 
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_synthesis.py \
-        [--tasks reaching2d DoorOpening-v0 ...] [--base-steps 1000] [--recovery-steps 1500] \
+        [--tasks reaching2d DoorOpening-v0 ...] [--base-steps 1000] [--recovery-steps 3000] [--w-z 3] \
         [--base TASK=CHECKPOINT ...] [--work outputs/bench_synthesis]
 
 For every task: record the demos (`lerobot-ccdp-record`, or the 2-D recorder), train the base with
@@ -55,7 +55,7 @@ def train(policy_args: list[str], repo_id: str, root: Path, out: Path, steps: in
     return out / "checkpoints" / "last" / "pretrained_model", seconds
 
 
-def bench_task(task: str, work: Path, base: Path | None, base_steps: int, recovery_steps: int) -> dict:
+def bench_task(task: str, work: Path, base: Path | None, base_steps: int, recovery_steps: int, w_z: float) -> dict:
     name = RECIPES[task]
     recipe_path = REPO / "datasets_recipes" / f"{name}.yaml"
     recovery = yaml.safe_load(recipe_path.read_text())["recovery"]
@@ -79,7 +79,7 @@ def bench_task(task: str, work: Path, base: Path | None, base_steps: int, recove
     row["chunks_per_s"] = result["pool_synthesised"] / result["sampling_seconds"]
     row["pairs_per_s"] = result["rows"] / result["seconds"]
     checkpoint, row["recovery_train_s"] = train(
-        [f"--policy.path={base}", "--policy.training_stage=recovery"], f"local/{name}_recovery", data,
+        [f"--policy.path={base}", "--policy.training_stage=recovery", f"--policy.w_z={w_z}"], f"local/{name}_recovery", data,
         work / name / "recovery", recovery_steps)
     row["checkpoint"] = str(checkpoint)
     return row
@@ -147,7 +147,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--base", nargs="*", default=[], metavar="TASK=CHECKPOINT",
                         help="use an existing base checkpoint instead of training one")
     parser.add_argument("--base-steps", type=int, default=1000)
-    parser.add_argument("--recovery-steps", type=int, default=1500)
+    parser.add_argument("--recovery-steps", type=int, default=3000, help="as tests/test_recovery_claim.py")
+    parser.add_argument("--w-z", type=float, default=3.0, help="composition weight of the recovery checkpoint, as the task configs")
     parser.add_argument("--work", type=Path, default=REPO / "outputs" / "bench_synthesis")
     args = parser.parse_args(argv)
     bases = dict(item.split("=", 1) for item in args.base)
@@ -155,7 +156,7 @@ def main(argv: list[str] | None = None) -> None:
     rows = []
     for task in args.tasks:
         rows.append(bench_task(task, args.work, Path(bases[task]) if task in bases else None, args.base_steps,
-                               args.recovery_steps))
+                               args.recovery_steps, args.w_z))
         print(f"{task}: {rows[-1]}", flush=True)
     print(f"\nMachine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
           f"{torch.get_num_threads()} threads; base {args.base_steps} steps, recovery {args.recovery_steps} steps\n")
