@@ -1,7 +1,10 @@
 """The two noise-prediction networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z)."""
 
 import torch
-from lerobot.policies.diffusion.modeling_diffusion import DiffusionConditionalUnet1d, DiffusionSinusoidalPosEmb
+from lerobot.policies.diffusion.modeling_diffusion import (
+    DiffusionConditionalUnet1d,
+    DiffusionSinusoidalPosEmb,
+)
 from torch import Tensor, nn
 
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
