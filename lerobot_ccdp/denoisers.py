@@ -1,13 +1,14 @@
 """The two noise-prediction networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z)."""
 
-import contextlib
-from collections.abc import Iterator
-
 import torch
-from lerobot.policies.diffusion.modeling_diffusion import DiffusionConditionalUnet1d, DiffusionSinusoidalPosEmb
+from lerobot.policies.diffusion.modeling_diffusion import (
+    DiffusionConditionalUnet1d,
+    DiffusionSinusoidalPosEmb,
+)
 from torch import Tensor, nn
 
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.small_batch_convolutions import with_small_batch_convolutions
 
 
 class BaseDenoiser(nn.Module):
@@ -21,13 +22,14 @@ class BaseDenoiser(nn.Module):
         super().__init__()
         self.state_cond_dim = config.n_obs_steps * config.frame_dim
         self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
-        self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=self.state_cond_dim + self.history_cond_dim + 2)
+        self.unet = with_small_batch_convolutions(
+            DiffusionConditionalUnet1d(config, global_cond_dim=self.state_cond_dim + self.history_cond_dim + 2)
+        )
 
     def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, keep_s: Tensor, history: Tensor, keep_h: Tensor) -> Tensor:
         """noisy (R, horizon, A); state (R, state_cond_dim); history (R, history_cond_dim); keep_* (R, 1)."""
         cond = torch.cat([state * keep_s, keep_s, history * keep_h, keep_h], dim=-1)
-        with _small_batch_convolutions(noisy):
-            return self.unet(noisy, timestep, global_cond=cond)
+        return self.unet(noisy, timestep, global_cond=cond)
 
 
 def make_recovery_denoiser(config: CCDPConfig) -> nn.Module:
@@ -44,12 +46,13 @@ class RecoveryUnet(nn.Module):
 
     def __init__(self, config: CCDPConfig):
         super().__init__()
-        self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=config.failure_feature_dim + 1)
+        self.unet = with_small_batch_convolutions(
+            DiffusionConditionalUnet1d(config, global_cond_dim=config.failure_feature_dim + 1)
+        )
 
     def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor, keep_z: Tensor) -> Tensor:
         """noisy (R, horizon, A); timestep (R,); z (R, z_dim); keep_z (R, 1) -> predicted noise (R, horizon, A)."""
-        with _small_batch_convolutions(noisy):
-            return self.unet(noisy, timestep, global_cond=_z_condition(z, keep_z))
+        return self.unet(noisy, timestep, global_cond=_z_condition(z, keep_z))
 
 
 class RecoveryMLP(nn.Module):
@@ -96,16 +99,3 @@ class _FiLMBlock(nn.Module):
     def forward(self, h: Tensor, cond: Tensor) -> Tensor:
         scale, shift = self.film(cond).chunk(2, dim=-1)
         return h + self.mlp(self.norm(h) * (1 + scale) + shift)
-
-
-@contextlib.contextmanager
-def _small_batch_convolutions(x: Tensor) -> Iterator[None]:
-    """On CPU, oneDNN's convolution is 1.5-2x slower than ATen's for this UNet at 2-4 rows (measured with
-    benchmarks/bench_policy.py); composed sampling runs exactly such small batches."""
-    previous = torch.backends.mkldnn.enabled
-    if x.device.type == "cpu" and 1 < x.shape[0] <= 4:
-        torch.backends.mkldnn.enabled = False
-    try:
-        yield
-    finally:
-        torch.backends.mkldnn.enabled = previous

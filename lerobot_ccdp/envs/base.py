@@ -20,18 +20,11 @@ import numpy as np
 from gymnasium import spaces
 
 from lerobot_ccdp.envs.camera import CameraRenderer
+from lerobot_ccdp.envs.interface import ACTION_NAMES, AGENT_POS_NAMES  # noqa: F401  (re-exported for recorders)
+from lerobot_ccdp.envs.interface import AGENT_POS_DIM, CONTROL_FPS, OBS_TYPES, OBSERVATION_SIZE
 from lerobot_ccdp.envs.scene import CAMERAS, FINGER_OPEN, TIMESTEP, WORKSPACE_HIGH, WORKSPACE_LOW, build_scene_xml
 
-CONTROL_FPS = 10
 ROBOT_JOINTS = ("ee_x", "ee_y", "ee_z", "finger_l", "finger_r")
-ACTION_NAMES = ("x", "y", "z", "grip")  # end-effector target (metres) and gripper closure in [0, 1]
-AGENT_POS_NAMES = ("x", "y", "z", "grip")  # end-effector position and measured gripper closure
-ACTION_DIM, AGENT_POS_DIM = len(ACTION_NAMES), len(AGENT_POS_NAMES)
-# Observation modes, as gym-pusht's `obs_type`: low-dimensional state, or rendered cameras plus the robot state.
-OBS_TYPES = ("state", "pixels_agent_pos")
-# 64 x 64: a ResNet-18 step on 64 frames of this size fits a 2-core CPU (about 1 s forward and backward), the
-# scene's objects stay several pixels wide, and a frame renders in a few ms without shadows.
-OBSERVATION_SIZE = 64
 
 
 class OutcomeKind(Enum):

@@ -8,7 +8,7 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
-from lerobot_ccdp.envs.base import (
+from lerobot_ccdp.envs.interface import (
     ACTION_DIM,
     AGENT_POS_DIM,
     CONTROL_FPS,

@@ -1,44 +1,74 @@
-"""The task table: gymnasium ids, env classes and their LeRobot-facing dimensions."""
+"""The task table: gymnasium ids and the env class of each task, imported only when that task is used.
+
+LeRobot imports the plugin for every CLI (`lerobot-record` on a real robot too), so this table names each
+class by its entry-point string: listing tasks, checking a task id or registering the gym ids imports no
+MuJoCo, and gymnasium imports a task's module on its first `gym.make`.
+"""
 
 from __future__ import annotations
 
-from lerobot_ccdp.envs.bartender import BartenderEnv
-from lerobot_ccdp.envs.base import CCDPTaskEnv
-from lerobot_ccdp.envs.button_search import ButtonSearchEnv
-from lerobot_ccdp.envs.door_opening import DoorOpeningEnv
-from lerobot_ccdp.envs.object_manipulation import ObjectManipulationEnv
-from lerobot_ccdp.envs.object_packing import ObjectPackingEnv
+import importlib
+from collections.abc import Iterator, Mapping
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from lerobot_ccdp.envs.base import CCDPTaskEnv
 
 GYM_NAMESPACE = "lerobot_ccdp"
 
-TASKS: dict[str, type[CCDPTaskEnv]] = {
-    f"{cls.name}-v0": cls
-    for cls in (DoorOpeningEnv, ButtonSearchEnv, ObjectManipulationEnv, ObjectPackingEnv, BartenderEnv)
+# Task id -> (env class as "module:Class", step limit of its gym id). The step limit repeats the class's
+# `default_episode_steps` so registering needs no import; tests/test_plugin_import.py checks that they agree.
+ENTRY_POINTS: dict[str, tuple[str, int]] = {
+    "DoorOpening-v0": ("lerobot_ccdp.envs.door_opening:DoorOpeningEnv", 150),
+    "ButtonSearch-v0": ("lerobot_ccdp.envs.button_search:ButtonSearchEnv", 200),
+    "ObjectManipulation-v0": ("lerobot_ccdp.envs.object_manipulation:ObjectManipulationEnv", 150),
+    "ObjectPacking-v0": ("lerobot_ccdp.envs.object_packing:ObjectPackingEnv", 300),
+    "Bartender-v0": ("lerobot_ccdp.envs.bartender:BartenderEnv", 250),
 }
 
 
-def task_class(task: str) -> type[CCDPTaskEnv]:
-    """Env class of a task id such as "DoorOpening-v0" (the gym namespace prefix is optional)."""
+class _TaskTable(Mapping[str, "type[CCDPTaskEnv]"]):
+    """Task id -> env class. Iterating and membership tests import nothing; a lookup imports that task."""
+
+    def __getitem__(self, task: str) -> type[CCDPTaskEnv]:
+        module, _, name = ENTRY_POINTS[task][0].partition(":")
+        return getattr(importlib.import_module(module), name)
+
+    def __contains__(self, task: object) -> bool:
+        return task in ENTRY_POINTS
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(ENTRY_POINTS)
+
+    def __len__(self) -> int:
+        return len(ENTRY_POINTS)
+
+
+TASKS: Mapping[str, type[CCDPTaskEnv]] = _TaskTable()
+
+
+def _task_name(task: str) -> str:
+    """A task id such as "DoorOpening-v0" (the gym namespace prefix is optional), checked against the table."""
     name = task.removeprefix(f"{GYM_NAMESPACE}/")
-    if name not in TASKS:
-        raise ValueError(f"Unknown ccdp task {task!r}; known tasks: {', '.join(TASKS)}")
-    return TASKS[name]
+    if name not in ENTRY_POINTS:
+        raise ValueError(f"Unknown ccdp task {task!r}; known tasks: {', '.join(ENTRY_POINTS)}")
+    return name
+
+
+def task_class(task: str) -> type[CCDPTaskEnv]:
+    """Env class of a task id such as "DoorOpening-v0" (imports the task's module, and MuJoCo)."""
+    return TASKS[_task_name(task)]
 
 
 def gym_id(task: str) -> str:
-    task_class(task)
-    return f"{GYM_NAMESPACE}/{task.removeprefix(f'{GYM_NAMESPACE}/')}"
+    return f"{GYM_NAMESPACE}/{_task_name(task)}"
 
 
 def register_tasks() -> None:
-    """Register every task with gymnasium (idempotent)."""
+    """Register every task with gymnasium by entry-point string (idempotent; imports no task)."""
     import gymnasium as gym
 
-    for task, cls in TASKS.items():
+    for task, (entry_point, step_limit) in ENTRY_POINTS.items():
         env_id = f"{GYM_NAMESPACE}/{task}"
         if env_id not in gym.registry:
-            gym.register(
-                id=env_id,
-                entry_point=f"{cls.__module__}:{cls.__name__}",
-                max_episode_steps=cls.default_episode_steps,
-            )
+            gym.register(id=env_id, entry_point=entry_point, max_episode_steps=step_limit)
