@@ -11,6 +11,9 @@ the 2-D kernel that convolution itself uses for a 1-D input with oneDNN off (sam
 import torch
 from torch import Tensor, nn
 
+# The kernels are private to torch: where a torch lacks them, the network keeps its plain convolutions.
+ATEN_KERNELS = all(hasattr(torch._C._nn, name) for name in ("thnn_conv2d", "slow_conv_transpose2d"))
+
 
 def _small_batch(x: Tensor) -> bool:
     """The batches that take ATen's kernel: 2-4 rows on CPU."""
@@ -43,6 +46,8 @@ class _SmallBatchConvTranspose1d(nn.ConvTranspose1d):
 def with_small_batch_convolutions(network: nn.Module) -> nn.Module:
     """Turn a network's plain 1-D convolutions (zero padding given as numbers, one group, no dilation) into the
     small-batch classes above, in place; parameters and state dict are unchanged."""
+    if not ATEN_KERNELS:
+        return network
     for module in network.modules():
         if type(module) not in (nn.Conv1d, nn.ConvTranspose1d) or isinstance(module.padding, str) or (
             module.padding_mode, module.groups, module.dilation) != ("zeros", 1, (1,)):

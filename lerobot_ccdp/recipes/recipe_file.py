@@ -19,7 +19,7 @@ import yaml
 from lerobot.utils.constants import OBS_STATE
 
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURES
-from lerobot_ccdp.envs.base import CONTROL_FPS
+from lerobot_ccdp.envs.interface import CONTROL_FPS
 from lerobot_ccdp.envs.tasks import task_class
 
 
