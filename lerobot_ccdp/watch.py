@@ -74,6 +74,10 @@ def side_by_side(left: list[np.ndarray], right: list[np.ndarray], titles: tuple[
     return out
 
 
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def write_gif(images: list[Image.Image], path: Path, fps: float) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0, optimize=True)
@@ -97,8 +101,8 @@ def main(argv: list[str] | None = None) -> None:
     episode = pick_episode(*outcomes, common) if args.episode is None else args.episode
     if episode not in common:
         raise SystemExit(f"Episode {episode} was not rendered for both methods; rendered: {common}")
-    titles = tuple(f"{m.upper()}: {o.repeated_failures[episode]} repeats, {'success' if o.success[episode] else 'failed'}"
-                   for m, o in zip(args.methods, outcomes, strict=True))
+    titles = tuple(f"{m.upper()}: {_count(o.repeated_failures[episode], 'repeat')}, "
+                   f"{'success' if o.success[episode] else 'failed'}" for m, o in zip(args.methods, outcomes, strict=True))
     images = side_by_side(frames(videos[0][episode]), frames(videos[1][episode]), titles, args.every)
     write_gif(images, args.out, args.fps / args.every)
     logger.info("Wrote %s: episode %d (%d frames); %s | %s", args.out, episode, len(images), *titles)
