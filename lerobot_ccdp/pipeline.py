@@ -15,6 +15,7 @@ checkpoints, eval_info.json, logs). A stage whose output exists is skipped, so a
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import platform
@@ -224,7 +225,7 @@ def run_with_progress(command: list[str], log: Path, label: str, every: float = 
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     with log.open("w") as handle:
         process = subprocess.Popen(command, stdout=handle, stderr=subprocess.STDOUT, env=env,
-                                   preexec_fn=die_with_parent)  # noqa: PLW1509 (one prctl call, no locks)
+                                   preexec_fn=functools.partial(die_with_parent, os.getpid()))  # noqa: PLW1509 (no locks)
         shown = ""
         while True:
             try:

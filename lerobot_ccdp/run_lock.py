@@ -44,7 +44,10 @@ def exclusive(out: Path) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-def die_with_parent() -> None:
-    """`preexec_fn` of a stage: the kernel kills it when the pipeline process dies, however it dies (Linux)."""
+def die_with_parent(parent: int) -> None:
+    """`preexec_fn` of a stage (bind `parent`, the pipeline's pid): the kernel kills it when the pipeline process
+    dies, however it dies (Linux). A pipeline that died before the signal was armed is caught by the parent check."""
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:
+        os.kill(os.getpid(), signal.SIGKILL)
