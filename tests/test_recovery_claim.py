@@ -68,6 +68,7 @@ def test_ccdp_avoids_failed_goals(recovery_checkpoint):
     one = goal_shares(policy, pre, post, "ccdp", failed=[0])
     two = goal_shares(policy, pre, post, "ccdp", failed=[0, 1])
     report = f"dp {dp.tolist()}, ccdp after goal 0 failed {one.tolist()}, after goals 0 and 1 {two.tolist()}"
+    print(report)  # the shares docs/benchmarks.md quotes (`pytest -s`)
     assert dp[0] > 0.3, report  # demonstrated share 0.4: DP resamples the failed goal
     assert one[0] < dp[0] / 4, report
     assert one[1:].sum() > 0.85, report
