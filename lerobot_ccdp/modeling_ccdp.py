@@ -182,6 +182,7 @@ class CCDPPolicy(PreTrainedPolicy):
         self._memory: RolloutMemory | None = None
         self._failures: FailureBuffer | None = None
         self._warned_untrained = False
+        self._planned_with_recovery = False  # whether this episode planned in a mode that uses failures
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
@@ -223,7 +224,7 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def _warn_if_deaf(self) -> None:
         """An episode ended with recovery on and nothing that could report a failure: say so, once."""
-        if self._heard_failure_source or self._warned_deaf or self.config.recovery_mode == "dp":
+        if self._heard_failure_source or self._warned_deaf or not self._planned_with_recovery:
             return
         self._warned_deaf = True
         logger.warning(
@@ -305,6 +306,7 @@ class CCDPPolicy(PreTrainedPolicy):
         state, history = memory.state_condition(rows), memory.history_condition(rows)
         z, z_mask = self._failures.padded(rows)
         mode = cfg.recovery_mode
+        self._planned_with_recovery |= mode != "dp"
         if mode == "ccdp" and z_mask.any() and not bool(self.recovery_trained):
             if not self._warned_untrained:
                 logger.warning("recovery_mode=ccdp but eps_z is untrained (base-stage checkpoint): "

@@ -11,8 +11,10 @@ import logging
 from pathlib import Path
 
 import numpy as np
+import policy_factory
 import pytest
 import torch
+from conftest import REACHING_REPO_ID
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.datasets.utils import hw_to_dataset_features
@@ -20,10 +22,9 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.processor import make_default_processors
 from lerobot.scripts.lerobot_record import record_loop
 from lerobot.utils.constants import ACTION, OBS_STR
-
-from conftest import REACHING_REPO_ID
-from lerobot_ccdp.reaching2d import FPS
 from policy_factory import untrained_checkpoint
+
+from lerobot_ccdp.reaching2d import FPS
 
 MOTORS = {"x": float, "y": float}
 
@@ -128,3 +129,19 @@ def test_with_recovery_off_no_warning(checkpoint, tmp_path, caplog):
             _episode(SimReacher(events, steps=2), events, policy, pre, post, dataset)
     assert not [r for r in caplog.records if "nothing could tell it" in r.getMessage()]
     assert torch.equal(policy.failure_count(), torch.zeros(1, dtype=torch.long))
+
+
+def test_the_warning_follows_the_mode_the_episode_planned_in(caplog):
+    """An episode planned as plain DP, with the mode switched to ccdp before reset() (as the option-share
+    benchmarks do), did not run with recovery on: no warning. One planned in ccdp mode does warn."""
+    policy = policy_factory.make_policy()
+    obs = {"observation.state": torch.zeros(1, 2)}
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.modeling_ccdp"):
+        policy.config.recovery_mode = "dp"
+        policy.select_action(obs)
+        policy.config.recovery_mode = "ccdp"
+        policy.reset()
+        assert not [r for r in caplog.records if "nothing could tell it" in r.getMessage()]
+        policy.select_action(obs)
+        policy.reset()
+    assert len([r for r in caplog.records if "nothing could tell it" in r.getMessage()]) == 1
