@@ -112,6 +112,9 @@ class CCDPConfig(PreTrainedConfig):
     # DP*: candidates drawn per plan, and the squared distance in z under which a candidate repeats a failure.
     delta_z: float = 0.1
     dp_star_candidates: int = 16
+    # DP*: rounds of `dp_star_candidates` fresh candidates drawn for a row whose candidates were all rejected,
+    # before it falls back to the candidate farthest from every failure (1 = no redraw).
+    dp_star_rounds: int = 1
     # Demonstrated chunks kept to look up the outcome (final state, primitive) of a sampled chunk.
     outcome_index_size: int = 20000
     # Recovery head eps_z: "unet" (LeRobot's diffusion UNet conditioned on z) or "mlp" (a residual MLP over the
@@ -164,8 +167,9 @@ class CCDPConfig(PreTrainedConfig):
         bad_steps = [s for s in self.failure_action_steps if not 0 <= s < self.horizon]
         if bad_steps:
             raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon}).")
-        if self.max_failures < 1 or self.dp_star_candidates < 1 or self.history_length < 0:
-            raise ValueError("`max_failures` and `dp_star_candidates` must be >= 1, `history_length` >= 0.")
+        if min(self.max_failures, self.dp_star_candidates, self.dp_star_rounds) < 1 or self.history_length < 0:
+            raise ValueError("`max_failures`, `dp_star_candidates` and `dp_star_rounds` must be >= 1, "
+                             "`history_length` >= 0.")
         if self.horizon % 2 ** len(self.down_dims) != 0:
             raise ValueError(
                 f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = {2 ** len(self.down_dims)}."

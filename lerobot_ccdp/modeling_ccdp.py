@@ -21,6 +21,7 @@ from lerobot_ccdp.configuration_ccdp import (
     CCDPConfig,
 )
 from lerobot_ccdp.denoisers import BaseDenoiser, make_recovery_denoiser
+from lerobot_ccdp.dp_star import nearest_failure_distance, reject_repeats
 from lerobot_ccdp.failure_buffer import FailureBuffer
 from lerobot_ccdp.failure_features import FailureFeature
 from lerobot_ccdp.failure_signal import FailureSignalFile
@@ -394,25 +395,24 @@ class CCDPPolicy(PreTrainedPolicy):
         return terms
 
     def _sample_dp_star(self, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
-        """DP*: draw candidates from the base composition and reject those whose z is within delta_z of a
-        recorded failure; if every candidate is rejected, keep the one farthest from all failures."""
+        """DP* (`dp_star.reject_repeats`) with candidates from the base composition, failures ignored."""
         cfg = self.config
-        r, m = state.shape[0], cfg.dp_star_candidates
-        none = z[:, :0].repeat_interleave(m, dim=0)
-        candidates = self._denoise(
-            torch.randn(r * m, cfg.horizon, cfg.action_dim, device=state.device),
-            state.repeat_interleave(m, dim=0),
-            history.repeat_interleave(m, dim=0),
-            none,
-            z_mask[:, :0].repeat_interleave(m, dim=0),
-        ).view(r, m, cfg.horizon, cfg.action_dim)
-        z_candidates = self.feature.from_chunk(candidates.flatten(end_dim=1), self.outcomes).view(r, m, -1)
-        distance = ((z_candidates[:, :, None] - z[:, None]) ** 2).sum(dim=-1)  # (R, M, N)
-        distance = distance.masked_fill(~z_mask[:, None], float("inf")).min(dim=-1).values  # nearest failure
-        accepted = distance > cfg.delta_z
-        # First accepted candidate (candidates are i.i.d., so this is a uniform pick), else the farthest one.
-        score = torch.where(accepted, m - torch.arange(m, device=state.device).float()[None], -1.0 / (1.0 + distance))
-        return candidates[torch.arange(r), score.argmax(dim=1)]
+        m = cfg.dp_star_candidates
+
+        def draw(rows: Tensor) -> tuple[Tensor, Tensor]:
+            r = rows.shape[0]
+            candidates = self._denoise(
+                torch.randn(r * m, cfg.horizon, cfg.action_dim, device=state.device),
+                state[rows].repeat_interleave(m, dim=0),
+                history[rows].repeat_interleave(m, dim=0),
+                z[rows, :0].repeat_interleave(m, dim=0),
+                z_mask[rows, :0].repeat_interleave(m, dim=0),
+            )
+            z_candidates = self.feature.from_chunk(candidates, self.outcomes).view(r, m, -1)
+            distance = nearest_failure_distance(z_candidates, z[rows], z_mask[rows])
+            return candidates.view(r, m, cfg.horizon, cfg.action_dim), distance
+
+        return reject_repeats(draw, state.shape[0], cfg.dp_star_rounds, cfg.delta_z, state.device)
 
     # ----- inputs ---------------------------------------------------------------------------------------
 

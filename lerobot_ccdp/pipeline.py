@@ -41,6 +41,7 @@ from lerobot_ccdp.comparison import (
 )
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
+from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 from lerobot_ccdp.run_lock import PipelineRunning, die_with_parent, exclusive
 from lerobot_ccdp.stage_stamps import StampBook, stamp
 from lerobot_ccdp.targets import target_checks
@@ -98,6 +99,17 @@ class TaskFiles:
     def eval_config(self) -> dict[str, Any]:
         return json.loads(self.eval.read_text())
 
+    def method_flags(self, method: str) -> list[str]:
+        """`--policy.*` overrides with which `method` is evaluated, from the optional `methods.json` beside the
+        eval config ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared
+        checkpoint does not hold."""
+        path = self.eval.with_name("methods.json")
+        settings = json.loads(path.read_text()) if path.is_file() else {}
+        unknown = sorted(set(settings) - set(METHODS))
+        if unknown:
+            raise ValueError(f"{path} names unknown method(s) {unknown}; its keys are among {list(METHODS)}")
+        return [f"--policy.{key}={value}" for key, value in settings.get(method, {}).items()]
+
     @property
     def demos(self) -> Path:
         return self.out / "demos"
@@ -142,7 +154,8 @@ class TaskRun:
             out = f.eval_dir(method)
             self._stage(f"eval_{method}", out / "eval_info.json", [
                 "lerobot-eval", f"--config_path={f.eval}", f"--policy.path={recovery}",
-                f"--policy.recovery_mode={method}", f"--seed={self.eval_seed}", f"--output_dir={out}"],
+                f"--policy.recovery_mode={method}", *f.method_flags(method), f"--seed={self.eval_seed}",
+                f"--output_dir={out}"],
                 upstream=recovery_stamp, clear=out)
         return self.episodes(methods)
 
@@ -270,6 +283,30 @@ def time_breakdown(runs: list[TaskRun]) -> str:
     return "\n".join(lines)
 
 
+def method_forms(runs: list[TaskRun]) -> str:
+    """Which form of each method ran: the seeds, and the settings of the evaluated checkpoint, the recipe's
+    synthesis and the methods' flags."""
+    lines = ["| task | seeds | z | eq. (4) weights | sampler | synthesis (eq. 5, 7) | recovery steps | DP* |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in runs:
+        checkpoint = r.files.out / "recovery" / CHECKPOINT / "config.json"
+        if not checkpoint.is_file():
+            continue
+        c = json.loads(checkpoint.read_text())
+        n = r.files.eval_config()["eval"]["n_episodes"]
+        steps = json.loads(r.files.train_recovery.read_text()).get("steps")
+        recipe = RecoveryRecipe.load(r.files.recipe)
+        dp_star = {"dp_star_candidates": c["dp_star_candidates"], "dp_star_rounds": c.get("dp_star_rounds", 1),
+                   **dict(flag.removeprefix("--policy.").split("=", 1) for flag in r.files.method_flags("dp_star"))}
+        lines.append(
+            f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {c['failure_feature']} | w_s {c['w_s']:g}, "
+            f"w_h {c['w_h']:g}, w_z {c['w_z']:g} against {c['z_reference']} | {c['noise_scheduler_type']} "
+            f"{c['num_inference_steps']} steps | delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, "
+            f"w_s {recipe.w_s:g} | {steps} | {dp_star['dp_star_candidates']} candidates, "
+            f"{dp_star['dp_star_rounds']} round(s), delta_z {c['delta_z']:g} |")
+    return "\n".join(lines)
+
+
 def machine() -> str:
     return (f"{platform.machine()}, {os.cpu_count()} CPU cores, torch {torch.__version__} "
             f"({torch.get_num_threads()} threads), Python {platform.python_version()}")
@@ -282,6 +319,11 @@ def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], 
         "# CCDP vs DP vs DP* (paper Fig. 5)",
         f"Command: `{command}`  \nMachine: {machine()}",
         markdown_table(results),
+        "## What ran",
+        "Seeds: episode i of every method and of the oracle uses seed `first + i`. The CCDP row of the composition "
+        "is eq. (4) as `lerobot_ccdp/composition.py` computes it with the evaluated checkpoint's weights "
+        "(`docs/method.md`).",
+        method_forms(runs),
         "## Targets",
         "Judged from paired 95% intervals (same seeds for every method): `docs/evaluation.md`.",
         target_checks(episodes),

@@ -123,6 +123,8 @@ def test_report_table_chart_and_timings(pipeline_run):
                   "success > DP", "attempts within 15% of oracle", "data loading"):
         assert label in report, label
     assert report.split("## Targets")[0] in stdout  # the table is printed too
+    form = report.split("## What ran")[1].split("## Targets")[0]  # the form of the method that ran, and the seeds
+    assert f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 3 against eps_z_null" in form
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary[TASK]) == {*METHODS, "oracle"}
     assert summary[TASK]["oracle"]["success"]["value"] == 1.0
@@ -166,6 +168,31 @@ def test_a_changed_config_reruns_its_stage_and_those_after_it(settings, pipeline
     step = json.loads((out / SLUG / "recovery" / "checkpoints" / "last" / "training_state" / "training_step.json")
                       .read_text())
     assert step["step"] == 12
+
+
+def test_a_method_setting_reruns_only_that_method_with_its_flags(settings, pipeline_run):
+    out, _ = pipeline_run
+    configs, recipes = settings
+    methods = configs / SLUG / "methods.json"
+    methods.write_text(json.dumps({"dp": {"dp_star_rounds": 2}}))
+    try:
+        stdout = _run_pipeline(configs, recipes, out)
+    finally:
+        methods.unlink()
+    assert "eval_dp: its inputs changed" in stdout and "--policy.dp_star_rounds=2" in stdout
+    assert "eval_ccdp: done already" in stdout
+
+
+def test_method_settings_name_known_methods(settings, tmp_path):
+    configs, recipes = settings
+    files = TaskFiles.locate(TASK, configs, recipes, tmp_path)
+    assert files.method_flags("dp_star") == []  # no methods.json: the checkpoint's settings
+    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32}, "DP": {}}))
+    try:
+        with pytest.raises(ValueError, match=r"unknown method\(s\) \['DP'\]"):
+            files.method_flags("dp_star")
+    finally:
+        (configs / SLUG / "methods.json").unlink()
 
 
 def test_stamps_follow_settings_files_and_upstream_stages(tmp_path):
