@@ -27,7 +27,7 @@ import numpy as np
 from lerobot_ccdp.comparison import MethodMetrics
 from lerobot_ccdp.envs.tasks import TASKS
 from lerobot_ccdp.episodes import Episodes
-from lerobot_ccdp.pipeline import CHECKPOINT, task_slug
+from lerobot_ccdp.pipeline import BIN, CHECKPOINT, task_slug
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -37,7 +37,7 @@ def evaluate(task: str, out: Path, candidates: int, rounds: int, seed: int) -> t
     slug = task_slug(task)
     run_dir = out / slug / "tune_dp_star" / f"m{candidates}_r{rounds}_seed{seed}"
     shutil.rmtree(run_dir, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
-    command = ["lerobot-eval", f"--config_path={REPO / 'configs' / slug / 'eval.json'}",
+    command = [str(BIN / "lerobot-eval"), f"--config_path={REPO / 'configs' / slug / 'eval.json'}",
                f"--policy.path={out / slug / 'recovery' / CHECKPOINT}", "--policy.recovery_mode=dp_star",
                f"--policy.dp_star_candidates={candidates}", f"--policy.dp_star_rounds={rounds}", f"--seed={seed}",
                "--env.render_mode=null", f"--output_dir={run_dir}"]

@@ -113,8 +113,9 @@ class CCDPConfig(PreTrainedConfig):
     delta_z: float = 0.1
     dp_star_candidates: int = 16
     # DP*: rounds of `dp_star_candidates` fresh candidates drawn for a row whose candidates were all rejected,
-    # before it falls back to the candidate farthest from every failure (1 = no redraw).
-    dp_star_rounds: int = 1
+    # before it falls back to the candidate farthest from every failure (1 = no redraw). A redraw costs time
+    # only where every candidate repeats a failure; with one round, one-hot z made the fallback a repeat.
+    dp_star_rounds: int = 4
     # Demonstrated chunks kept to look up the outcome (final state, primitive) of a sampled chunk.
     outcome_index_size: int = 20000
     # Recovery head eps_z: "unet" (LeRobot's diffusion UNet conditioned on z) or "mlp" (a residual MLP over the

@@ -39,6 +39,7 @@ from lerobot_ccdp.comparison import (
     bar_chart,
     markdown_table,
 )
+from lerobot_ccdp.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
@@ -296,7 +297,8 @@ def method_forms(runs: list[TaskRun]) -> str:
         n = r.files.eval_config()["eval"]["n_episodes"]
         steps = json.loads(r.files.train_recovery.read_text()).get("steps")
         recipe = RecoveryRecipe.load(r.files.recipe)
-        dp_star = {"dp_star_candidates": c["dp_star_candidates"], "dp_star_rounds": c.get("dp_star_rounds", 1),
+        dp_star = {"dp_star_candidates": c["dp_star_candidates"],
+                   "dp_star_rounds": c.get("dp_star_rounds", CCDPConfig.dp_star_rounds),  # older checkpoints
                    **dict(flag.removeprefix("--policy.").split("=", 1) for flag in r.files.method_flags("dp_star"))}
         lines.append(
             f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {c['failure_feature']} | w_s {c['w_s']:g}, "
