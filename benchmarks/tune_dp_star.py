@@ -27,20 +27,20 @@ import numpy as np
 from lerobot_ccdp.comparison import MethodMetrics
 from lerobot_ccdp.envs.tasks import TASKS
 from lerobot_ccdp.episodes import Episodes
-from lerobot_ccdp.pipeline import BIN, CHECKPOINT, task_slug
+from lerobot_ccdp.pipeline import BIN, CHECKPOINT, TaskFiles
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def evaluate(task: str, out: Path, candidates: int, rounds: int, seed: int) -> tuple[MethodMetrics, float]:
-    """DP* of one setting on one task's recovery checkpoint: its metrics and the evaluation's wall time."""
-    slug = task_slug(task)
-    run_dir = out / slug / "tune_dp_star" / f"m{candidates}_r{rounds}_seed{seed}"
+def evaluate(files: TaskFiles, candidates: int, rounds: int, seed: int) -> tuple[MethodMetrics, float]:
+    """DP* of one setting on one task's recovery checkpoint, evaluated as the benchmark evaluates it but unrendered
+    and without `methods.json`: its metrics and the evaluation's wall time."""
+    run_dir = files.out / "tune_dp_star" / f"m{candidates}_r{rounds}_seed{seed}"
     shutil.rmtree(run_dir, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
-    command = [str(BIN / "lerobot-eval"), f"--config_path={REPO / 'configs' / slug / 'eval.json'}",
-               f"--policy.path={out / slug / 'recovery' / CHECKPOINT}", "--policy.recovery_mode=dp_star",
-               f"--policy.dp_star_candidates={candidates}", f"--policy.dp_star_rounds={rounds}", f"--seed={seed}",
-               "--env.render_mode=null", f"--output_dir={run_dir}"]
+    flags = [f"--policy.dp_star_candidates={candidates}", f"--policy.dp_star_rounds={rounds}",
+             "--env.render_mode=null"]
+    command = files.eval_command(files.out / "recovery" / CHECKPOINT, "dp_star", seed, run_dir, flags)
+    command[0] = str(BIN / command[0])
     start = time.perf_counter()
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode != 0:
@@ -58,39 +58,36 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=1000, help="first development seed")
     parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
     args = parser.parse_args(argv)
-    missing = [t for t in args.tasks if not (args.out / task_slug(t) / "recovery" / CHECKPOINT).is_dir()]
+    files = {t: TaskFiles.locate(t, REPO / "configs", REPO / "datasets_recipes", args.out) for t in args.tasks}
+    missing = [t for t, f in files.items() if not (f.out / "recovery" / CHECKPOINT).is_dir()]
     if missing:
         raise SystemExit(f"No recovery checkpoint of {missing} under {args.out}; run `make benchmark` first.")
-    for task in args.tasks:
-        config = json.loads((REPO / "configs" / task_slug(task) / "eval.json").read_text())
+    for task, f in files.items():
+        config = f.eval_config()
         test, n = config["seed"], config["eval"]["n_episodes"]
         if args.seed < test + n and test < args.seed + n:
             raise SystemExit(f"--seed {args.seed} overlaps {task}'s test seeds {test}-{test + n - 1}; "
                              "tune on development seeds.")
 
     settings = list(itertools.product(args.candidates, args.rounds))
-    rows, score = [], {s: [] for s in settings}
+    rows, scores = [], {s: [] for s in settings}
     for task, (m, r) in itertools.product(args.tasks, settings):
-        metrics, seconds = evaluate(task, args.out, m, r, args.seed)
-        score[(m, r)].append((metrics.success.value, metrics.repeats_per_opportunity.value))
+        metrics, seconds = evaluate(files[task], m, r, args.seed)
+        scores[(m, r)].append((metrics.success.value, metrics.repeats_per_opportunity.value))
         rows.append(f"| {task} | {m} | {r} | {metrics.success} | {metrics.repeats_per_opportunity} | "
                     f"{metrics.attempts} | {seconds:.0f} |")
         print(rows[-1], flush=True)
     print("\n| task | candidates | rounds | success | repeats per attempt after a failure | attempts (successes) "
           "| eval s |\n|---|---|---|---|---|---|---|\n" + "\n".join(rows))
 
-    def rank(setting: tuple[int, int]) -> tuple[float, float, int]:
-        success, repeats = np.nanmean(np.array(score[setting], dtype=float), axis=0)
-        return (-success, repeats, setting[0] * setting[1])
-
-    for setting in settings:
-        success, repeats = np.nanmean(np.array(score[setting], dtype=float), axis=0)
-        print(f"candidates {setting[0]}, rounds {setting[1]}: mean success {success:.3f}, mean repeats {repeats:.3f}")
-    m, r = min(settings, key=rank)
+    means = {s: np.nanmean(np.array(v, dtype=float), axis=0) for s, v in scores.items()}  # (success, repeats)
+    for (m, r), (success, repeats) in means.items():
+        print(f"candidates {m}, rounds {r}: mean success {success:.3f}, mean repeats {repeats:.3f}")
+    m, r = min(settings, key=lambda s: (-means[s][0], means[s][1], s[0] * s[1]))
     print(f"pick: dp_star_candidates={m}, dp_star_rounds={r} (seeds {args.seed}-{args.seed + 99})")
     if args.write:
-        for task in args.tasks:
-            path = REPO / "configs" / task_slug(task) / "methods.json"
+        for f in files.values():
+            path = f.eval.with_name("methods.json")
             current = json.loads(path.read_text()) if path.is_file() else {}
             current["dp_star"] = {"dp_star_candidates": m, "dp_star_rounds": r}
             path.write_text(json.dumps(current, indent=2) + "\n")

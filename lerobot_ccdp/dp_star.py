@@ -35,9 +35,10 @@ def reject_repeats(
         pick = torch.where(accepted, order, -1.0 / (1.0 + distance)).argmax(dim=1)
         if chunks is None:
             chunks = candidates.new_empty(rows, *candidates.shape[2:])
-        better = distance[drawn, pick] > kept[pending]
+        picked = distance[drawn, pick]
+        better = picked > kept[pending]
         chunks[pending[better]] = candidates[drawn, pick][better]
-        kept[pending[better]] = distance[drawn, pick][better]
+        kept[pending[better]] = picked[better]
         pending = pending[~accepted.any(dim=1)]
         if pending.numel() == 0:
             break

@@ -100,16 +100,25 @@ class TaskFiles:
     def eval_config(self) -> dict[str, Any]:
         return json.loads(self.eval.read_text())
 
-    def method_flags(self, method: str) -> list[str]:
-        """`--policy.*` overrides with which `method` is evaluated, from the optional `methods.json` beside the
-        eval config ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared
-        checkpoint does not hold."""
+    def method_settings(self, method: str) -> dict[str, Any]:
+        """Policy fields with which `method` is evaluated, from the optional `methods.json` beside the eval config
+        ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared checkpoint does
+        not hold."""
         path = self.eval.with_name("methods.json")
         settings = json.loads(path.read_text()) if path.is_file() else {}
         unknown = sorted(set(settings) - set(METHODS))
         if unknown:
             raise ValueError(f"{path} names unknown method(s) {unknown}; its keys are among {list(METHODS)}")
-        return [f"--policy.{key}={value}" for key, value in settings.get(method, {}).items()]
+        return settings.get(method, {})
+
+    def method_flags(self, method: str) -> list[str]:
+        """`method_settings` as lerobot-eval's `--policy.*` overrides."""
+        return [f"--policy.{key}={value}" for key, value in self.method_settings(method).items()]
+
+    def eval_command(self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str]) -> list[str]:
+        """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`."""
+        return ["lerobot-eval", f"--config_path={self.eval}", f"--policy.path={checkpoint}",
+                f"--policy.recovery_mode={method}", *flags, f"--seed={seed}", f"--output_dir={out}"]
 
     @property
     def demos(self) -> Path:
@@ -153,11 +162,9 @@ class TaskRun:
             f"--policy.path={base}", "--policy.training_stage=recovery", upstream=recovery_data)
         for method in methods:
             out = f.eval_dir(method)
-            self._stage(f"eval_{method}", out / "eval_info.json", [
-                "lerobot-eval", f"--config_path={f.eval}", f"--policy.path={recovery}",
-                f"--policy.recovery_mode={method}", *f.method_flags(method), f"--seed={self.eval_seed}",
-                f"--output_dir={out}"],
-                upstream=recovery_stamp, clear=out)
+            self._stage(f"eval_{method}", out / "eval_info.json",
+                        f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method)),
+                        upstream=recovery_stamp, clear=out)
         return self.episodes(methods)
 
     def episodes(self, methods: list[str]) -> dict[str, Episodes]:
@@ -299,7 +306,7 @@ def method_forms(runs: list[TaskRun]) -> str:
         recipe = RecoveryRecipe.load(r.files.recipe)
         dp_star = {"dp_star_candidates": c["dp_star_candidates"],
                    "dp_star_rounds": c.get("dp_star_rounds", CCDPConfig.dp_star_rounds),  # older checkpoints
-                   **dict(flag.removeprefix("--policy.").split("=", 1) for flag in r.files.method_flags("dp_star"))}
+                   **r.files.method_settings("dp_star")}
         lines.append(
             f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {c['failure_feature']} | w_s {c['w_s']:g}, "
             f"w_h {c['w_h']:g}, w_z {c['w_z']:g} against {c['z_reference']} | {c['noise_scheduler_type']} "
