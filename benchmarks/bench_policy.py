@@ -1,7 +1,7 @@
 """CCDP versus LeRobot's stock DiffusionPolicy: planning latency and training speed, side by side.
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
-        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp] [--out outputs/bench_policy.json]
+        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp|classifier] [--out outputs/bench_policy.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
 kernel 5, 8 groups, n_obs_steps 1, horizon 16, n_action_steps 8, DDIM with 10 inference steps) and the same
@@ -324,7 +324,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--env-dim", type=int, default=4, help="size of observation.environment_state")
     parser.add_argument("--dp-star-candidates", type=int, default=16)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--recovery-head", choices=["unet", "mlp"], default="unet", help="eps_z architecture")
+    parser.add_argument("--recovery-head", choices=["unet", "mlp", "classifier"], default="unet", help="recovery head")
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")
     parser.add_argument("--cli-log-freq", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")

@@ -75,6 +75,19 @@ def compose_eps(
     return eps
 
 
+def guide_away_from_failures(eps: Tensor, no_repeat_gradient: Tensor, alpha_bar: Tensor, w_z: float) -> Tensor:
+    """eps - w_z sqrt(1 - alpha_bar_t) grad_{a_t} log P(a_0 outside F | a_t, s)   (classifier guidance)
+
+    `recovery_head="classifier"`: p_s(a_t | s) P(a_0 outside F | a_t, s) is the noised p_s restricted to the chunks
+    that repeat no failure of the set F, at every noise level. So at w_z = 1 this is the exact noise estimate of
+    "everything but what failed" in the demonstrated proportions, up to the classifier's error, with one term for
+    all failures; a sum of per-failure terms (`compose_eps`) is the score of their product only near zero noise.
+    eps is the base composition (eq. 4 without failure terms), `no_repeat_gradient` (B, horizon, A) the gradient of
+    the log probability and `alpha_bar` the step's cumulative signal level.
+    """
+    return eps - w_z * (1 - alpha_bar).sqrt() * no_repeat_gradient
+
+
 def _require(term: Tensor | None, name: str) -> Tensor:
     if term is None:
         raise ValueError(f"eq. (4) gives {name} a non-zero weight but it was not evaluated.")

@@ -11,7 +11,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 RECOVERY_MODES = ("ccdp", "dp", "dp_star")
 FAILURE_FEATURES = ("final_state", "action", "primitive")
 TRAINING_STAGES = ("base", "recovery")
-RECOVERY_HEADS = ("unet", "mlp")
+RECOVERY_HEADS = ("unet", "mlp", "classifier")
 Z_REFERENCES = ("eps_a", "eps_z_null")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
@@ -118,11 +118,15 @@ class CCDPConfig(PreTrainedConfig):
     dp_star_rounds: int = 4
     # Demonstrated chunks kept to look up the outcome (final state, primitive) of a sampled chunk.
     outcome_index_size: int = 20000
-    # Recovery head eps_z: "unet" (LeRobot's diffusion UNet conditioned on z) or "mlp" (a residual MLP over the
-    # flattened chunk, FiLM-conditioned on z: cheaper, less sharp); the MLP's size.
+    # Recovery head: "unet" (eps_z, LeRobot's diffusion UNet conditioned on z, trained on a synthesised recovery
+    # dataset), "mlp" (eps_z as a residual MLP over the flattened chunk, FiLM-conditioned on z: cheaper, less sharp)
+    # or "classifier" (a noisy-chunk classifier of "repeats a failure of the set F" given the state, trained on the
+    # demonstrations themselves, whose gradient guides eps_s; composition.guide_away_from_failures). The size of
+    # the MLP and of the classifier, and the most failures drawn for one training row of the classifier.
     recovery_head: str = "unet"
     recovery_hidden_dim: int = 128
     recovery_num_blocks: int = 3
+    failure_set_train_size: int = 3
     # z dropout while training the recovery head, so that it also yields eps_z_null.
     p_drop_failure: float = 0.1
 
@@ -168,9 +172,10 @@ class CCDPConfig(PreTrainedConfig):
         bad_steps = [s for s in self.failure_action_steps if not 0 <= s < self.horizon]
         if bad_steps:
             raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon}).")
-        if min(self.max_failures, self.dp_star_candidates, self.dp_star_rounds) < 1 or self.history_length < 0:
-            raise ValueError("`max_failures`, `dp_star_candidates` and `dp_star_rounds` must be >= 1, "
-                             "`history_length` >= 0.")
+        counts = (self.max_failures, self.dp_star_candidates, self.dp_star_rounds, self.failure_set_train_size)
+        if min(counts) < 1 or self.history_length < 0:
+            raise ValueError("`max_failures`, `dp_star_candidates`, `dp_star_rounds` and `failure_set_train_size` "
+                             "must be >= 1, `history_length` >= 0.")
         if self.horizon % 2 ** len(self.down_dims) != 0:
             raise ValueError(
                 f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = {2 ** len(self.down_dims)}."
@@ -276,21 +281,27 @@ class CCDPConfig(PreTrainedConfig):
         return self.num_primitives
 
     @property
+    def trains_on_windows(self) -> bool:
+        """Whether this stage reads demonstration windows (the base, and the classifier head, which learns from the
+        demos too) rather than whole recovery rows of a synthesised dataset."""
+        return self.training_stage == "base" or self.recovery_head == "classifier"
+
+    @property
     def drop_n_last_frames(self) -> int:
-        """Frames at an episode's end that cannot start a full chunk (base stage); recovery rows are whole."""
-        if self.training_stage == "recovery":
+        """Frames at an episode's end that cannot start a full chunk (windows); recovery rows are whole."""
+        if not self.trains_on_windows:
             return 0
         return self.horizon - self.n_action_steps - self.n_obs_steps + 1
 
     @property
     def observation_delta_indices(self) -> list | None:
-        if self.training_stage == "recovery":
+        if not self.trains_on_windows:
             return None
         return list(range(1 - self.n_obs_steps - self.history_length, 1))
 
     @property
     def action_delta_indices(self) -> list | None:
-        if self.training_stage == "recovery":
+        if not self.trains_on_windows:
             return None
         start = 1 - self.n_obs_steps - self.history_length
         return list(range(start, 1 - self.n_obs_steps + self.horizon))

@@ -1,4 +1,4 @@
-"""The two noise-prediction networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z)."""
+"""The networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z, or a failure-set classifier)."""
 
 import torch
 from lerobot.policies.diffusion.modeling_diffusion import (
@@ -33,8 +33,9 @@ class BaseDenoiser(nn.Module):
 
 
 def make_recovery_denoiser(config: CCDPConfig) -> nn.Module:
-    """eps_z(a, z, k) of the architecture `config.recovery_head` names."""
-    return RecoveryUnet(config) if config.recovery_head == "unet" else RecoveryMLP(config)
+    """The recovery network `config.recovery_head` names: eps_z(a, z, k) per failure, or the failure-set classifier."""
+    heads = {"unet": RecoveryUnet, "mlp": RecoveryMLP, "classifier": FailureSetClassifier}
+    return heads[config.recovery_head](config)
 
 
 class RecoveryUnet(nn.Module):
@@ -82,6 +83,45 @@ class RecoveryMLP(nn.Module):
         for block in self.blocks:
             h = block(h, cond)
         return self.out(h).view_as(noisy)
+
+
+class FailureSetClassifier(nn.Module):
+    """logit of P(a_0 repeats a failure in F | a_t, s, k): a noisy-chunk classifier for the whole failure set F.
+
+    Trained on the demonstrations with F drawn independently of each row (the label says whether the row's own z
+    lies within delta_z of a failure in F; `CCDPPolicy._failure_set_loss`), its gradient turns eps_s into the noise
+    estimate of p_s restricted to the chunks outside F (`composition.guide_away_from_failures`). A residual MLP over
+    the flattened chunk, FiLM-conditioned on the diffusion step, the state (droppable) and the set's embedding (a
+    max over an MLP of each z_i, so neither F's order nor a repeated failure changes it).
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        width, chunk = config.recovery_hidden_dim, config.horizon * config.action_dim
+        self.step_embedding = nn.Sequential(
+            DiffusionSinusoidalPosEmb(config.diffusion_step_embed_dim),
+            nn.Linear(config.diffusion_step_embed_dim, width),
+            nn.Mish(),
+        )
+        self.state_embedding = nn.Linear(config.n_obs_steps * config.frame_dim + 1, width)
+        self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
+        self.inp = nn.Linear(chunk, width)
+        self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(config.recovery_num_blocks))
+        self.logit = nn.Linear(width, 1)
+
+    def forward(
+        self, noisy: Tensor, timestep: Tensor, state: Tensor, z: Tensor, z_mask: Tensor, keep_s: Tensor | None = None
+    ) -> Tensor:
+        """noisy (R, horizon, A); state (R, state_cond_dim); z (R, N, z_dim) with z_mask (R, N), at least one failure
+        per row; keep_s (R, 1) drops the state of some rows while training (default: kept) -> logits (R,)."""
+        keep_s = state.new_ones(state.shape[0], 1) if keep_s is None else keep_s
+        per_failure = self.set_embedding(z).masked_fill(~z_mask[..., None], float("-inf"))
+        cond = (self.step_embedding(timestep) + self.state_embedding(torch.cat([state * keep_s, keep_s], dim=-1))
+                + per_failure.amax(dim=1))
+        h = self.inp(noisy.flatten(start_dim=1))
+        for block in self.blocks:
+            h = block(h, cond)
+        return self.logit(h).squeeze(-1)
 
 
 def _z_condition(z: Tensor, keep_z: Tensor) -> Tensor:

@@ -14,7 +14,7 @@ from lerobot.utils.constants import (
 from torch import Tensor
 
 from lerobot_ccdp.checkpoint_files import checkpoint_loading
-from lerobot_ccdp.composition import CompositionWeights, compose_eps
+from lerobot_ccdp.composition import CompositionWeights, compose_eps, guide_away_from_failures
 from lerobot_ccdp.configuration_ccdp import (
     FAILURE_FEATURE_KEY,
     FAILURE_FLAG_KEY,
@@ -116,17 +116,33 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """Loss of the stage the config names: the base denoiser on demos, or eps_z on a recovery dataset."""
-        if self.config.training_stage == "recovery":
-            return self._recovery_loss(batch)
-        return self._base_loss(batch)
+        if self.config.training_stage == "base":
+            return self._base_loss(batch)
+        if self.config.recovery_head == "classifier":
+            return self._failure_set_loss(batch)
+        return self._recovery_loss(batch)
 
     def _base_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        cfg = self.config
+        state, history, chunk, pad = self._windows(batch)
+        b = chunk.shape[0]
+        keep_s = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_state).float()
+        keep_h = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_history).float() * float(cfg.history_length > 0)
+        noise, timesteps, noisy = self._noised(chunk)
+        loss = F.mse_loss(self.base(noisy, timesteps, state, keep_s, history, keep_h), noise, reduction="none")
+        if cfg.do_mask_loss_for_padding and pad is not None:
+            loss = loss * ~pad[:, cfg.history_length:, None]
+        return loss.mean(), {}
+
+    def _windows(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
+        """A demonstration batch as the base sees it: state condition, history condition, the chunk to denoise and
+        the chunk's padding flags (or None)."""
         cfg = self.config
         refuse_unknown_cameras(self.config, batch)
         frames = self.frames(batch)
         if frames.ndim != 3 or batch[ACTION].ndim != 3:
             raise ValueError(
-                f"The base stage expects observation windows (B, {cfg.history_length + cfg.n_obs_steps}, D) and "
+                f"This stage expects observation windows (B, {cfg.history_length + cfg.n_obs_steps}, D) and "
                 f"action chunks (B, {cfg.history_length + cfg.horizon}, A); got {tuple(frames.shape)} and "
                 f"{tuple(batch[ACTION].shape)}. Load the dataset with the policy's delta timestamps (lerobot-train does)."
             )
@@ -136,16 +152,29 @@ class CCDPPolicy(PreTrainedPolicy):
         if pad is not None:
             past_actions = past_actions * ~pad[:, :h, None]  # no action was taken before the episode began
         history = torch.cat([frames[:, :h].flatten(start_dim=1), past_actions.flatten(start_dim=1)], dim=-1)
-        state = frames[:, h:].flatten(start_dim=1)
-        chunk = actions[:, h:]
-        b = chunk.shape[0]
-        keep_s = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_state).float()
-        keep_h = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_history).float() * float(h > 0)
-        noise, timesteps, noisy = self._noised(chunk)
-        loss = F.mse_loss(self.base(noisy, timesteps, state, keep_s, history, keep_h), noise, reduction="none")
-        if cfg.do_mask_loss_for_padding and pad is not None:
-            loss = loss * ~pad[:, h:, None]
-        return loss.mean(), {}
+        return frames[:, h:].flatten(start_dim=1), history, actions[:, h:], pad
+
+    def _failure_set_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """The failure-set classifier on the demonstrations. Each row gets a failure set F of 1..failure_set_train_size
+        z drawn from other rows (so F is independent of the row's own chunk) and is a repeat when its own z lies
+        within delta_z of a failure in F; the classifier learns P(repeat | a_t, s) with the base's noise schedule.
+        The state is dropped as in the base: where it already names the option, a state-conditioned row says little
+        about F, while state-free rows tie F to the chunks it excludes, in the same network."""
+        cfg = self.config
+        state, _, chunk, _ = self._windows(batch)
+        b, n = chunk.shape[0], cfg.failure_set_train_size
+        if b < 2:
+            raise ValueError("The classifier draws each row's failures from the other rows: use --batch_size >= 2.")
+        self.recovery_trained.fill_(True)
+        z = self.feature.from_chunk(chunk, self.outcomes)
+        others = (torch.arange(b, device=z.device)[:, None] + torch.randint(1, b, (b, n), device=z.device)) % b
+        z_set = z[others]  # (B, N, z_dim)
+        z_mask = torch.arange(n, device=z.device)[None] < torch.randint(1, n + 1, (b, 1), device=z.device)
+        repeats = ((((z_set - z[:, None]) ** 2).sum(dim=-1) <= cfg.delta_z) & z_mask).any(dim=1).to(chunk.dtype)
+        keep_s = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_state).to(chunk.dtype)
+        _, timesteps, noisy = self._noised(chunk)
+        logits = self.recovery(noisy, timesteps, state, z_set, z_mask, keep_s)
+        return F.binary_cross_entropy_with_logits(logits, repeats), {}
 
     def _recovery_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config
@@ -340,10 +369,12 @@ class CCDPPolicy(PreTrainedPolicy):
         weights: CompositionWeights | None = None,
     ) -> Tensor:
         """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given):
-        one base call and at most one recovery call per step, whatever the number of failures."""
+        one base call and at most one recovery call per step, whatever the number of failures. With the classifier
+        head, the failures enter by guidance instead (`guide_away_from_failures`)."""
         weights = weights or self.weights
         r, n = sample.shape[0], z.shape[1]
-        terms = self._base_terms(z_mask.sum(dim=1), weights)
+        guided = n > 0 and self.config.recovery_head == "classifier"
+        terms = self._base_terms(z_mask.sum(dim=1) * (not guided), weights)
         ones, zeros = torch.ones(r, 1, device=sample.device), torch.zeros(r, 1, device=sample.device)
         keep = {"a": (zeros, zeros), "s": (ones, zeros), "h": (zeros, ones)}
         k = len(terms)
@@ -356,10 +387,20 @@ class CCDPPolicy(PreTrainedPolicy):
             step = torch.full((r * k,), int(t), dtype=torch.long, device=sample.device)
             eps = self.base(sample.repeat(k, 1, 1), step, state_rows, keep_s, history_rows, keep_h)
             by_term = dict(zip(terms, eps.split(r), strict=True))
-            eps_z, eps_z_null = self._recovery_terms(sample, step[0], z_rows, keep_z, n) if n else (None, None)
-            composed = compose_eps(
-                weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null
-            )
+            if guided:
+                composed = compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"))
+                failed = z_mask.any(dim=1)
+                if failed.any():
+                    gradient = torch.zeros_like(sample)
+                    gradient[failed] = self._no_repeat_gradient(sample[failed], step[: int(failed.sum())],
+                                                                state[failed], z[failed], z_mask[failed])
+                    alpha_bar = self.noise_scheduler.alphas_cumprod[int(t)].to(sample.device)
+                    composed = guide_away_from_failures(composed, gradient, alpha_bar, weights.w_z)
+            else:
+                eps_z, eps_z_null = self._recovery_terms(sample, step[0], z_rows, keep_z, n) if n else (None, None)
+                composed = compose_eps(
+                    weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null
+                )
             sample = self.noise_scheduler.step(composed, t, sample).prev_sample
         return sample
 
@@ -393,6 +434,15 @@ class CCDPPolicy(PreTrainedPolicy):
         if weights.uses_unconditional(n_failures * bool(weights.w_z)) or not terms:
             terms.insert(0, "a")
         return terms
+
+    def _no_repeat_gradient(self, sample: Tensor, step: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
+        """grad_{a_t} log P(a_0 outside F | a_t, s) from the classifier head. LeRobot samples under
+        torch.inference_mode(), where no gradient exists: the inputs are copied into ordinary tensors first."""
+        with torch.inference_mode(False), torch.enable_grad():
+            noisy = sample.clone().requires_grad_(True)
+            logit = self.recovery(noisy, step.clone(), state.clone(), z.clone(), z_mask.clone())
+            (gradient,) = torch.autograd.grad(-F.softplus(logit).sum(), noisy)
+        return gradient
 
     def _sample_dp_star(self, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
         """DP* (`dp_star.reject_repeats`) with candidates from the base composition, failures ignored."""

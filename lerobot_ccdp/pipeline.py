@@ -100,6 +100,11 @@ class TaskFiles:
     def eval_config(self) -> dict[str, Any]:
         return json.loads(self.eval.read_text())
 
+    def recovery_head(self) -> str:
+        """The recovery head the base config builds (part of the checkpoint's architecture, so chosen there):
+        the classifier head trains on the demonstrations, the others on a synthesised recovery dataset."""
+        return json.loads(self.train_base.read_text()).get("policy", {}).get("recovery_head", "unet")
+
     def method_settings(self, method: str) -> dict[str, Any]:
         """Policy fields with which `method` is evaluated, from the optional `methods.json` beside the eval config
         ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared checkpoint does
@@ -152,14 +157,18 @@ class TaskRun:
             f"--dataset.root={f.demos}"], upstream=None, clear=f.demos)
         base, base_stamp = self._train("train_base", f.train_base, f.out / "base", f"local/{self.slug}", f.demos,
                                        upstream=demos)
-        recovery_data = self._stage("synthesize", f.recovery_data / "meta" / "info.json", [
-            "lerobot-ccdp-synthesize", f"--config_path={f.recipe}", f"--dataset.repo_id=local/{self.slug}",
-            f"--dataset.root={f.demos}", f"--policy.path={base}", f"--output.repo_id=local/{self.slug}_recovery",
-            f"--output.root={f.recovery_data}"],
-            upstream=base_stamp, clear=f.recovery_data)
+        if f.recovery_head() == "classifier":  # learns from the demonstrations: nothing to synthesise
+            recovery_repo, recovery_root, recovery_upstream = f"local/{self.slug}", f.demos, base_stamp
+        else:
+            recovery_repo, recovery_root = f"local/{self.slug}_recovery", f.recovery_data
+            recovery_upstream = self._stage("synthesize", f.recovery_data / "meta" / "info.json", [
+                "lerobot-ccdp-synthesize", f"--config_path={f.recipe}", f"--dataset.repo_id=local/{self.slug}",
+                f"--dataset.root={f.demos}", f"--policy.path={base}", f"--output.repo_id={recovery_repo}",
+                f"--output.root={f.recovery_data}"],
+                upstream=base_stamp, clear=f.recovery_data)
         recovery, recovery_stamp = self._train(
-            "train_recovery", f.train_recovery, f.out / "recovery", f"local/{self.slug}_recovery", f.recovery_data,
-            f"--policy.path={base}", "--policy.training_stage=recovery", upstream=recovery_data)
+            "train_recovery", f.train_recovery, f.out / "recovery", recovery_repo, recovery_root,
+            f"--policy.path={base}", "--policy.training_stage=recovery", upstream=recovery_upstream)
         for method in methods:
             out = f.eval_dir(method)
             self._stage(f"eval_{method}", out / "eval_info.json",
@@ -307,11 +316,16 @@ def method_forms(runs: list[TaskRun]) -> str:
         dp_star = {"dp_star_candidates": c["dp_star_candidates"],
                    "dp_star_rounds": c.get("dp_star_rounds", CCDPConfig.dp_star_rounds),  # older checkpoints
                    **r.files.method_settings("dp_star")}
+        if c.get("recovery_head") == "classifier":
+            form = f"w_s {c['w_s']:g}, w_h {c['w_h']:g}; failures by classifier guidance, w_z {c['w_z']:g}"
+            synthesis = "none (classifier learns from the demos)"
+        else:
+            form = f"w_s {c['w_s']:g}, w_h {c['w_h']:g}, w_z {c['w_z']:g} against {c['z_reference']}"
+            synthesis = f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}"
         lines.append(
-            f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {c['failure_feature']} | w_s {c['w_s']:g}, "
-            f"w_h {c['w_h']:g}, w_z {c['w_z']:g} against {c['z_reference']} | {c['noise_scheduler_type']} "
-            f"{c['num_inference_steps']} steps | delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, "
-            f"w_s {recipe.w_s:g} | {steps} | {dp_star['dp_star_candidates']} candidates, "
+            f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {c['failure_feature']} | {form} | "
+            f"{c['noise_scheduler_type']} {c['num_inference_steps']} steps | {synthesis} | {steps} | "
+            f"{dp_star['dp_star_candidates']} candidates, "
             f"{dp_star['dp_star_rounds']} round(s), delta_z {c['delta_z']:g} |")
     return "\n".join(lines)
 

@@ -1,13 +1,16 @@
-"""A synthetic 2-D multimodal reaching task: the smallest data on which failure recovery can be seen.
+"""Synthetic 2-D multimodal reaching tasks: the smallest data on which failure recovery can be seen.
 
-The agent starts near the origin and moves in a straight line to one of four goals, chosen with a fixed
-preference (east most often, south least). One goal is "blocked" at run time in the recovery tests; a
-policy that remembers the failure must then pick among the other three in their demonstrated proportions.
+The agent starts near the origin and moves to one of several goals, chosen with a fixed preference. The default
+task has four goals on straight paths (east most often, south least); `ReachingTask.family_member(seed)` draws the
+seeded family of issue 17 (3 to 6 goals at random angles, random preferences, bent paths, with or without option
+labels). A goal is "blocked" at run time in the recovery tests; a policy that remembers the failure must then
+pick among the other goals in their demonstrated proportions.
 Used by the tests, the benchmarks and the README's train-on-a-local-dataset example.
 """
 
 import argparse
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,14 +29,80 @@ FEATURES = {
 }
 
 
+@dataclass(frozen=True)
+class ReachingTask:
+    """A 2-D reaching task: goals on the unit circle, a preference over them, paths bent sideways by `bend` (a
+    fraction of the reach, 0 for straight lines), with or without the goal's `primitive` label in the dataset."""
+
+    goals: np.ndarray
+    preference: np.ndarray
+    bend: float = 0.0
+    labelled: bool = True
+
+    @classmethod
+    def family_member(cls, seed: int) -> "ReachingTask":
+        """The seeded family of issue 17: 3 to 6 goals at random angles at least 45 degrees apart, random
+        preferences (Dirichlet, none under 0.05), random bends; even seeds carry labels, odd seeds do not."""
+        rng = np.random.default_rng(seed)
+        k = int(rng.integers(3, 7))
+        while True:
+            angles = np.sort(rng.uniform(0, 2 * np.pi, k))
+            if np.diff(np.append(angles, angles[0] + 2 * np.pi)).min() >= np.pi / 4:
+                break
+        preference = np.maximum(rng.dirichlet(np.full(k, 2.0)), 0.05)
+        goals = np.stack([np.cos(angles), np.sin(angles)], axis=1).astype(np.float32)
+        return cls(goals, preference / preference.sum(), float(rng.uniform(-0.4, 0.4)), seed % 2 == 0)
+
+    @property
+    def features(self) -> dict:
+        return FEATURES if self.labelled else {k: v for k, v in FEATURES.items() if k != "primitive"}
+
+    def path(self, goal: int, start: np.ndarray, progress: np.ndarray) -> np.ndarray:
+        """Positions (T, 2) at `progress` (T,) in [0, 1] along the bent reach from `start` to goal `goal`."""
+        reach = self.goals[goal] - start
+        side = np.array([-reach[1], reach[0]])
+        p = progress[:, None]
+        return start + p * reach + self.bend * np.sin(np.pi * p) * side
+
+    def demo_episode(self, goal: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """States and target-position actions of one reach to goal `goal`, then a hold."""
+        start = rng.normal(0.0, 0.02, size=2).astype(np.float32)
+        progress = np.minimum(np.arange(1, REACH_STEPS + HOLD_STEPS + 1) / REACH_STEPS, 1.0)
+        actions = self.path(goal, start, progress).astype(np.float32)
+        states = np.concatenate([start[None], actions[:-1]]).astype(np.float32)
+        return states, actions
+
+    def option_of(self, chunks: np.ndarray) -> np.ndarray:
+        """The goal each planned chunk of positions (R, T, 2), started at the origin, heads to: the goal whose
+        demonstrated path from the origin it is nearest to."""
+        progress = np.minimum(np.arange(1, chunks.shape[1] + 1) / REACH_STEPS, 1.0)
+        paths = np.stack([self.path(g, np.zeros(2), progress) for g in range(len(self.goals))])  # (K, T, 2)
+        return ((chunks[:, None] - paths[None]) ** 2).sum(axis=(2, 3)).argmin(axis=1)
+
+    def record(self, root: str | Path, repo_id: str, n_episodes: int, seed: int = 0) -> LeRobotDataset:
+        """Write a LeRobot v3 dataset of demos whose goals follow the preference in proportion (rounded)."""
+        rng = np.random.default_rng(seed)
+        counts = np.maximum(np.round(self.preference * n_episodes).astype(int), 1)
+        goals = rng.permutation(np.repeat(np.arange(len(self.goals)), counts))
+        dataset = LeRobotDataset.create(repo_id, fps=FPS, features=self.features, root=root, use_videos=False)
+        for goal in goals:
+            states, actions = self.demo_episode(int(goal), rng)
+            for state, action in zip(states, actions, strict=True):
+                frame = {"observation.state": state, "action": action, "task": "reach a goal"}
+                if self.labelled:
+                    frame["primitive"] = np.array([goal], dtype=np.int64)
+                dataset.add_frame(frame)
+            dataset.save_episode()
+        dataset.finalize()
+        return dataset
+
+
+FOUR_GOALS = ReachingTask(GOALS, PREFERENCE)
+
+
 def demo_episode(goal: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """States and target-position actions of one straight reach to GOALS[goal], then a hold."""
-    start = rng.normal(0.0, 0.02, size=2).astype(np.float32)
-    steps = REACH_STEPS + HOLD_STEPS
-    progress = np.minimum(np.arange(1, steps + 1) / REACH_STEPS, 1.0)[:, None]
-    actions = (start + progress * (GOALS[goal] - start)).astype(np.float32)
-    states = np.concatenate([start[None], actions[:-1]]).astype(np.float32)
-    return states, actions
+    return FOUR_GOALS.demo_episode(goal, rng)
 
 
 def goal_of(positions: np.ndarray) -> np.ndarray:
@@ -43,22 +112,7 @@ def goal_of(positions: np.ndarray) -> np.ndarray:
 
 def record_reaching_dataset(root: str | Path, repo_id: str = "local/reaching2d", n_episodes: int = 60, seed: int = 0) -> LeRobotDataset:
     """Write a LeRobot v3 dataset of demos whose goals follow PREFERENCE exactly in proportion."""
-    rng = np.random.default_rng(seed)
-    counts = np.round(PREFERENCE * n_episodes).astype(int)
-    goals = rng.permutation(np.repeat(np.arange(len(GOALS)), counts))
-    dataset = LeRobotDataset.create(repo_id, fps=FPS, features=FEATURES, root=root, use_videos=False)
-    for goal in goals:
-        states, actions = demo_episode(int(goal), rng)
-        for state, action in zip(states, actions, strict=True):
-            dataset.add_frame({
-                "observation.state": state,
-                "action": action,
-                "primitive": np.array([goal], dtype=np.int64),
-                "task": "reach a goal",
-            })
-        dataset.save_episode()
-    dataset.finalize()
-    return dataset
+    return FOUR_GOALS.record(root, repo_id, n_episodes, seed)
 
 
 def main() -> None:

@@ -290,3 +290,23 @@ def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):
     shutil.copy(recipes / f"{SLUG}.yaml", tmp_path / f"{SLUG}_pixels.yaml")
     with pytest.raises(ValueError, match="obs_type='state', not 'pixels_agent_pos'"):
         TaskFiles.locate(TASK, tmp_path, tmp_path, tmp_path / "out", "pixels_agent_pos")
+
+
+def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
+    """A base config naming `recovery_head: classifier` makes the recovery stage learn from the demonstrations:
+    no synthesis stage runs, the checkpoint holds a trained classifier, and the report names the guided form."""
+    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG, n_episodes=2)
+    _shrink_json(configs / SLUG / "train_base.json", configs / SLUG / "train_base.json",
+                 {"policy": {"recovery_head": "classifier", "w_z": 1.0}})
+    out = tmp_path / "out"
+    stdout = _run_pipeline(configs, recipes, out, "--no-chart")
+    task_out = out / SLUG
+
+    assert not (task_out / "recovery_data").exists()
+    assert "synthesize" not in json.loads((task_out / "timings.json").read_text())
+    recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
+    assert recovery.config.recovery_head == "classifier" and bool(recovery.recovery_trained)
+    assert f"--dataset.root={task_out / 'demos'} --output_dir={task_out / 'recovery'}" in stdout
+    for method in METHODS:
+        assert len(Episodes.from_eval_info(task_out / "eval" / method / "eval_info.json")) == 2
+    assert "failures by classifier guidance, w_z 1" in (out / "report.md").read_text()

@@ -112,6 +112,73 @@ class MixtureRecovery(nn.Module):
         return mixture_eps(self.scheduler, noisy, timestep, self.modes, weights)
 
 
+class MixtureClassifier(nn.Module):
+    """logit of the exact posterior probability that a noisy chunk comes from a mode in the failure set."""
+
+    def __init__(self, scheduler, modes):
+        super().__init__()
+        self.scheduler, self.modes = scheduler, modes
+
+    def forward(self, noisy, timestep, state, z, z_mask):
+        ab = self.scheduler.alphas_cumprod[timestep.long()].view(-1, 1)
+        offset = ab.sqrt()[..., None, None] * self.modes[None] - noisy[:, None]
+        log_joint = DEMONSTRATED.log() - (offset**2).sum(dim=(2, 3)) / (2 * (ab * SPREAD**2 + 1 - ab))
+        failed = (z * z_mask[..., None]).amax(dim=1).bool()
+        inside = log_joint.masked_fill(~failed, float("-inf")).logsumexp(dim=1)
+        return inside - log_joint.masked_fill(failed, float("-inf")).logsumexp(dim=1)
+
+
+def mixture_policy(**overrides):
+    """A policy whose networks are the exact noise estimates of the four-mode mixture, and those modes."""
+    torch.manual_seed(0)
+    policy = make_policy(failure_feature="primitive", num_primitives=4, clip_sample=False, **overrides)
+    modes = torch.randn(4, HORIZON, ACTION_DIM)
+    modes = 0.3 * modes / modes.pow(2).mean(dim=(1, 2), keepdim=True).sqrt()  # RMS 0.3, ~2.4 apart
+    policy.base = MixtureBase(policy.noise_scheduler, modes)
+    recovery = MixtureClassifier if policy.config.recovery_head == "classifier" else MixtureRecovery
+    policy.recovery = recovery(policy.noise_scheduler, modes)
+    policy.recovery_trained.fill_(True)
+    return policy, modes
+
+
+def mode_shares(policy, modes, failed: list[int], rows: int = 1024) -> torch.Tensor:
+    """Share of each mode among `rows` chunks planned after the modes `failed` were reported, in that order."""
+    obs = {"observation.state": torch.zeros(rows, 2)}
+    policy.reset()
+    policy.predict_action_chunk(obs)
+    for mode in failed:
+        policy.report_failure(z=policy.feature.one_hot(torch.full((rows,), mode)))
+    chunks = policy.predict_action_chunk(obs)  # (rows, n_action_steps, A): the chunk's first steps
+    steps = chunks.shape[1]
+    nearest = ((chunks[:, None] - modes[None, :, :steps]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
+    return torch.bincount(nearest, minlength=4).float() / rows
+
+
+def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_failed_in_proportion():
+    """With the exact noisy-chunk classifier, guidance (under LeRobot's inference mode) draws the remaining modes in
+    their demonstrated proportions after one and after two failures, unlike the per-failure sums of eq. (4) below;
+    in a batch where only some rows failed, the others keep the base's shares."""
+    policy, modes = mixture_policy(recovery_head="classifier")
+    torch.manual_seed(1)
+    for failed in ([0], [0, 1], [2]):
+        expected = DEMONSTRATED.clone()
+        expected[failed] = 0
+        expected /= expected.sum()
+        with torch.inference_mode():
+            got = mode_shares(policy, modes, failed)
+        print("classifier guidance after", failed, [round(x, 3) for x in got.tolist()])
+        assert (got - expected).abs().max() < 0.05, f"after {failed}: {got.tolist()} vs {expected.tolist()}"
+    rows = 2048
+    obs = {"observation.state": torch.zeros(rows, 2)}
+    policy.reset()
+    policy.predict_action_chunk(obs)
+    policy.report_failure(rows=list(range(rows // 2)), z=policy.feature.one_hot(torch.zeros(rows // 2)))
+    chunks = policy.predict_action_chunk(obs)
+    nearest = ((chunks[:, None] - modes[None, :, : chunks.shape[1]]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
+    failed_rows, fresh_rows = (torch.bincount(part, minlength=4) / (rows // 2) for part in nearest.split(rows // 2))
+    assert failed_rows[0] < 0.02 and (fresh_rows - DEMONSTRATED).abs().max() < 0.05, (failed_rows, fresh_rows)
+
+
 @pytest.mark.parametrize("w_z", [1.0, 3.0])
 @pytest.mark.parametrize("z_reference", ["eps_a", "eps_z_null"])
 def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_preference(z_reference, w_z):
@@ -119,26 +186,10 @@ def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_p
     only at zero noise. The shares are printed (`pytest -s -k exact_mixtures`): the exact answer after mode 0
     failed is 0 / 0.50 / 0.33 / 0.17; only the paper's form at w_z = 1 gives it (eps_z_null over-weights the
     most preferred remaining mode, more so at w_z = 3), which the order asserted here does not see."""
-    torch.manual_seed(0)
-    policy = make_policy(failure_feature="primitive", num_primitives=4, clip_sample=False, z_reference=z_reference,
-                         w_z=w_z)
-    modes = torch.randn(4, HORIZON, ACTION_DIM)
-    modes = 0.3 * modes / modes.pow(2).mean(dim=(1, 2), keepdim=True).sqrt()  # RMS 0.3, ~2.4 apart
-    policy.base = MixtureBase(policy.noise_scheduler, modes)
-    policy.recovery = MixtureRecovery(policy.noise_scheduler, modes)
-    policy.recovery_trained.fill_(True)
-    rows = 1024
-    obs = {"observation.state": torch.zeros(rows, 2)}
+    policy, modes = mixture_policy(z_reference=z_reference, w_z=w_z)
 
     def shares(failed: list[int]) -> torch.Tensor:
-        policy.reset()
-        policy.predict_action_chunk(obs)
-        for mode in failed:
-            policy.report_failure(z=policy.feature.one_hot(torch.full((rows,), mode)))
-        chunks = policy.predict_action_chunk(obs)  # (rows, n_action_steps, A): the chunk's first steps
-        steps = chunks.shape[1]
-        nearest = ((chunks[:, None] - modes[None, :, :steps]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
-        return torch.bincount(nearest, minlength=4).float() / rows
+        return mode_shares(policy, modes, failed)
 
     dp, one, two = shares([]), shares([0]), shares([0, 1])
     rounded = [[round(x, 2) for x in shares.tolist()] for shares in (dp, one, two)]

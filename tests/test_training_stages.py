@@ -40,3 +40,32 @@ def test_recovery_stage_freezes_the_base_and_learns_eps_z():
     for key, value in policy.base.state_dict().items():
         torch.testing.assert_close(value, base_before[key], msg=key)
     assert all(not p.requires_grad for p in policy.base.parameters())
+
+
+def test_classifier_stage_learns_from_demo_windows_which_chunks_repeat_a_failure_set():
+    """recovery_head=classifier reads demonstration windows (as the base does), draws each row's failure set from the
+    other rows and learns P(repeat | a_t, s): with two options, told which one failed, it ranks that option's noisy
+    chunks above the other's. The base stays frozen."""
+    torch.manual_seed(0)
+    policy = make_policy(training_stage="recovery", recovery_head="classifier", failure_feature="action",
+                         failure_action_steps=[15], history_length=0).train()
+    assert policy.config.observation_delta_indices == [0] and policy.config.action_delta_indices is not None
+    base_before = {k: v.clone() for k, v in policy.base.state_dict().items()}
+    optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
+    chunks = torch.stack([torch.full((16, 2), 0.5), torch.full((16, 2), -0.5)])
+    for _ in range(200):
+        pick = torch.randint(0, 2, (32,))
+        loss, _ = policy.forward({"observation.state": torch.zeros(32, 1, 2), "action": chunks[pick]})
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    assert bool(policy.recovery_trained)
+    policy.eval()
+    with torch.no_grad():
+        noisy = policy.noise_scheduler.add_noise(chunks, torch.randn_like(chunks) * 0.1, torch.tensor([5, 5]))
+        failed_first = chunks[0, 15][None, None].expand(2, 1, 2)  # action z of option 0
+        logits = policy.recovery(noisy, torch.tensor([5, 5]), torch.zeros(2, 2), failed_first,
+                                 torch.ones(2, 1, dtype=torch.bool))
+    assert logits[0] > 2 and logits[1] < -2, logits
+    for key, value in policy.base.state_dict().items():
+        torch.testing.assert_close(value, base_before[key], msg=key)
