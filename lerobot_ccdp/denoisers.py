@@ -66,11 +66,7 @@ class RecoveryMLP(nn.Module):
     def __init__(self, config: CCDPConfig):
         super().__init__()
         width, chunk = config.recovery_hidden_dim, config.horizon * config.action_dim
-        self.step_embedding = nn.Sequential(
-            DiffusionSinusoidalPosEmb(config.diffusion_step_embed_dim),
-            nn.Linear(config.diffusion_step_embed_dim, width),
-            nn.Mish(),
-        )
+        self.step_embedding = _step_embedding(config, width)
         self.z_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim + 1, width), nn.Mish())
         self.inp = nn.Linear(chunk, width)
         self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(config.recovery_num_blocks))
@@ -98,11 +94,7 @@ class FailureSetClassifier(nn.Module):
     def __init__(self, config: CCDPConfig):
         super().__init__()
         width, chunk = config.recovery_hidden_dim, config.horizon * config.action_dim
-        self.step_embedding = nn.Sequential(
-            DiffusionSinusoidalPosEmb(config.diffusion_step_embed_dim),
-            nn.Linear(config.diffusion_step_embed_dim, width),
-            nn.Mish(),
-        )
+        self.step_embedding = _step_embedding(config, width)
         self.state_embedding = nn.Linear(config.n_obs_steps * config.frame_dim + 1, width)
         self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
         self.inp = nn.Linear(chunk, width)
@@ -122,6 +114,15 @@ class FailureSetClassifier(nn.Module):
         for block in self.blocks:
             h = block(h, cond)
         return self.logit(h).squeeze(-1)
+
+
+def _step_embedding(config: CCDPConfig, width: int) -> nn.Module:
+    """The diffusion step as a `width` vector, for the FiLM conditions of the MLP heads."""
+    return nn.Sequential(
+        DiffusionSinusoidalPosEmb(config.diffusion_step_embed_dim),
+        nn.Linear(config.diffusion_step_embed_dim, width),
+        nn.Mish(),
+    )
 
 
 def _z_condition(z: Tensor, keep_z: Tensor) -> Tensor:
