@@ -1,23 +1,18 @@
 """Does recovery keep the demonstrated preferences? A seeded family of 2-D reaching tasks (issue 17).
 
-    HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_preferences.py [--members 0 1 ... 11] [--out outputs/preferences]
+    HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_preferences.py [--members 0 1 ... 11] [--w-z 1 2 4] \
+        [--out outputs/preferences]
 
 Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences, bent
 paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a LeRobot
-dataset, its base is trained with lerobot-train, and each recovery form is trained from that base with lerobot-train
-as a user would. From the start state, 512 chunks are planned under torch.inference_mode() after the most preferred
-goal failed, and after the two most preferred goals failed, with every method on the same checkpoint and seeds:
-
-    failed share       fraction of planned chunks heading to a failed goal
-    preference error   total-variation distance between the method's shares over the remaining goals and DP's own
-                       shares renormalised over them (same checkpoint, same start state), so the base's own error
-                       does not count against the recovery
-
-A chunk's goal is the goal whose demonstrated path from the start it lies nearest (`ReachingTask.option_of`), not the
-policy's own labeller. Methods: DP, DP* (32 candidates x 4 rounds, as tuned in docs/benchmarks.md) and CCDP with the
-failure-set classifier (`--policy.recovery_head=classifier`, w_z = 1). Prints the table, writes `preferences.md`,
-`results.json` and a Fig. 2-style panel grid `preferences.png` under --out. Stages whose inputs did not change are
-skipped (stamps, as in the pipeline); --members 100 101 ... are the development members the settings were chosen on.
+dataset, its base is trained with lerobot-train, and the failure-set classifier (`--policy.recovery_head=classifier`)
+is trained from that base with lerobot-train as a user would. Failed share and preference error after one and after
+two failures (`lerobot_ccdp/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
+rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z (a sampling setting,
+set as lerobot-eval's --policy.w_z would: every weight runs on the same checkpoint and seeds). Prints the table,
+writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferences.png` (CCDP at the first weight)
+under --out. Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
+family; settings are chosen on the development members 100-103 (`--members 100 101 102 103`).
 """
 
 from __future__ import annotations
@@ -31,19 +26,26 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_ccdp.reaching2d import ReachingTask
+from lerobot_ccdp.reaching_preferences import EXACT_CLASSIFIER, measure
 from lerobot_ccdp.stage_stamps import StampBook, stamp
 
 BIN = Path(sys.executable).parent
 CHECKPOINT = Path("checkpoints/last/pretrained_model")
 # method -> (recovery_mode, policy fields set for the measurement)
-METHODS = {
+BASELINES = {
     "DP": ("dp", {}),
     "DP*": ("dp_star", {"dp_star_candidates": 32, "dp_star_rounds": 4}),
-    "CCDP classifier": ("ccdp", {}),
 }
+
+
+def methods(guidance_weights: list[float]) -> dict[str, tuple[str, dict]]:
+    """DP, DP*, CCDP's classifier guidance at each weight w_z (a sampling setting: one checkpoint serves all) and the
+    reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start chunks."""
+    ccdp = {f"CCDP w_z={w:g}": ("ccdp", {"w_z": w}) for w in guidance_weights}
+    return {**BASELINES, **ccdp, "CCDP exact classifier": ("ccdp", {"w_z": 1.0, EXACT_CLASSIFIER: True})}
 
 
 def train(name: str, out: Path, args: list[str], upstream: str | None, book: StampBook) -> tuple[Path, str]:
@@ -57,11 +59,16 @@ def train(name: str, out: Path, args: list[str], upstream: str | None, book: Sta
     print(f"  {name}: lerobot-train into {out}", flush=True)
     log = out.with_suffix(".log")
     with log.open("w") as handle:
-        done = subprocess.run([str(BIN / command[0]), *command[1:]], stdout=handle, stderr=subprocess.STDOUT)
+        done = subprocess.run([str(BIN / command[0]), *command[1:]], check=False, stdout=handle, stderr=subprocess.STDOUT)
     if done.returncode:
         raise RuntimeError(f"{name} failed (exit {done.returncode}); see {log}")
     book.record(name, value)
     return out / CHECKPOINT, value
+
+
+def member_dataset(seed: int, out: Path) -> tuple[Path, str]:
+    """Where member `seed`'s demonstrations are recorded, and their repo id."""
+    return out / f"member_{seed}" / "data", f"local/reaching_family_{seed}"
 
 
 def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episodes: int) -> Path:
@@ -70,7 +77,7 @@ def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episo
     root = out / f"member_{seed}"
     root.mkdir(parents=True, exist_ok=True)
     book = StampBook(root / "stamps.json")
-    data, repo = root / "data", f"local/reaching_family_{seed}"
+    data, repo = member_dataset(seed, out)
     data_stamp = stamp(["record", f"--seed={seed}", f"--episodes={episodes}"], None)
     if not (data / "meta" / "info.json").exists() or not book.matches("record", data_stamp):
         shutil.rmtree(data, ignore_errors=True)
@@ -87,76 +94,9 @@ def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episo
     return head
 
 
-def failure_z(policy, preprocessor, task: ReachingTask, goal: int, rows: int) -> torch.Tensor:
-    """z of a failed reach to `goal` as the policy computes it: the goal's one-hot label, or where it ended."""
-    if task.labelled:
-        return policy.feature.one_hot(torch.full((rows,), goal))
-    end = torch.from_numpy(task.goals[goal]).expand(rows, 2)
-    return policy.feature.from_frame(preprocessor({"observation.state": end.clone()})["observation.state"])
-
-
-def planned_goals(policy, pre, post, task: ReachingTask, failed: list[int], rows: int, seed: int) -> np.ndarray:
-    """Plan one chunk per row from the start after the failures `failed`, as LeRobot calls a policy (under
-    torch.inference_mode()); return the positions (rows, horizon, 2)."""
-    torch.manual_seed(seed)
-    batch = pre({"observation.state": torch.zeros(rows, 2)})
-    with torch.inference_mode():
-        policy.reset()
-        policy.select_action(batch)
-        for goal in failed:
-            policy.report_failure(z=failure_z(policy, pre, task, goal, rows))
-        policy.select_action(batch)
-        chunks = policy._memory.attempt_chunk.clone()
-    return post(chunks).reshape(rows, -1, 2).cpu().numpy()
-
-
-def shares(task: ReachingTask, positions: np.ndarray) -> np.ndarray:
-    return np.bincount(task.option_of(positions), minlength=len(task.goals)) / len(positions)
-
-
-def scores(share: np.ndarray, reference: np.ndarray, failed: list[int]) -> tuple[float, float]:
-    """(failed share, preference error against `reference` renormalised over the goals that did not fail)."""
-    rest = np.setdiff1d(np.arange(len(share)), failed)
-    kept, ref = share[rest], reference[rest]
-    error = 0.5 * np.abs(kept / max(kept.sum(), 1e-9) - ref / max(ref.sum(), 1e-9)).sum()
-    return float(share[failed].sum()), float(error)
-
-
-def measure_member(seed: int, checkpoint: Path, rows: int) -> dict:
-    """Every method's shares after one and after two failures, and the scores, on one member's checkpoint."""
-    from lerobot.policies.factory import make_pre_post_processors
-
-    from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-
-    task = ReachingTask.family_member(seed)
-    policy = CCDPPolicy.from_pretrained(checkpoint).eval()
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
-    order = list(np.argsort(-task.preference))
-    failure_sets = {"1": [int(order[0])], "2": [int(order[0]), int(order[1])]}
-    policy.config.recovery_mode = "dp"
-    reference = shares(task, planned_goals(policy, pre, post, task, [], rows, seed=1))
-    result = {"goals": len(task.goals), "labelled": task.labelled, "dp_shares": reference.tolist(), "methods": {}}
-    positions = {}
-    for name, (mode, fields) in METHODS.items():
-        policy.config.recovery_mode = mode
-        for key, value in fields.items():
-            setattr(policy.config, key, value)
-        for count, failed in failure_sets.items():
-            started = time.perf_counter()
-            planned = planned_goals(policy, pre, post, task, failed, rows, seed=2)
-            share = shares(task, planned)
-            failed_share, error = scores(share, reference, failed)
-            result["methods"].setdefault(name, {})[count] = {
-                "failed": failed, "shares": share.tolist(), "failed_share": failed_share,
-                "preference_error": error, "seconds": time.perf_counter() - started}
-            positions[(name, count)] = planned[:64]
-    result["positions"] = {f"{name}|{count}": p.tolist() for (name, count), p in positions.items()}
-    return result
-
-
 def table(results: dict[int, dict]) -> str:
     """Markdown: per member and on average, failed share / preference error after 1 and 2 failures."""
-    names = list(METHODS)
+    names = list(next(iter(results.values()))["methods"])
     head = "| member | goals | z | " + " | ".join(f"{n} after 1 | {n} after 2" for n in names) + " |"
     lines = [head, "|" + "---|" * (3 + 2 * len(names))]
     cells = {(n, c): [] for n in names for c in "12"}
@@ -178,15 +118,16 @@ def table(results: dict[int, dict]) -> str:
     return "\n".join(lines)
 
 
-def panel_grid(results: dict[int, dict], path: Path) -> None:
-    """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP after one and two failures."""
+def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
+    """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`) after
+    one and two failures."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    columns = [("DP", "1", "DP (no memory)"), ("DP*", "1", "DP* after 1"), ("CCDP classifier", "1", "CCDP after 1"),
-               ("DP*", "2", "DP* after 2"), ("CCDP classifier", "2", "CCDP after 2")]
+    columns = [("DP", "1", "DP (no memory)"), ("DP*", "1", "DP* after 1"), (ccdp, "1", f"{ccdp} after 1"),
+               ("DP*", "2", "DP* after 2"), (ccdp, "2", f"{ccdp} after 2")]
     fig, axes = plt.subplots(len(results), len(columns), figsize=(2.2 * len(columns), 2.2 * len(results)),
                              squeeze=False)
     colours = plt.get_cmap("tab10")
@@ -219,6 +160,8 @@ def main() -> None:
     parser.add_argument("--head-steps", type=int, default=3000)
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--rows", type=int, default=512)
+    parser.add_argument("--w-z", type=float, nargs="+", default=[1.0],
+                        help="classifier guidance weights to measure (sampling settings: no retraining)")
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -232,7 +175,9 @@ def main() -> None:
         print(f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, bend "
               f"{task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}", flush=True)
         checkpoint = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes)
-        results[seed] = measure_member(seed, checkpoint, args.rows)
+        root, repo = member_dataset(seed, args.out)
+        demos = LeRobotDataset(repo, root=root)
+        results[seed] = measure(task, checkpoint, methods(args.w_z), args.rows, demos)
         results_path.write_text(json.dumps(results))
         print(f"member {seed} done in {time.perf_counter() - started:.0f} s", flush=True)
     chosen = {seed: results[seed] for seed in args.members}
@@ -240,8 +185,8 @@ def main() -> None:
     print(text)
     (args.out / "preferences.md").write_text(
         f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base {args.base_steps} "
-        f"steps, classifier {args.head_steps} steps.\n\n{text}\n")
-    panel_grid(chosen, args.out / "preferences.png")
+        f"steps, classifier {args.head_steps} steps, guidance weights {args.w_z}.\n\n{text}\n")
+    panel_grid(chosen, args.out / "preferences.png", f"CCDP w_z={args.w_z[0]:g}")
 
 
 if __name__ == "__main__":
