@@ -1,0 +1,70 @@
+"""Recovery on two members of issue 17's seeded 2-D family: after one and after two failures, CCDP's failure-set
+classifier guidance samples the failed goals almost never, where DP keeps drawing its favourite one.
+
+The reduced form of `benchmarks/bench_preferences.py`: the same members, measurement and settings, trained in memory
+(`in_memory_training.py`) instead of through lerobot-train so that CI can afford it. Member 0 carries `primitive`
+labels; member 1 has none and uses `final_state` z. Issue 17's targets (failed share <= 0.03 and preference error
+<= 0.08 on the family's mean) are not met yet and so are not asserted: the scores are printed
+(`pytest -s -k preferences`), and docs/benchmarks.md has the family's figures and what was tried.
+"""
+
+from pathlib import Path
+
+import pytest
+from in_memory_training import train_stage
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+from lerobot_ccdp.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.reaching2d import ReachingTask
+from lerobot_ccdp.reaching_preferences import EXACT_CLASSIFIER, measure
+
+EPISODES = 100
+BASE_STEPS = 1000
+HEAD_STEPS = 3000  # as bench_preferences.py
+ROWS = 512
+# Issue 17 asks 0.03 on the family's mean, which is not met yet (docs/benchmarks.md); this bounds each member and
+# count, where these checkpoints measured 0.008 to 0.051 (2026-11-25).
+FAILED_SHARE = 0.10
+
+
+def member_checkpoint(seed: int, tmp: Path) -> tuple[Path, LeRobotDataset]:
+    """Record member `seed`, train its base and its failure-set classifier; return the classifier's checkpoint and the
+    demonstrations."""
+    task = ReachingTask.family_member(seed)
+    repo, data = f"local/reaching_family_{seed}", tmp / "data"
+    task.record(data, repo, EPISODES, seed)
+    z = ({"failure_feature": "primitive", "num_primitives": len(task.goals)} if task.labelled
+         else {"failure_feature": "final_state"})
+    base = train_stage(CCDPConfig(device="cpu", **z), repo, data, tmp / "base", BASE_STEPS, 64)
+    head_config = PreTrainedConfig.from_pretrained(base)
+    head_config.pretrained_path = str(base)
+    head_config.training_stage, head_config.recovery_head = "recovery", "classifier"
+    return train_stage(head_config, repo, data, tmp / "classifier", HEAD_STEPS, 64), LeRobotDataset(repo, root=data)
+
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory) -> dict[int, dict]:
+    methods = {"DP": ("dp", {}), "CCDP": ("ccdp", {"w_z": 1.0}),
+               "CCDP exact": ("ccdp", {"w_z": 1.0, EXACT_CLASSIFIER: True})}
+    results = {}
+    for seed in (0, 1):
+        checkpoint, demos = member_checkpoint(seed, tmp_path_factory.mktemp(f"m{seed}"))
+        results[seed] = measure(ReachingTask.family_member(seed), checkpoint, methods, ROWS, demos)
+    return results
+
+
+def test_classifier_guidance_avoids_failed_goals_where_dp_repeats_them(measured):
+    scores = {(seed, method, count): (round(m["failed_share"], 3), round(m["preference_error"], 3))
+              for seed, result in measured.items() for method in ("DP", "CCDP", "CCDP exact")
+              for count, m in result["methods"][method].items()}
+    report = f"(failed share, preference error) per (member, method, failures): {scores}"
+    print(report)
+    for seed in measured:
+        for count in "12":
+            dp_failed, ccdp_failed = scores[(seed, "DP", count)][0], scores[(seed, "CCDP", count)][0]
+            assert dp_failed > 0.2, report  # without memory the base keeps drawing its favourite goals
+            assert ccdp_failed <= min(FAILED_SHARE, dp_failed / 4), report
+            # The same learnt base guided by the exact classifier of the demonstrated start chunks: the guidance, the
+            # sampler and the gradient under inference mode leave nothing of the failed goals.
+            assert scores[(seed, "CCDP exact", count)][0] <= 0.03, report
