@@ -29,23 +29,22 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_ccdp.reaching2d import ReachingTask
-from lerobot_ccdp.reaching_preferences import EXACT_CLASSIFIER, measure
+from lerobot_ccdp.reaching_preferences import Method, measure
 from lerobot_ccdp.stage_stamps import StampBook, stamp
 
 BIN = Path(sys.executable).parent
 CHECKPOINT = Path("checkpoints/last/pretrained_model")
-# method -> (recovery_mode, policy fields set for the measurement)
 BASELINES = {
-    "DP": ("dp", {}),
-    "DP*": ("dp_star", {"dp_star_candidates": 32, "dp_star_rounds": 4}),
+    "DP": Method("dp", {}),
+    "DP*": Method("dp_star", {"dp_star_candidates": 32, "dp_star_rounds": 4}),
 }
 
 
-def methods(guidance_weights: list[float]) -> dict[str, tuple[str, dict]]:
+def methods(guidance_weights: list[float], demos: LeRobotDataset) -> dict[str, Method]:
     """DP, DP*, CCDP's classifier guidance at each weight w_z (a sampling setting: one checkpoint serves all) and the
     reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start chunks."""
-    ccdp = {f"CCDP w_z={w:g}": ("ccdp", {"w_z": w}) for w in guidance_weights}
-    return {**BASELINES, **ccdp, "CCDP exact classifier": ("ccdp", {"w_z": 1.0, EXACT_CLASSIFIER: True})}
+    ccdp = {f"CCDP w_z={w:g}": Method("ccdp", {"w_z": w}) for w in guidance_weights}
+    return {**BASELINES, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
 def train(name: str, out: Path, args: list[str], upstream: str | None, book: StampBook) -> tuple[Path, str]:
@@ -176,8 +175,7 @@ def main() -> None:
               f"{task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}", flush=True)
         checkpoint = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes)
         root, repo = member_dataset(seed, args.out)
-        demos = LeRobotDataset(repo, root=root)
-        results[seed] = measure(task, checkpoint, methods(args.w_z), args.rows, demos)
+        results[seed] = measure(task, checkpoint, methods(args.w_z, LeRobotDataset(repo, root=root)), args.rows)
         results_path.write_text(json.dumps(results))
         print(f"member {seed} done in {time.perf_counter() - started:.0f} s", flush=True)
     chosen = {seed: results[seed] for seed in args.members}

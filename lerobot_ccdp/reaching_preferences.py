@@ -13,6 +13,8 @@ the policy's own labeller. `benchmarks/bench_preferences.py` runs it over the se
 `tests/test_preferences.py` asserts the targets on two members.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 from lerobot.configs.policies import PreTrainedConfig
@@ -109,25 +111,27 @@ def load(checkpoint, **fields) -> tuple[CCDPPolicy, object, object]:
     return policy, pre, post
 
 
-EXACT_CLASSIFIER = "exact_classifier"  # a policy field of `measure`'s methods: use ExactStartClassifier
+class Method(NamedTuple):
+    """A measured method: its recovery_mode and policy fields, and, for the exact-classifier reference, the
+    demonstrations whose `ExactStartClassifier` replaces the checkpoint's classifier."""
+
+    mode: str
+    fields: dict
+    exact_classifier_of: LeRobotDataset | None = None
 
 
-def measure(task: ReachingTask, checkpoint, methods: dict[str, tuple[str, dict]], rows: int,
-            dataset: LeRobotDataset | None = None) -> dict:
+def measure(task: ReachingTask, checkpoint, methods: dict[str, Method], rows: int) -> dict:
     """Every method's shares and scores after one and after two failures, on one checkpoint and the same seeds.
-    `methods` maps a name to (recovery_mode, policy fields); the field `exact_classifier: True` guides with
-    `ExactStartClassifier` of `dataset` instead of the checkpoint's classifier. DP's reference shares come from their
-    own draw (seed 1), so DP measured against them (seed 2) shows the sampling noise of this measurement."""
+    DP's reference shares come from their own draw (seed 1), so DP measured against them (seed 2) shows the sampling
+    noise of this measurement."""
     policy, pre, post = load(checkpoint, recovery_mode="dp")
     reference = goal_shares(task, planned_positions(policy, pre, post, task, [], rows, seed=1))
     result = {"goals": len(task.goals), "labelled": task.labelled, "dp_shares": reference.tolist(), "methods": {},
               "positions": {}}
-    for name, (mode, fields) in methods.items():
-        exact = fields.get(EXACT_CLASSIFIER, False)
-        policy, pre, post = load(checkpoint, recovery_mode=mode,
-                                 **{k: v for k, v in fields.items() if k != EXACT_CLASSIFIER})
-        if exact:
-            policy.recovery = ExactStartClassifier(policy, pre, dataset)
+    for name, method in methods.items():
+        policy, pre, post = load(checkpoint, recovery_mode=method.mode, **method.fields)
+        if method.exact_classifier_of is not None:
+            policy.recovery = ExactStartClassifier(policy, pre, method.exact_classifier_of)
         for count, failed in failure_sets(task).items():
             planned = planned_positions(policy, pre, post, task, failed, rows, seed=2)
             share = goal_shares(task, planned)

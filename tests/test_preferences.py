@@ -17,7 +17,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.reaching2d import ReachingTask
-from lerobot_ccdp.reaching_preferences import EXACT_CLASSIFIER, measure
+from lerobot_ccdp.reaching_preferences import Method, measure
 
 EPISODES = 100
 BASE_STEPS = 600
@@ -46,12 +46,12 @@ def member_checkpoint(seed: int, tmp: Path) -> tuple[Path, LeRobotDataset]:
 
 @pytest.fixture(scope="module")
 def measured(tmp_path_factory) -> dict[int, dict]:
-    methods = {"DP": ("dp", {}), "CCDP": ("ccdp", {"w_z": 1.0}),
-               "CCDP exact": ("ccdp", {"w_z": 1.0, EXACT_CLASSIFIER: True})}
     results = {}
     for seed in (0, 1):
         checkpoint, demos = member_checkpoint(seed, tmp_path_factory.mktemp(f"m{seed}"))
-        results[seed] = measure(ReachingTask.family_member(seed), checkpoint, methods, ROWS, demos)
+        methods = {"DP": Method("dp", {}), "CCDP": Method("ccdp", {"w_z": 1.0}),
+                   "CCDP exact": Method("ccdp", {"w_z": 1.0}, demos)}
+        results[seed] = measure(ReachingTask.family_member(seed), checkpoint, methods, ROWS)
     return results
 
 
