@@ -22,9 +22,7 @@ from gymnasium import spaces
 from lerobot_ccdp.envs.camera import CameraRenderer
 from lerobot_ccdp.envs.interface import ACTION_NAMES, AGENT_POS_NAMES  # noqa: F401  (re-exported for recorders)
 from lerobot_ccdp.envs.interface import AGENT_POS_DIM, CONTROL_FPS, OBS_TYPES, OBSERVATION_SIZE
-from lerobot_ccdp.envs.scene import CAMERAS, FINGER_OPEN, TIMESTEP, WORKSPACE_HIGH, WORKSPACE_LOW, build_scene_xml
-
-ROBOT_JOINTS = ("ee_x", "ee_y", "ee_z", "finger_l", "finger_r")
+from lerobot_ccdp.envs.scene import CAMERAS, WORKSPACE_HIGH, WORKSPACE_LOW, CartesianGripper
 
 
 class OutcomeKind(Enum):
@@ -61,6 +59,9 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     env_state_names: tuple[str, ...]  # one name per environment_state dimension
     default_episode_steps: int
     home: tuple[float, float, float, float]  # robot start pose (x, y, z, grip)
+    # The robot and its scene: the lite tasks' Cartesian gripper, or the physics tasks' Franka Panda. It builds
+    # the model around the task's bodies, reads the end effector and executes (x, y, z, grip) targets.
+    robot_class: type = CartesianGripper
 
     def __init__(
         self,
@@ -90,11 +91,9 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         self.obs_type, self.cameras = obs_type, tuple(cameras)
         self._camera_renderer = CameraRenderer(observation_width, observation_height) if obs_type != "state" else None
 
-        self.model = mujoco.MjModel.from_xml_string(build_scene_xml(self.name, self._task_bodies_xml()))
+        self.model = self.robot_class.build_model(self.name, self._task_bodies_xml())
         self.data = mujoco.MjData(self.model)
-        self._frame_skip = round(1.0 / (CONTROL_FPS * TIMESTEP))
-        self._qpos_idx = np.array([self.model.joint(j).qposadr[0] for j in ROBOT_JOINTS])
-        self._qvel_idx = np.array([self.model.joint(j).dofadr[0] for j in ROBOT_JOINTS])
+        self.robot = self.robot_class(self.model, self.data)
         self._renderer: mujoco.Renderer | None = None
         self._mocap_ids: dict[str, int] = {}
 
@@ -160,13 +159,12 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     # Helpers for tasks
     @property
     def ee_pos(self) -> np.ndarray:
-        return self.data.qpos[self._qpos_idx[:3]].copy()
+        return self.robot.ee_pos()
 
     @property
     def grip(self) -> float:
         """Measured gripper closure: 0 open, 1 closed."""
-        opening = self.data.qpos[self._qpos_idx[3:]].mean() / FINGER_OPEN
-        return float(np.clip(1.0 - opening, 0.0, 1.0))
+        return self.robot.grip()
 
     def mocap(self, body: str) -> np.ndarray:
         """Writable view of a mocap body's position."""
@@ -195,7 +193,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         mujoco.mj_resetData(self.model, self.data)
         start = np.asarray(self.home, dtype=np.float64).copy()
         start[:3] += self.np_random.uniform(-self.init_noise, self.init_noise, size=3)
-        self._set_robot(start)
+        self.robot.place(start)
         self._reset_task()
         # Drawn last, so the layout (and the first observation) never depends on it.
         forced = (options or {}).get("hidden_param")
@@ -217,9 +215,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
 
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64), self.action_space.low, self.action_space.high)
-        self.data.ctrl[:3] = action[:3]
-        self.data.ctrl[3:5] = (1.0 - action[3]) * FINGER_OPEN
-        mujoco.mj_step(self.model, self.data, nstep=self._frame_skip)
+        self.robot.step(action)
 
         failure = terminated = False
         outcome = self._update_task()
@@ -232,7 +228,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
                 self._failures += 1
                 self._repeated_failures += int(outcome.option in self._failed_options)
                 self._failed_options.add(outcome.option)
-                self._set_robot(self.attempt_start_pose)
+                self.robot.place(self.attempt_start_pose)
                 self._on_failure(outcome.option)
                 terminated = self._failures >= self.max_failures
             else:
@@ -260,13 +256,6 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             self._camera_renderer.close()
 
     # ----------------------------------------------------------------------------------------------------
-    def _set_robot(self, pose: np.ndarray) -> None:
-        """Put the robot at `pose` (x, y, z, grip) at rest, with the actuators holding it there."""
-        qpos = np.array([*pose[:3], (1.0 - pose[3]) * FINGER_OPEN, (1.0 - pose[3]) * FINGER_OPEN])
-        self.data.qpos[self._qpos_idx] = qpos
-        self.data.qvel[self._qvel_idx] = 0.0
-        self.data.ctrl[:5] = qpos
-
     def _begin_attempt(self) -> None:
         self.attempt_index += 1
         self.attempt_start_pose = np.array([*self.ee_pos, self.grip])

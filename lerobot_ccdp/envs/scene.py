@@ -1,11 +1,17 @@
-"""MJCF for the shared scene: a table, a camera and a Cartesian end effector with a two-finger gripper.
+"""The geometric (lite) scene: a table, cameras and a Cartesian end effector with a two-finger gripper.
 
-Every task adds its own bodies (as mocap bodies: the task rules move them, see `base.py`) to this scene.
+Every lite task adds its own bodies (as mocap bodies: the task rules move them, see `base.py`) to this scene.
 Contacts are disabled on purpose: interactions are decided by each task's rules, which keeps the tasks
-deterministic and fast while MuJoCo still integrates the arm's dynamics and renders the scene.
+deterministic and fast while MuJoCo still integrates the end effector's dynamics and renders the scene. The
+physics tasks put a Franka Panda in a scene with contacts instead (`panda.py`).
 """
 
 from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from lerobot_ccdp.envs.interface import CONTROL_FPS
 
 TIMESTEP = 0.005
 WORKSPACE_LOW = (-0.4, -0.4, 0.0)
@@ -13,6 +19,16 @@ WORKSPACE_HIGH = (0.4, 0.4, 0.3)
 FINGER_OPEN = 0.03  # finger travel in metres, fully open
 # Cameras of the scene: `front` looks at the table from the robot's side, `top` from above it.
 CAMERAS = ("front", "top")
+# What the lite and the physics scenes share: the offscreen buffer, the table's texture and the light.
+WORLD_ASSETS = """<visual><global offwidth="640" offheight="480"/><quality shadowsize="1024"/></visual>
+  <asset>
+    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.65 0.8" rgb2="0.15 0.15 0.2"
+             width="32" height="32"/>
+    <texture name="grid" type="2d" builtin="checker" rgb1="0.78 0.74 0.68" rgb2="0.72 0.68 0.62"
+             width="64" height="64"/>
+    <material name="table" texture="grid" texrepeat="8 8"/>
+  </asset>"""
+WORLD_LIGHT = '<light pos="0.3 -0.4 1.2" dir="-0.2 0.3 -1" directional="true" diffuse="0.8 0.8 0.8"/>'
 
 _ROBOT = f"""
     <body name="ee" pos="0 0 0">
@@ -41,22 +57,54 @@ _ACTUATORS = f"""
 """
 
 
+_JOINTS = ("ee_x", "ee_y", "ee_z", "finger_l", "finger_r")
+
+
+class CartesianGripper:
+    """The lite robot: the end effector slides along x, y and z, and position servos hold it at the commanded
+    target; each finger slides on its own joint."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData):
+        self.model, self.data = model, data
+        self._qpos = np.array([model.joint(j).qposadr[0] for j in _JOINTS])
+        self._qvel = np.array([model.joint(j).dofadr[0] for j in _JOINTS])
+        self._frame_skip = round(1.0 / (CONTROL_FPS * model.opt.timestep))
+
+    @staticmethod
+    def build_model(name: str, task_bodies: str) -> mujoco.MjModel:
+        return mujoco.MjModel.from_xml_string(build_scene_xml(name, task_bodies))
+
+    def ee_pos(self) -> np.ndarray:
+        return self.data.qpos[self._qpos[:3]].copy()
+
+    def grip(self) -> float:
+        """Measured gripper closure: 0 open, 1 closed."""
+        opening = self.data.qpos[self._qpos[3:]].mean() / FINGER_OPEN
+        return float(np.clip(1.0 - opening, 0.0, 1.0))
+
+    def place(self, pose: np.ndarray) -> None:
+        """Put the robot at `pose` (x, y, z, grip) at rest, with the actuators holding it there."""
+        qpos = np.array([*pose[:3], (1.0 - pose[3]) * FINGER_OPEN, (1.0 - pose[3]) * FINGER_OPEN])
+        self.data.qpos[self._qpos] = qpos
+        self.data.qvel[self._qvel] = 0.0
+        self.data.ctrl[:5] = qpos
+
+    def step(self, action: np.ndarray) -> None:
+        """One control step toward the end-effector target and gripper closure of `action` (x, y, z, grip)."""
+        self.data.ctrl[:3] = action[:3]
+        self.data.ctrl[3:5] = (1.0 - action[3]) * FINGER_OPEN
+        mujoco.mj_step(self.model, self.data, nstep=self._frame_skip)
+
+
 def build_scene_xml(name: str, task_bodies: str) -> str:
-    """Return the MJCF of the shared scene with `task_bodies` (MJCF body elements) added to the world."""
+    """Return the MJCF of the lite scene with `task_bodies` (MJCF body elements) added to the world."""
     return f"""
 <mujoco model="ccdp_{name}">
   <option timestep="{TIMESTEP}" gravity="0 0 0" integrator="implicitfast"/>
-  <visual><global offwidth="640" offheight="480"/><quality shadowsize="1024"/></visual>
   <default><geom contype="0" conaffinity="0"/></default>
-  <asset>
-    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.65 0.8" rgb2="0.15 0.15 0.2"
-             width="32" height="32"/>
-    <texture name="grid" type="2d" builtin="checker" rgb1="0.78 0.74 0.68" rgb2="0.72 0.68 0.62"
-             width="64" height="64"/>
-    <material name="table" texture="grid" texrepeat="8 8"/>
-  </asset>
+  {WORLD_ASSETS}
   <worldbody>
-    <light pos="0.3 -0.4 1.2" dir="-0.2 0.3 -1" directional="true" diffuse="0.8 0.8 0.8"/>
+    {WORLD_LIGHT}
     <camera name="front" pos="0 -0.6 0.48" xyaxes="1 0 0 0 0.64 0.77" fovy="50"/>
     <camera name="top" pos="0 0 0.9" xyaxes="1 0 0 0 1 0" fovy="50"/>
     <geom name="table" type="plane" size="0.45 0.45 0.01" material="table"/>
