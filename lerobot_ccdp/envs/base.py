@@ -152,6 +152,10 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     def plan(self, option: int) -> list[Waypoint]:
         """Scripted motion that executes `option` for the current stage from the current state."""
 
+    def _apply_hidden(self) -> None:
+        """Give the simulation the episode's hidden parameter (a physics task's mass, say); default: nothing,
+        the task's rules read `hidden_param` themselves. Called after the layout, before the first observation."""
+
     def _on_failure(self, option: int) -> None:
         """Undo what the failed attempt did to the objects (default: nothing; objects stay put)."""
 
@@ -203,6 +207,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             if int(forced) not in self.hidden_values():
                 raise ValueError(f"{self.name}: hidden_param {forced} not in {self.hidden_values()}")
             self.hidden_param = int(forced)
+        self._apply_hidden()
         self._attempts = self._failures = self._repeated_failures = self._attempts_after_failure = 0
         self._failed_options: set[int] = set()
         self._last_option = -1
@@ -228,7 +233,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
                 self._failures += 1
                 self._repeated_failures += int(outcome.option in self._failed_options)
                 self._failed_options.add(outcome.option)
-                self.robot.place(self.attempt_start_pose)
+                self.robot.restore(self._attempt_start_robot)
                 self._on_failure(outcome.option)
                 terminated = self._failures >= self.max_failures
             else:
@@ -259,6 +264,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     def _begin_attempt(self) -> None:
         self.attempt_index += 1
         self.attempt_start_pose = np.array([*self.ee_pos, self.grip])
+        self._attempt_start_robot = self.robot.snapshot()
 
     def _observation(self, failure: bool) -> dict[str, Any]:
         observation: dict[str, Any] = {"agent_pos": np.array([*self.ee_pos, self.grip], dtype=np.float32)}

@@ -28,6 +28,7 @@ class ObjectManipulationEnv(CCDPTaskEnv):
     env_state_names = ("box_x", "box_y", "box_z", "target_x", "target_y")
     default_episode_steps = 150
     home = (0.0, -0.15, 0.12, 0.0)
+    push_grip = 0.0  # gripper closure while pushing
 
     def _task_bodies_xml(self) -> str:
         return "\n".join(
@@ -79,14 +80,17 @@ class ObjectManipulationEnv(CCDPTaskEnv):
                 return Outcome(OutcomeKind.SUCCESS, PUSH, preferred=self.preferred_feasible_option())
         return None
 
+    def box_position(self) -> np.ndarray:
+        return self.mocap("box").copy()
+
     def plan(self, option: int) -> list[Waypoint]:
-        bx, by, bz = self.mocap("box")
+        bx, by, bz = self.box_position()
         tx, ty = self._target
         if option == PICK:
             return pick_and_place((bx, by, bz), (tx, ty), bz + 0.01)
         start_y = by - 3.5 * HALF
         return [
-            Waypoint((bx, start_y, 0.1, 0.0)),
-            Waypoint((bx, start_y, HALF, 0.0)),
-            Waypoint((tx, ty - 1.75 * HALF, HALF, 0.0), dwell=2),
+            Waypoint((bx, start_y, 0.1, self.push_grip)),
+            Waypoint((bx, start_y, HALF, self.push_grip)),
+            Waypoint((tx, ty - 1.75 * HALF, HALF, self.push_grip), dwell=2),
         ]

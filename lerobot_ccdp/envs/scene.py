@@ -89,6 +89,13 @@ class CartesianGripper:
         self.data.qvel[self._qvel] = 0.0
         self.data.ctrl[:5] = qpos
 
+    def snapshot(self) -> np.ndarray:
+        """What `restore` needs to put the robot back at rest where it is now: its pose."""
+        return np.array([*self.ee_pos(), self.grip()])
+
+    def restore(self, snapshot: np.ndarray) -> None:
+        self.place(snapshot)
+
     def step(self, action: np.ndarray) -> None:
         """One control step toward the end-effector target and gripper closure of `action` (x, y, z, grip)."""
         self.data.ctrl[:3] = action[:3]

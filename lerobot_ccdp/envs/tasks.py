@@ -22,6 +22,9 @@ ENTRY_POINTS: dict[str, tuple[str, int]] = {
     "DoorOpening-v0": ("lerobot_ccdp.envs.door_opening:DoorOpeningEnv", 150),
     "ButtonSearch-v0": ("lerobot_ccdp.envs.button_search:ButtonSearchEnv", 200),
     "ObjectManipulation-v0": ("lerobot_ccdp.envs.object_manipulation:ObjectManipulationEnv", 150),
+    "ObjectManipulation-physics-v0": (
+        "lerobot_ccdp.envs.object_manipulation_physics:ObjectManipulationPhysicsEnv", 150
+    ),
     "ObjectPacking-v0": ("lerobot_ccdp.envs.object_packing:ObjectPackingEnv", 300),
     "Bartender-v0": ("lerobot_ccdp.envs.bartender:BartenderEnv", 250),
 }

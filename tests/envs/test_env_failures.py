@@ -13,6 +13,7 @@ FAILING = [
     ("DoorOpening-v0", 1, 0),
     ("ButtonSearch-v0", 2, 0),
     ("ObjectManipulation-v0", 1, 0),  # heavy box: picking slips
+    ("ObjectManipulation-physics-v0", 1, 0),  # heavy box: it slips out of the 2F-85's grasp
     ("ObjectPacking-v0", encode_capacities([0, 2, 0]), 0),  # nearest basket has no room
     ("Bartender-v0", 0b0110, 0),  # nearest cup unavailable
 ]
@@ -40,7 +41,10 @@ def test_failure_is_flagged_once_and_robot_is_restored(task, hidden, option):
     assert [o["failure"][0] for o in history[:-1]] == [0.0] * (len(history) - 1)
     np.testing.assert_array_equal(failed["agent_pos"], reset_obs["agent_pos"])  # back at the attempt's start
     assert not np.allclose(history[-2]["agent_pos"], reset_obs["agent_pos"], atol=1e-3)  # it had moved away
-    np.testing.assert_allclose(failed["environment_state"], reset_obs["environment_state"], atol=1e-6)
+    # Lite tasks put the objects back exactly; on the physics tasks they stay where the simulation left them
+    # (the box that slipped out of the grasp lands within millimetres of where it lay).
+    atol = 0.01 if "physics" in task else 1e-6
+    np.testing.assert_allclose(failed["environment_state"], reset_obs["environment_state"], atol=atol)
     assert info["failures"] == 1 and info["attempts"] == 1 and info["repeated_failures"] == 0
     assert info["option"] == option and info["is_success"] is False
     obs, *_ = env.step(failed["agent_pos"])  # hold still

@@ -1,0 +1,61 @@
+"""The physics tasks' claims, read from the simulated state: what fails fails because of the physics."""
+
+import numpy as np
+import pytest
+
+from lerobot_ccdp.envs.object_manipulation import HALF, PICK, PUSH
+from lerobot_ccdp.envs.object_manipulation_physics import MASS, RESTING
+
+from env_helpers import FixedOptions, make
+
+TASK = "ObjectManipulation-physics-v0"
+
+
+def _attempt(hidden: int, option: int, seed: int = 3):
+    """One attempt of `option`: the box's and the pinch point's heights and the gripper closure at every step,
+    until the attempt ends; and the info it ended with."""
+    env = make(TASK)
+    obs, info = env.reset(seed=seed, options={"hidden_param": hidden})
+    agent = FixedOptions(env, [option])
+    box_z, pinch_z, grip = [], [], []
+    for _ in range(100):
+        obs, _, terminated, _, info = env.step(agent.act(obs, info))
+        box_z.append(env.unwrapped.box_position()[2])
+        pinch_z.append(env.unwrapped.ee_pos[2])
+        grip.append(env.unwrapped.grip)
+        if obs["failure"][0] or terminated:
+            break
+    return np.array(box_z), np.array(pinch_z), np.array(grip), obs, info, env
+
+
+def test_the_hidden_mass_is_the_box_mass():
+    env = make(TASK)
+    for hidden, mass in MASS.items():
+        env.reset(seed=0, options={"hidden_param": hidden})
+        assert env.unwrapped.model.body_mass[env.unwrapped.model.body("box").id] == pytest.approx(mass)
+
+
+def test_the_light_box_is_lifted_by_the_grasp():
+    box_z, pinch_z, grip, obs, info, _ = _attempt(hidden=0, option=PICK)
+    assert info["is_success"] and info["option"] == PICK
+    closed = np.cumsum(grip > 0.4) > 0
+    carried = closed & (pinch_z > 0.09)
+    assert carried.any() and (box_z[carried] > 0.08).all()  # it rose with the gripper
+    assert grip.max() > 0.4  # the fingers closed on it, not through it
+
+
+def test_the_heavy_box_slips_out_of_the_same_grasp():
+    box_z, pinch_z, grip, obs, info, env = _attempt(hidden=1, option=PICK)
+    assert obs["failure"][0] == 1.0 and info["option"] == PICK and info["failures"] == 1
+    assert grip.max() > 0.4  # the gripper had closed on the box
+    assert pinch_z[-1] > pinch_z.min() + 0.04  # and risen: the simulation, not a rule, kept the box down
+    assert box_z.max() < HALF + 0.02 and box_z[-1] < RESTING
+    assert env.unwrapped.box_position()[2] < RESTING  # it lies on the table after the restore
+
+
+@pytest.mark.parametrize("hidden", [0, 1])
+def test_pushing_slides_either_box_onto_the_target(hidden):
+    box_z, _, _, _, info, env = _attempt(hidden=hidden, option=PUSH)
+    assert info["is_success"] and info["option"] == PUSH
+    assert box_z.max() < RESTING  # slid along the table, never lifted
+    assert info["preference_matched"] is (hidden == 1)  # a light box should have been picked
