@@ -63,9 +63,10 @@ class PipelineError(RuntimeError):
 
 
 def task_slug(task: str) -> str:
-    """File name of a task's configs and recipe: DoorOpening-v0 -> door_opening."""
+    """File name of a task's configs and recipe: DoorOpening-v0 -> door_opening,
+    ObjectManipulation-physics-v0 -> object_manipulation_physics."""
     name = task.removesuffix("-v0")
-    return re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower()
+    return re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower().replace("-", "_")
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from torch import Tensor
 from conftest import REACHING_REPO_ID, run_cli
 from policy_factory import untrained_checkpoint
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.envs import TASKS
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.processor_ccdp import normalize_batch
 from lerobot_ccdp.recipes import synthesize
@@ -221,6 +222,6 @@ def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
 
 def test_every_task_recipe_has_a_valid_recovery_section():
     recipes = sorted(Path(__file__).parents[1].joinpath("datasets_recipes").glob("*.yaml"))
-    assert len(recipes) == 8  # five tasks, two of them also with cameras, and the 2-D task
+    assert len(recipes) == len(TASKS) + 3  # every task, two of them also with cameras, and the 2-D task
     for path in recipes:
         RecoveryRecipe.load(path)
