@@ -28,6 +28,7 @@ class DoorOpeningEnv(CCDPTaskEnv):
     env_state_names = ("handle_x", "handle_y", "handle_z")
     default_episode_steps = 150
     home = (0.0, -0.15, 0.12, 0.0)
+    approach = (0.0, -0.08, 0.0)  # where the gripper comes to the handle from, relative to it: the front
 
     def _task_bodies_xml(self) -> str:
         door = DOOR_FROM_HANDLE + HANDLE
@@ -101,7 +102,7 @@ class DoorOpeningEnv(CCDPTaskEnv):
         x, y, z = self._handle_pos()
         direction = 1.0 if option == 1 else -1.0
         return [
-            Waypoint((x, y - 0.08, z, 0.0)),
+            Waypoint((x + self.approach[0], y + self.approach[1], z + self.approach[2], 0.0)),
             Waypoint((x, y, z, 0.0), dwell=2),
             Waypoint((x, y, z, 1.0), dwell=3),
             Waypoint((x + direction * (OPEN_SLIDE + 0.04), y, z, 1.0), dwell=3),

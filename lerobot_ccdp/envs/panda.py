@@ -54,15 +54,15 @@ def look_at(pos, target) -> str:
 
 def build_physics_scene(name: str, task_bodies: str) -> mujoco.MjModel:
     """The table, cameras and `task_bodies` (MJCF body elements, with contacts) with the Panda attached at
-    `BASE_POS`. `front` looks at the table from across it, at the arm, `top` from above it."""
-    front = look_at((0.6, 0.35, 0.45), (0.0, 0.05, 0.05))
+    `BASE_POS`. `front` looks at the table from the arm's right, `top` from above it."""
+    front = look_at((0.65, -0.2, 0.4), (0.0, 0.05, 0.08))
     world = mujoco.MjSpec.from_string(f"""
 <mujoco model="ccdp_{name}">
   <option timestep="{TIMESTEP}" integrator="implicitfast"/>
   {WORLD_ASSETS}
   <worldbody>
     {WORLD_LIGHT}
-    <camera name="front" pos="0.6 0.35 0.45" xyaxes="{front}" fovy="55"/>
+    <camera name="front" pos="0.65 -0.2 0.4" xyaxes="{front}" fovy="55"/>
     <camera name="top" pos="0 0 0.9" xyaxes="1 0 0 0 1 0" fovy="50"/>
     <geom name="table" type="plane" size="0.6 0.6 0.01" material="table" friction="0.5"/>
 {task_bodies}
@@ -104,6 +104,7 @@ class PandaArm:
         self._scratch.qpos[self._arm_qpos] = READY_Q
         mujoco.mj_kinematics(model, self._scratch)
         self._down = self._scratch.site_xmat[self._site].reshape(3, 3).copy()  # the pinch frame pointing down
+        self.target = np.zeros(3)  # the end-effector target of the latest command (what the arm is trying to do)
 
     build_model = staticmethod(build_physics_scene)
 
@@ -140,6 +141,7 @@ class PandaArm:
         self.data.ctrl[self._arm_ctrl] = q
         self.data.ctrl[self._finger_ctrl] = FINGER_CTRL * float(pose[3])
         mujoco.mj_forward(self.model, self.data)
+        self.target = self.ee_pos()
 
     def snapshot(self) -> tuple[np.ndarray, np.ndarray]:
         """What `restore` needs to put the robot back exactly where it is now: every joint (arm and gripper
@@ -151,11 +153,13 @@ class PandaArm:
         self.data.qpos[self._qpos], self.data.ctrl[self._ctrl] = snapshot
         self.data.qvel[self._dofs] = 0.0
         mujoco.mj_forward(self.model, self.data)
+        self.target = self.ee_pos()
 
     def step(self, action: np.ndarray) -> None:
         """One control step: IK of the target from the current joint targets, ramped in over the step."""
         previous = self.data.ctrl[self._arm_ctrl].copy()
-        goal = self.ik(np.asarray(action[:3], dtype=np.float64), previous)
+        self.target = np.asarray(action[:3], dtype=np.float64).copy()
+        goal = self.ik(self.target, previous)
         self.data.ctrl[self._finger_ctrl] = FINGER_CTRL * float(action[3])
         for k in range(1, SERVO_SUBSTEPS + 1):
             self.data.ctrl[self._arm_ctrl] = previous + (goal - previous) * k / SERVO_SUBSTEPS

@@ -20,6 +20,7 @@ GYM_NAMESPACE = "lerobot_ccdp"
 # `default_episode_steps` so registering needs no import; tests/test_plugin_import.py checks that they agree.
 ENTRY_POINTS: dict[str, tuple[str, int]] = {
     "DoorOpening-v0": ("lerobot_ccdp.envs.door_opening:DoorOpeningEnv", 150),
+    "DoorOpening-physics-v0": ("lerobot_ccdp.envs.door_opening_physics:DoorOpeningPhysicsEnv", 150),
     "ButtonSearch-v0": ("lerobot_ccdp.envs.button_search:ButtonSearchEnv", 200),
     "ObjectManipulation-v0": ("lerobot_ccdp.envs.object_manipulation:ObjectManipulationEnv", 150),
     "ObjectManipulation-physics-v0": (

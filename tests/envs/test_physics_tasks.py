@@ -3,17 +3,20 @@
 import numpy as np
 import pytest
 
+from lerobot_ccdp.envs.door_opening import COMMIT_SLIDE, OPEN_SLIDE
+from lerobot_ccdp.envs.door_opening_physics import STUCK
 from lerobot_ccdp.envs.object_manipulation import HALF, PICK, PUSH
 from lerobot_ccdp.envs.object_manipulation_physics import MASS, RESTING
 
 from env_helpers import FixedOptions, make
 
 TASK = "ObjectManipulation-physics-v0"
+DOOR = "DoorOpening-physics-v0"
 
 
 def _attempt(hidden: int, option: int, seed: int = 3):
-    """One attempt of `option`: the box's and the pinch point's heights and the gripper closure at every step,
-    until the attempt ends; and the info it ended with."""
+    """One box attempt of `option`: the box's and the pinch point's heights and the gripper closure at every
+    step, until the attempt ends; and the info it ended with."""
     env = make(TASK)
     obs, info = env.reset(seed=seed, options={"hidden_param": hidden})
     agent = FixedOptions(env, [option])
@@ -59,3 +62,33 @@ def test_pushing_slides_either_box_onto_the_target(hidden):
     assert info["is_success"] and info["option"] == PUSH
     assert box_z.max() < RESTING  # slid along the table, never lifted
     assert info["preference_matched"] is (hidden == 1)  # a light box should have been picked
+
+
+def _door_attempt(hidden: int, option: int):
+    """One door attempt of `option`: the door's slide and the arm's commanded push at every step; the last
+    observation and info."""
+    env = make(DOOR)
+    obs, info = env.reset(seed=4, options={"hidden_param": hidden})
+    agent = FixedOptions(env, [option])
+    slide, target_x = [], []
+    for _ in range(100):
+        obs, _, terminated, _, info = env.step(agent.act(obs, info))
+        slide.append(env.unwrapped.slide)
+        target_x.append(env.unwrapped.robot.target[0])
+        if obs["failure"][0] or terminated:
+            break
+    return np.array(slide), np.array(target_x), obs, info
+
+
+def test_a_door_pushed_the_wrong_way_does_not_open():
+    slide, target_x, obs, info = _door_attempt(hidden=1, option=0)  # opens right; the arm pushes it left
+    assert obs["failure"][0] == 1.0 and info["option"] == 0
+    assert target_x.min() < target_x[0] - COMMIT_SLIDE  # the arm did push the handle left
+    assert (slide > -STUCK).all()  # and the stop held the door
+
+
+@pytest.mark.parametrize("hidden", [0, 1])
+def test_a_door_pushed_the_right_way_slides_open(hidden):
+    slide, _, _, info = _door_attempt(hidden=hidden, option=hidden)
+    assert info["is_success"] and info["option"] == hidden
+    assert abs(slide[-1]) >= OPEN_SLIDE and np.sign(slide[-1]) == (1 if hidden else -1)
