@@ -25,6 +25,7 @@ class ButtonSearchEnv(CCDPTaskEnv):
     env_state_names = tuple(f"button{i}_{c}" for i in range(len(BUTTONS_XY)) for c in "xy")
     default_episode_steps = 200
     home = (-0.26, -0.12, 0.1, 0.0)
+    press_grip, press_z = 0.0, 0.015  # gripper closure and end-effector height while pressing
 
     def _task_bodies_xml(self) -> str:
         return "\n".join(
@@ -68,4 +69,4 @@ class ButtonSearchEnv(CCDPTaskEnv):
 
     def plan(self, option: int) -> list[Waypoint]:
         x, y = self._buttons[option]
-        return [Waypoint((x, y, 0.07, 0.0)), Waypoint((x, y, 0.015, 0.0), dwell=3)]
+        return [Waypoint((x, y, 0.07, self.press_grip)), Waypoint((x, y, self.press_z, self.press_grip), dwell=3)]

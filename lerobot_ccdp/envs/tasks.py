@@ -22,6 +22,7 @@ ENTRY_POINTS: dict[str, tuple[str, int]] = {
     "DoorOpening-v0": ("lerobot_ccdp.envs.door_opening:DoorOpeningEnv", 150),
     "DoorOpening-physics-v0": ("lerobot_ccdp.envs.door_opening_physics:DoorOpeningPhysicsEnv", 150),
     "ButtonSearch-v0": ("lerobot_ccdp.envs.button_search:ButtonSearchEnv", 200),
+    "ButtonSearch-physics-v0": ("lerobot_ccdp.envs.button_search_physics:ButtonSearchPhysicsEnv", 200),
     "ObjectManipulation-v0": ("lerobot_ccdp.envs.object_manipulation:ObjectManipulationEnv", 150),
     "ObjectManipulation-physics-v0": (
         "lerobot_ccdp.envs.object_manipulation_physics:ObjectManipulationPhysicsEnv", 150

@@ -13,6 +13,7 @@ FAILING = [
     ("DoorOpening-v0", 1, 0),
     ("DoorOpening-physics-v0", 1, 0),  # the stop holds the door when pushed left
     ("ButtonSearch-v0", 2, 0),
+    ("ButtonSearch-physics-v0", 2, 0),  # button 0's cap goes down, and it is not the live one
     ("ObjectManipulation-v0", 1, 0),  # heavy box: picking slips
     ("ObjectManipulation-physics-v0", 1, 0),  # heavy box: it slips out of the 2F-85's grasp
     ("ObjectPacking-v0", encode_capacities([0, 2, 0]), 0),  # nearest basket has no room

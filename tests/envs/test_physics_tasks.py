@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from lerobot_ccdp.envs.button_search_physics import PRESS_DEPTH
 from lerobot_ccdp.envs.door_opening import COMMIT_SLIDE, OPEN_SLIDE
 from lerobot_ccdp.envs.door_opening_physics import STUCK
 from lerobot_ccdp.envs.object_manipulation import HALF, PICK, PUSH
@@ -12,6 +13,7 @@ from env_helpers import FixedOptions, make
 
 TASK = "ObjectManipulation-physics-v0"
 DOOR = "DoorOpening-physics-v0"
+BUTTONS = "ButtonSearch-physics-v0"
 
 
 def _attempt(hidden: int, option: int, seed: int = 3):
@@ -92,3 +94,23 @@ def test_a_door_pushed_the_right_way_slides_open(hidden):
     slide, _, _, info = _door_attempt(hidden=hidden, option=hidden)
     assert info["is_success"] and info["option"] == hidden
     assert abs(slide[-1]) >= OPEN_SLIDE and np.sign(slide[-1]) == (1 if hidden else -1)
+
+
+def test_a_pressed_button_is_a_cap_pushed_into_its_housing_that_springs_back():
+    env = make(BUTTONS)
+    obs, info = env.reset(seed=2, options={"hidden_param": 3})
+    agent = FixedOptions(env, [1, 3])  # a dead button, then the live one
+    depths = []
+    for _ in range(100):
+        obs, _, terminated, _, info = env.step(agent.act(obs, info))
+        depths.append(env.unwrapped.cap_depths())
+        if obs["failure"][0]:
+            failed_at = len(depths) - 1
+        if terminated:
+            break
+    depths = np.array(depths)
+    assert info["is_success"] and info["failures"] == 1 and info["repeated_failures"] == 0
+    assert depths[failed_at, 1] >= PRESS_DEPTH  # the failure came when button 1's cap went down
+    assert (depths[:failed_at + 1, [0, 2, 3]] < PRESS_DEPTH / 2).all()  # and no other moved
+    assert depths[failed_at + 3, 1] < PRESS_DEPTH / 2  # released by the restore, its spring pushed it back
+    assert depths[-1, 3] >= PRESS_DEPTH  # the success is the live button's cap going down
