@@ -31,6 +31,7 @@ class BartenderEnv(CCDPTaskEnv):
     )
     default_episode_steps = 250
     home = (-0.32, -0.05, 0.15, 1.0)  # the gripper holds the bottle
+    pour_z = 0.07  # end-effector height while pouring (below POUR_HEIGHT)
 
     def _task_bodies_xml(self) -> str:
         glass, drink = "0.8 0.85 0.9 0.5", "0.9 0.6 0.1 1"
@@ -56,10 +57,15 @@ class BartenderEnv(CCDPTaskEnv):
         self._cups = CUPS_XY + self.jitter(*CUPS_XY.shape)
         for i, xy in enumerate(self._cups):
             self.mocap(f"cup_{i}")[:2] = xy
-            self.mocap(f"drink_{i}")[:] = (*xy, EMPTY_Z)
         self._filled = np.zeros(len(CUPS_XY), dtype=bool)
         self._pouring_into, self._pour_steps = -1, 0
+        self._show_drinks()
         self._follow_bottle()
+
+    def _show_drinks(self) -> None:
+        """A filled cup shows its drink."""
+        for i, filled in enumerate(self._filled):
+            self.mocap(f"drink_{i}")[:] = (*self._cups[i], FULL_Z if filled else EMPTY_Z)
 
     def _follow_bottle(self) -> None:
         self.mocap("bottle")[:] = self.ee_pos
@@ -92,7 +98,7 @@ class BartenderEnv(CCDPTaskEnv):
             return Outcome(OutcomeKind.FAILURE, cup)
         preferred = self.preferred_feasible_option()
         self._filled[cup] = True
-        self.mocap(f"drink_{cup}")[2] = FULL_Z
+        self._show_drinks()
         kind = OutcomeKind.SUCCESS if self._filled.sum() == N_FILLS else OutcomeKind.STAGE_DONE
         return Outcome(kind, cup, preferred=preferred)
 
@@ -106,5 +112,5 @@ class BartenderEnv(CCDPTaskEnv):
         return [
             Waypoint((ex, ey, 0.15, 1.0)),
             Waypoint((cx, cy, 0.15, 1.0)),
-            Waypoint((cx, cy, 0.07, 1.0), dwell=POUR_STEPS + 1),
+            Waypoint((cx, cy, self.pour_z, 1.0), dwell=POUR_STEPS + 1),
         ]

@@ -29,6 +29,7 @@ ENTRY_POINTS: dict[str, tuple[str, int]] = {
     ),
     "ObjectPacking-v0": ("lerobot_ccdp.envs.object_packing:ObjectPackingEnv", 300),
     "Bartender-v0": ("lerobot_ccdp.envs.bartender:BartenderEnv", 250),
+    "Bartender-physics-v0": ("lerobot_ccdp.envs.bartender_physics:BartenderPhysicsEnv", 250),
 }
 
 

@@ -3,17 +3,21 @@
 import numpy as np
 import pytest
 
+from lerobot_ccdp.envs.bartender_physics import BOTTLE_HALF_HEIGHT
 from lerobot_ccdp.envs.button_search_physics import PRESS_DEPTH
 from lerobot_ccdp.envs.door_opening import COMMIT_SLIDE, OPEN_SLIDE
 from lerobot_ccdp.envs.door_opening_physics import STUCK
 from lerobot_ccdp.envs.object_manipulation import HALF, PICK, PUSH
 from lerobot_ccdp.envs.object_manipulation_physics import MASS, RESTING
 
+from lerobot_ccdp.envs.scripted import Expert, run_episode
+
 from env_helpers import FixedOptions, make
 
 TASK = "ObjectManipulation-physics-v0"
 DOOR = "DoorOpening-physics-v0"
 BUTTONS = "ButtonSearch-physics-v0"
+BARTENDER = "Bartender-physics-v0"
 
 
 def _attempt(hidden: int, option: int, seed: int = 3):
@@ -114,3 +118,20 @@ def test_a_pressed_button_is_a_cap_pushed_into_its_housing_that_springs_back():
     assert (depths[:failed_at + 1, [0, 2, 3]] < PRESS_DEPTH / 2).all()  # and no other moved
     assert depths[failed_at + 3, 1] < PRESS_DEPTH / 2  # released by the restore, its spring pushed it back
     assert depths[-1, 3] >= PRESS_DEPTH  # the success is the live button's cap going down
+
+
+def test_the_bottle_is_held_by_the_grasp_through_an_episode():
+    env = make(BARTENDER)
+    offsets = []
+    episode = run_episode(env, Expert(env), seed=5,
+                          on_step=lambda e: offsets.append(e.unwrapped.bottle_position() - e.unwrapped.ee_pos))
+    assert episode.success
+    assert np.abs(np.array(offsets) - offsets[0]).max() < 0.01  # it moved with the gripper
+
+
+def test_the_bottle_falls_when_the_gripper_opens():
+    env = make(BARTENDER)
+    obs, _ = env.reset(seed=5)
+    for _ in range(10):
+        obs, *_ = env.step(np.array([*obs["agent_pos"][:3], 0.0], dtype=np.float32))
+    assert env.unwrapped.bottle_position()[2] < BOTTLE_HALF_HEIGHT + 0.005  # it lies or stands on the table
