@@ -48,16 +48,17 @@ class Grasp:
         obj[2] = self.half_size
 
 
-def pick_and_place(obj: tuple[float, float, float], dest: tuple[float, float], place_z: float) -> list[Waypoint]:
-    """Expert waypoints that grasp the object at `obj`, carry it at 10 cm and release it at (dest, place_z)."""
+def pick_and_place(obj: tuple[float, float, float], dest: tuple[float, float], place_z: float,
+                   carry_z: float = 0.1) -> list[Waypoint]:
+    """Expert waypoints that grasp the object at `obj`, carry it at `carry_z` and release it at (dest, place_z)."""
     ox, oy, oz = obj
     dx, dy = dest
     return [
         Waypoint((ox, oy, 0.08, 0.0)),
         Waypoint((ox, oy, oz, 0.0), dwell=2),
         Waypoint((ox, oy, oz, 1.0), dwell=3),
-        Waypoint((ox, oy, 0.1, 1.0)),
-        Waypoint((dx, dy, 0.1, 1.0)),
+        Waypoint((ox, oy, carry_z, 1.0)),
+        Waypoint((dx, dy, carry_z, 1.0)),
         Waypoint((dx, dy, place_z, 1.0), dwell=1),
         Waypoint((dx, dy, place_z, 0.0), dwell=3),
     ]

@@ -54,6 +54,7 @@ class ObjectPackingEnv(CCDPTaskEnv):
     )
     default_episode_steps = 300
     home = (0.0, -0.2, 0.12, 0.0)
+    place_z, carry_z = 0.07, 0.1  # end-effector heights: release over a basket, carry
 
     def _task_bodies_xml(self) -> str:
         baskets = [_basket_xml(i) for i in range(len(BASKETS_XY))]
@@ -114,4 +115,8 @@ class ObjectPackingEnv(CCDPTaskEnv):
         self.mocap(f"object_{self._packed}")[:] = (*self._objects0[self._packed], HALF)
 
     def plan(self, option: int) -> list[Waypoint]:
-        return pick_and_place(tuple(self.mocap(f"object_{self._packed}")), tuple(self._baskets[option]), 0.07)
+        return pick_and_place(tuple(self.object_position(self._packed)), tuple(self._baskets[option]), self.place_z,
+                              self.carry_z)
+
+    def object_position(self, i: int) -> np.ndarray:
+        return self.mocap(f"object_{i}").copy()

@@ -28,6 +28,7 @@ ENTRY_POINTS: dict[str, tuple[str, int]] = {
         "lerobot_ccdp.envs.object_manipulation_physics:ObjectManipulationPhysicsEnv", 150
     ),
     "ObjectPacking-v0": ("lerobot_ccdp.envs.object_packing:ObjectPackingEnv", 300),
+    "ObjectPacking-physics-v0": ("lerobot_ccdp.envs.object_packing_physics:ObjectPackingPhysicsEnv", 300),
     "Bartender-v0": ("lerobot_ccdp.envs.bartender:BartenderEnv", 250),
     "Bartender-physics-v0": ("lerobot_ccdp.envs.bartender_physics:BartenderPhysicsEnv", 250),
 }

@@ -9,6 +9,8 @@ from lerobot_ccdp.envs.door_opening import COMMIT_SLIDE, OPEN_SLIDE
 from lerobot_ccdp.envs.door_opening_physics import STUCK
 from lerobot_ccdp.envs.object_manipulation import HALF, PICK, PUSH
 from lerobot_ccdp.envs.object_manipulation_physics import MASS, RESTING
+from lerobot_ccdp.envs.object_packing import encode_capacities
+from lerobot_ccdp.envs.object_packing_physics import LID
 
 from lerobot_ccdp.envs.scripted import Expert, run_episode
 
@@ -18,6 +20,7 @@ TASK = "ObjectManipulation-physics-v0"
 DOOR = "DoorOpening-physics-v0"
 BUTTONS = "ButtonSearch-physics-v0"
 BARTENDER = "Bartender-physics-v0"
+PACKING = "ObjectPacking-physics-v0"
 
 
 def _attempt(hidden: int, option: int, seed: int = 3):
@@ -135,3 +138,23 @@ def test_the_bottle_falls_when_the_gripper_opens():
     for _ in range(10):
         obs, *_ = env.step(np.array([*obs["agent_pos"][:3], 0.0], dtype=np.float32))
     assert env.unwrapped.bottle_position()[2] < BOTTLE_HALF_HEIGHT + 0.005  # it lies or stands on the table
+
+
+@pytest.mark.parametrize(("capacity", "room"), [(0, False), (1, True), (2, True)])
+def test_an_object_dropped_into_a_crate_goes_under_the_lid_only_if_there_is_room(capacity, room):
+    env = make(PACKING)
+    obs, info = env.reset(seed=1, options={"hidden_param": encode_capacities([capacity, 2, 2])})
+    agent = FixedOptions(env, [0])
+    lowest = np.inf
+    for _ in range(100):
+        obs, _, _, _, info = env.step(agent.act(obs, info))
+        position = env.unwrapped.object_position(0)
+        if np.abs(position[:2] - env.unwrapped._baskets[0]).max() < 0.03:  # over the crate's slot
+            lowest = min(lowest, position[2])
+        if obs["failure"][0] or info["attempts"]:
+            break
+    assert bool(obs["failure"][0]) is not room and info["option"] == 0
+    if room:
+        assert env.unwrapped.object_position(0)[2] < LID - 0.02  # it fell through the slot to the bottom
+    else:
+        assert lowest > LID - 0.01  # it never got under the lid: it rested on what fills the crate
