@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export HF_HUB_OFFLINE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: install test test-slow train-local clean quickstart benchmark benchmark-pixels
+.PHONY: install test test-slow train-local clean quickstart benchmark benchmark-physics benchmark-pixels
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -39,6 +39,10 @@ quickstart: install
 # The paper's comparison: every task, DP / DP* / CCDP and the no-repeat oracle; report in outputs/benchmark.
 benchmark: install
 	$(PY) -m lerobot_ccdp.pipeline --tasks all --out outputs/benchmark --publish docs/benchmark_report.md
+
+# The same comparison on the five tasks rebuilt with contact physics on the Franka Panda (docs/tasks.md).
+benchmark-physics: install
+	$(PY) -m lerobot_ccdp.pipeline --tasks physics --out outputs/benchmark_physics --publish docs/benchmark_physics_report.md
 
 # The same comparison on rendered cameras (64x64 front camera + robot state) for the two tasks with pixel configs.
 benchmark-pixels: install

@@ -48,6 +48,11 @@ from lerobot_ccdp.stage_stamps import StampBook, stamp
 from lerobot_ccdp.targets import target_checks
 
 METHODS = ("dp", "dp_star", "ccdp")
+# Named groups of --tasks: the benchmark's five geometric tasks, and their physics versions on the Panda.
+TASK_GROUPS = {
+    "all": [t for t in TASKS if "-physics-" not in t],
+    "physics": [t for t in TASKS if "-physics-" in t],
+}
 # Observation type -> suffix of the settings folder and recipe that hold its configs.
 OBS_VARIANTS = {"state": "", "pixels_agent_pos": "_pixels"}
 BIN = Path(sys.executable).parent
@@ -391,7 +396,9 @@ def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[Ta
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", nargs="+", required=True, help=f"task ids, or `all` ({', '.join(TASKS)})")
+    parser.add_argument("--tasks", nargs="+", required=True,
+                        help=f"task ids, `all` (the five geometric tasks: {', '.join(TASK_GROUPS['all'])}) or "
+                             "`physics` (the same five on the Franka Panda with contact physics)")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
                         help="recovery modes to evaluate (the no-repeat oracle always runs)")
     parser.add_argument("--out", type=Path, default=Path("outputs/pipeline"), help="root of every output")
@@ -409,7 +416,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--report-only", action="store_true",
                         help="write the report from the evaluations already in --out, running no stage")
     args = parser.parse_args(argv)
-    tasks = list(TASKS) if args.tasks == ["all"] else args.tasks
+    tasks = TASK_GROUPS[args.tasks[0]] if len(args.tasks) == 1 and args.tasks[0] in TASK_GROUPS else args.tasks
     files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type) for t in tasks]
     if args.fresh and args.report_only:
         parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")
