@@ -51,7 +51,8 @@ class DoorOpeningPhysicsEnv(DoorOpeningEnv):
 
     def _apply_hidden(self) -> None:
         """The stop: the door slides only toward the side it opens to (0 left, 1 right)."""
-        self.model.jnt_range[self.model.joint("door").id] = (-MAX_SLIDE, 0.0) if self.hidden_param == 0 else (0.0, MAX_SLIDE)
+        travel = (-MAX_SLIDE, 0.0) if self.hidden_param == 0 else (0.0, MAX_SLIDE)
+        self.model.jnt_range[self.model.joint("door").id] = travel
 
     @property
     def slide(self) -> float:

@@ -14,7 +14,14 @@ from __future__ import annotations
 import numpy as np
 
 from lerobot_ccdp.envs.base import Outcome, OutcomeKind
-from lerobot_ccdp.envs.object_packing import BASKETS_XY, HALF, MAX_CAPACITY, OBJECTS_XY, ObjectPackingEnv, decode_capacities
+from lerobot_ccdp.envs.object_packing import (
+    BASKETS_XY,
+    HALF,
+    MAX_CAPACITY,
+    OBJECTS_XY,
+    ObjectPackingEnv,
+    decode_capacities,
+)
 from lerobot_ccdp.envs.panda import PandaArm
 
 WALL = 0.004  # crate wall, floor and lid thickness
@@ -27,26 +34,28 @@ RESTED = 0.02  # m/s: a released object slower than this has come to rest
 CRATE = "0.6 0.45 0.25 1"
 
 
+def _box(size, pos, name: str = "") -> str:
+    """One box geom of a crate, in the crate's colour."""
+    named = f'name="{name}" ' if name else ""
+    return (f'<geom {named}type="box" size="{size[0]} {size[1]} {size[2]}" pos="{pos[0]} {pos[1]} {pos[2]}"'
+            f' rgba="{CRATE}"/>')
+
+
 def _crate_xml(i: int) -> str:
+    """Crate i: floor, four walls, a lid of four plates around the slot, and the filler at the bottom."""
     x, y = BASKETS_XY[i]
-    outer = INNER + WALL
-    geoms = [
-        f'<geom type="box" size="{outer} {outer} {WALL / 2}" pos="0 0 {WALL / 2}"/>',  # floor
-        *(f'<geom type="box" size="{sx} {sy} {DEPTH / 2}" pos="{px} {py} {WALL + DEPTH / 2}"/>'
-          for sx, sy, px, py in [(outer, WALL / 2, 0, outer - WALL / 2), (outer, WALL / 2, 0, -outer + WALL / 2),
-                                 (WALL / 2, outer, outer - WALL / 2, 0), (WALL / 2, outer, -outer + WALL / 2, 0)]),
-        # The lid: four plates around the central slot.
-        *(f'<geom type="box" size="{sx} {sy} {WALL / 2}" pos="{px} {py} {LID + WALL / 2}"/>'
-          for sx, sy, px, py in [(outer, (outer - SLOT) / 2, 0, (outer + SLOT) / 2),
-                                 (outer, (outer - SLOT) / 2, 0, -(outer + SLOT) / 2),
-                                 ((outer - SLOT) / 2, SLOT, (outer + SLOT) / 2, 0),
-                                 ((outer - SLOT) / 2, SLOT, -(outer + SLOT) / 2, 0)]),
-        # Compiled at its largest (MuJoCo's collision bounds come from the compiled size); sized at reset.
-        f'<geom name="filler_{i}" type="box" size="{INNER - 0.001} {INNER - 0.001} {MAX_CAPACITY * HALF}"'
-        f' pos="0 0 {WALL + MAX_CAPACITY * HALF}"/>',
-    ]
-    geoms = [g.replace("<geom ", f'<geom rgba="{CRATE}" ') for g in geoms]
-    return f'<body name="basket_{i}" pos="{x} {y} 0">{"".join(geoms)}</body>'
+    outer, gap = INNER + WALL, (INNER + WALL - SLOT) / 2
+    floor = [_box((outer, outer, WALL / 2), (0, 0, WALL / 2))]
+    walls = [_box((sx, sy, DEPTH / 2), (px, py, WALL + DEPTH / 2))
+             for sx, sy, px, py in [(outer, WALL / 2, 0, outer - WALL / 2), (outer, WALL / 2, 0, -outer + WALL / 2),
+                                    (WALL / 2, outer, outer - WALL / 2, 0), (WALL / 2, outer, -outer + WALL / 2, 0)]]
+    lid = [_box((sx, sy, WALL / 2), (px, py, LID + WALL / 2))
+           for sx, sy, px, py in [(outer, gap, 0, SLOT + gap), (outer, gap, 0, -SLOT - gap),
+                                  (gap, SLOT, SLOT + gap, 0), (gap, SLOT, -SLOT - gap, 0)]]
+    # Compiled at its largest (MuJoCo's collision bounds come from the compiled size); sized at reset.
+    filler = [_box((INNER - 0.001, INNER - 0.001, MAX_CAPACITY * HALF), (0, 0, WALL + MAX_CAPACITY * HALF),
+                   f"filler_{i}")]
+    return f'<body name="basket_{i}" pos="{x} {y} 0">{"".join(floor + walls + lid + filler)}</body>'
 
 
 class ObjectPackingPhysicsEnv(ObjectPackingEnv):

@@ -83,7 +83,8 @@ def build_physics_scene(name: str, task_bodies: str) -> mujoco.MjModel:
 
 class PandaArm:
     """The physics robot: the 2F-85's pinch point follows (x, y, z) targets pointing down; grip closes the
-    gripper. `place` puts the arm at rest at a pose (resets and failure restores), solving IK from `READY_Q`."""
+    gripper. `place` puts the arm at rest at a pose (resets), solving IK from `READY_Q`; `snapshot` and
+    `restore` put it back exactly where an attempt began (failure restores)."""
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData):
         self.model, self.data = model, data
@@ -125,7 +126,8 @@ class PandaArm:
             mujoco.mj_kinematics(self.model, scratch)
             mujoco.mj_comPos(self.model, scratch)
             rot = scratch.site_xmat[self._site].reshape(3, 3)
-            error = np.concatenate([target - scratch.site_xpos[self._site], 0.5 * np.cross(rot, self._down, axis=0).sum(1)])
+            turn = 0.5 * np.cross(rot, self._down, axis=0).sum(axis=1)  # rotation error to pointing down
+            error = np.concatenate([target - scratch.site_xpos[self._site], turn])
             mujoco.mj_jacSite(self.model, scratch, self._jac_pos, self._jac_rot, self._site)
             jac = np.vstack([self._jac_pos[:, self._arm_dofs], self._jac_rot[:, self._arm_dofs]])
             step = jac.T @ np.linalg.solve(jac @ jac.T + IK_DAMPING * np.eye(6), error)
