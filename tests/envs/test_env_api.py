@@ -77,7 +77,7 @@ def test_invalid_hidden_parameter_is_rejected():
 
 
 def test_unknown_task_names_the_known_ones():
-    with pytest.raises(ValueError, match="known tasks: DoorOpening-v0, ButtonSearch-v0"):
+    with pytest.raises(ValueError, match="known tasks: DoorOpening-v0, DoorOpening-physics-v0, ButtonSearch-v0"):
         task_class("Door-v0")
 
 
