@@ -45,30 +45,23 @@ class BartenderPhysicsEnv(BartenderEnv):
     </body>"""
         return cups + bottle
 
-    def _free(self, body: str) -> np.ndarray:
-        """Writable view of a free body's position and quaternion."""
-        adr = self.model.joint(body).qposadr[0]
-        return self.data.qpos[adr : adr + 7]
-
     def _reset_task(self) -> None:
         self._cups = CUPS_XY + self.jitter(*CUPS_XY.shape)
         for i, xy in enumerate(self._cups):
-            self._free(f"cup_{i}")[:] = [*xy, 0.02, 1.0, 0.0, 0.0, 0.0]
+            self.place_free_body(f"cup_{i}", (*xy, 0.02))
         self._filled = np.zeros(len(CUPS_XY), dtype=bool)
         self._pouring_into, self._pour_steps = -1, 0
         self._grasp_bottle()
         self._show_drinks()
 
     def bottle_position(self) -> np.ndarray:
-        return self._free("bottle")[:3].copy()
+        return self.free_pose("bottle")[:3].copy()
 
     def _grasp_bottle(self) -> None:
         """Put the bottle between the fingers and let the gripper (commanded closed at home) close on it."""
-        pose = np.array([*self.ee_pos + [0.0, 0.0, BOTTLE_ABOVE_PINCH], 1.0, 0.0, 0.0, 0.0])
-        adr = self.model.joint("bottle").dofadr[0]
+        position = self.ee_pos + [0.0, 0.0, BOTTLE_ABOVE_PINCH]
         for _ in range(GRASP_SETTLE_STEPS):
-            self._free("bottle")[:] = pose
-            self.data.qvel[adr : adr + 6] = 0.0
+            self.place_free_body("bottle", position)
             mujoco.mj_step(self.model, self.data)
         mujoco.mj_forward(self.model, self.data)
 
@@ -82,15 +75,13 @@ class BartenderPhysicsEnv(BartenderEnv):
 
     def _begin_attempt(self) -> None:
         super()._begin_attempt()
-        self._bottle_at_start = self._free("bottle").copy()
+        self._bottle_at_start = self.free_pose("bottle").copy()
 
     def _update_task(self):
-        self._cups = np.array([self._free(f"cup_{i}")[:2] for i in range(len(CUPS_XY))])  # where they stand now
+        self._cups = np.array([self.free_pose(f"cup_{i}")[:2] for i in range(len(CUPS_XY))])  # where they stand now
         return super()._update_task()
 
     def _on_failure(self, option: int) -> None:
         """The robot is back where the attempt began, and the bottle with it, in its grasp."""
         super()._on_failure(option)
-        adr = self.model.joint("bottle").dofadr[0]
-        self._free("bottle")[:] = self._bottle_at_start
-        self.data.qvel[adr : adr + 6] = 0.0
+        self.place_free_body("bottle", self._bottle_at_start[:3], self._bottle_at_start[3:])

@@ -176,6 +176,21 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             self._mocap_ids[body] = self.model.body(body).mocapid[0]
         return self.data.mocap_pos[self._mocap_ids[body]]
 
+    def free_pose(self, joint: str) -> np.ndarray:
+        """Writable view of a free body's pose (position, then quaternion), by its free joint's name."""
+        adr = self.model.joint(joint).qposadr[0]
+        return self.data.qpos[adr : adr + 7]
+
+    def free_velocity(self, joint: str) -> np.ndarray:
+        """Writable view of a free body's velocity (linear, then angular), by its free joint's name."""
+        adr = self.model.joint(joint).dofadr[0]
+        return self.data.qvel[adr : adr + 6]
+
+    def place_free_body(self, joint: str, position, quaternion=(1.0, 0.0, 0.0, 0.0)) -> None:
+        """Put a free body at `position` (upright unless `quaternion` says otherwise), at rest."""
+        self.free_pose(joint)[:] = [*position, *quaternion]
+        self.free_velocity(joint)[:] = 0.0
+
     def jitter(self, *shape: int) -> np.ndarray:
         return self.np_random.uniform(-self.layout_noise, self.layout_noise, size=shape)
 

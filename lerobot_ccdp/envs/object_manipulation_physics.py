@@ -38,18 +38,13 @@ class ObjectManipulationPhysicsEnv(ObjectManipulationEnv):
       <geom name="box" type="box" size="{HALF} {HALF} {HALF}" mass="{MASS[0]}" friction="0.8" rgba="0.2 0.35 0.8 1"/>
     </body>"""
 
-    def _box_qpos(self) -> np.ndarray:
-        """Writable view of the box's free joint (position, quaternion)."""
-        adr = self.model.joint("box").qposadr[0]
-        return self.data.qpos[adr : adr + 7]
-
     def box_position(self) -> np.ndarray:
-        return self._box_qpos()[:3].copy()
+        return self.free_pose("box")[:3].copy()
 
     def _reset_task(self) -> None:
         self._target = BOX[:2] + np.array([0.0, 0.2]) + self.jitter(2)
         self.mocap("target")[:2] = self._target
-        self._box_qpos()[:] = [*(BOX[:2] + self.jitter(2)), HALF, 1.0, 0.0, 0.0, 0.0]
+        self.place_free_body("box", (*(BOX[:2] + self.jitter(2)), HALF))
         self._closed_at: tuple[float, float] | None = None  # (pinch z, box z) when the gripper closed on the box
         self._lifted = False
 

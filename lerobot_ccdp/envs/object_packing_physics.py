@@ -76,12 +76,8 @@ class ObjectPackingPhysicsEnv(ObjectPackingEnv):
         ]
         return "\n".join(crates + objects)
 
-    def _free(self, i: int) -> np.ndarray:
-        adr = self.model.joint(f"object_{i}").qposadr[0]
-        return self.data.qpos[adr : adr + 7]
-
     def object_position(self, i: int) -> np.ndarray:
-        return self._free(i)[:3].copy()
+        return self.free_pose(f"object_{i}")[:3].copy()
 
     def _reset_task(self) -> None:
         self._baskets = BASKETS_XY + self.jitter(*BASKETS_XY.shape)
@@ -89,7 +85,7 @@ class ObjectPackingPhysicsEnv(ObjectPackingEnv):
         for i, xy in enumerate(self._baskets):
             self.model.body_pos[self.model.body(f"basket_{i}").id][:2] = xy
         for i, xy in enumerate(self._objects0):
-            self._free(i)[:] = [*xy, HALF, 1.0, 0.0, 0.0, 0.0]
+            self.place_free_body(f"object_{i}", (*xy, HALF))
         self._counts = [0] * len(BASKETS_XY)
         self._packed = 0
         self._lifted = False
@@ -109,8 +105,7 @@ class ObjectPackingPhysicsEnv(ObjectPackingEnv):
     def _update_task(self) -> Outcome | None:
         i = self._packed
         position = self.object_position(i)
-        adr = self.model.joint(f"object_{i}").dofadr[0]
-        speed = np.linalg.norm(self.data.qvel[adr : adr + 3])
+        speed = np.linalg.norm(self.free_velocity(f"object_{i}")[:3])
         if self.grip > 0.4 and position[2] > LIFTED:
             self._lifted = True
         if not self._lifted or self.grip > 0.2 or speed > RESTED:
@@ -130,6 +125,4 @@ class ObjectPackingPhysicsEnv(ObjectPackingEnv):
 
     def _on_failure(self, option: int) -> None:
         """The rejected object is handed back to where it started."""
-        adr = self.model.joint(f"object_{self._packed}").dofadr[0]
-        self._free(self._packed)[:] = [*self._objects0[self._packed], HALF, 1.0, 0.0, 0.0, 0.0]
-        self.data.qvel[adr : adr + 6] = 0.0
+        self.place_free_body(f"object_{self._packed}", (*self._objects0[self._packed], HALF))
