@@ -11,7 +11,6 @@ from lerobot_ccdp.envs.object_manipulation import HALF, PICK, PUSH
 from lerobot_ccdp.envs.object_manipulation_physics import MASS, RESTING
 from lerobot_ccdp.envs.object_packing import encode_capacities
 from lerobot_ccdp.envs.object_packing_physics import LID
-
 from lerobot_ccdp.envs.scripted import Expert, run_episode
 
 from env_helpers import FixedOptions, make
@@ -23,21 +22,25 @@ BARTENDER = "Bartender-physics-v0"
 PACKING = "ObjectPacking-physics-v0"
 
 
-def _attempt(hidden: int, option: int, seed: int = 3):
-    """One box attempt of `option`: the box's and the pinch point's heights and the gripper closure at every
-    step, until the attempt ends; and the info it ended with."""
-    env = make(TASK)
+def _attempt(task: str, hidden: int, option: int, seed: int, probe):
+    """One attempt of `option`: `probe(env)`'s readings at every step (one row each), until the attempt ends;
+    the last observation and info, and the env."""
+    env = make(task)
     obs, info = env.reset(seed=seed, options={"hidden_param": hidden})
     agent = FixedOptions(env, [option])
-    box_z, pinch_z, grip = [], [], []
+    rows = []
     for _ in range(100):
         obs, _, terminated, _, info = env.step(agent.act(obs, info))
-        box_z.append(env.unwrapped.box_position()[2])
-        pinch_z.append(env.unwrapped.ee_pos[2])
-        grip.append(env.unwrapped.grip)
+        rows.append(probe(env.unwrapped))
         if obs["failure"][0] or terminated:
             break
-    return np.array(box_z), np.array(pinch_z), np.array(grip), obs, info, env
+    return np.array(rows), obs, info, env
+
+
+def _box_attempt(hidden: int, option: int):
+    """The box's and the pinch point's heights and the gripper closure at every step of one attempt."""
+    rows, obs, info, env = _attempt(TASK, hidden, option, 3, lambda u: (u.box_position()[2], u.ee_pos[2], u.grip))
+    return *rows.T, obs, info, env
 
 
 def test_the_hidden_mass_is_the_box_mass():
@@ -48,7 +51,7 @@ def test_the_hidden_mass_is_the_box_mass():
 
 
 def test_the_light_box_is_lifted_by_the_grasp():
-    box_z, pinch_z, grip, obs, info, _ = _attempt(hidden=0, option=PICK)
+    box_z, pinch_z, grip, obs, info, _ = _box_attempt(hidden=0, option=PICK)
     assert info["is_success"] and info["option"] == PICK
     closed = np.cumsum(grip > 0.4) > 0
     carried = closed & (pinch_z > 0.09)
@@ -57,7 +60,7 @@ def test_the_light_box_is_lifted_by_the_grasp():
 
 
 def test_the_heavy_box_slips_out_of_the_same_grasp():
-    box_z, pinch_z, grip, obs, info, env = _attempt(hidden=1, option=PICK)
+    box_z, pinch_z, grip, obs, info, env = _box_attempt(hidden=1, option=PICK)
     assert obs["failure"][0] == 1.0 and info["option"] == PICK and info["failures"] == 1
     assert grip.max() > 0.4  # the gripper had closed on the box
     assert pinch_z[-1] > pinch_z.min() + 0.04  # and risen: the simulation, not a rule, kept the box down
@@ -67,26 +70,16 @@ def test_the_heavy_box_slips_out_of_the_same_grasp():
 
 @pytest.mark.parametrize("hidden", [0, 1])
 def test_pushing_slides_either_box_onto_the_target(hidden):
-    box_z, _, _, _, info, env = _attempt(hidden=hidden, option=PUSH)
+    box_z, _, _, _, info, env = _box_attempt(hidden=hidden, option=PUSH)
     assert info["is_success"] and info["option"] == PUSH
     assert box_z.max() < RESTING  # slid along the table, never lifted
     assert info["preference_matched"] is (hidden == 1)  # a light box should have been picked
 
 
 def _door_attempt(hidden: int, option: int):
-    """One door attempt of `option`: the door's slide and the arm's commanded push at every step; the last
-    observation and info."""
-    env = make(DOOR)
-    obs, info = env.reset(seed=4, options={"hidden_param": hidden})
-    agent = FixedOptions(env, [option])
-    slide, target_x = [], []
-    for _ in range(100):
-        obs, _, terminated, _, info = env.step(agent.act(obs, info))
-        slide.append(env.unwrapped.slide)
-        target_x.append(env.unwrapped.robot.target[0])
-        if obs["failure"][0] or terminated:
-            break
-    return np.array(slide), np.array(target_x), obs, info
+    """The door's slide and the arm's commanded push at every step of one attempt."""
+    rows, obs, info, _ = _attempt(DOOR, hidden, option, 4, lambda u: (u.slide, u.robot.target[0]))
+    return *rows.T, obs, info
 
 
 def test_a_door_pushed_the_wrong_way_does_not_open():
