@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export HF_HUB_OFFLINE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: install test test-slow train-local clean quickstart benchmark benchmark-physics benchmark-pixels
+.PHONY: install test test-slow train-local clean quickstart benchmark benchmark-lite benchmark-pixels
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,15 +36,16 @@ TASK ?= DoorOpening-v0
 quickstart: install
 	$(PY) -m lerobot_ccdp.pipeline --tasks $(TASK) --methods dp ccdp --out outputs/quickstart
 
-# The paper's comparison: every task, DP / DP* / CCDP and the no-repeat oracle; report in outputs/benchmark.
+# The paper's comparison: the five tasks with contact physics on the Franka Panda, DP / DP* / CCDP and the no-repeat
+# oracle; report in outputs/benchmark.
 benchmark: install
 	$(PY) -m lerobot_ccdp.pipeline --tasks all --out outputs/benchmark --publish docs/benchmark_report.md
 
-# The same comparison on the five tasks rebuilt with contact physics on the Franka Panda (docs/tasks.md).
-benchmark-physics: install
-	$(PY) -m lerobot_ccdp.pipeline --tasks physics --out outputs/benchmark_physics --publish docs/benchmark_physics_report.md
+# The same comparison on the geometric versions of the five tasks (`<Task>-lite-v0`, docs/tasks.md).
+benchmark-lite: install
+	$(PY) -m lerobot_ccdp.pipeline --tasks lite --out outputs/benchmark_lite --publish docs/benchmark_lite_report.md
 
 # The same comparison on rendered cameras (64x64 front camera + robot state) for the two tasks with pixel configs.
 benchmark-pixels: install
-	$(PY) -m lerobot_ccdp.pipeline --tasks DoorOpening-v0 ButtonSearch-v0 --obs-type pixels_agent_pos \
+	$(PY) -m lerobot_ccdp.pipeline --tasks DoorOpening-lite-v0 ButtonSearch-lite-v0 --obs-type pixels_agent_pos \
 		--out outputs/benchmark_pixels --publish docs/benchmark_pixels_report.md

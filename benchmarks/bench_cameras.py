@@ -11,9 +11,9 @@ crop), with bench_policy.py's UNet and sampling settings (SHARED).
     --repeats interleaved calls; CCDP at N = 0 and 4 failures (eps_z marked trained so the failure terms run).
 (b) Training step (forward, backward, Adam), batch --batch-size, interleaved medians: CCDP with
     history_length 0 and 2 (its default: the camera of every history frame is encoded too) against diffusion.
-(c) Render size: per --sizes, milliseconds to step DoorOpening-v0 with its front camera rendered, and the
+(c) Render size: per --sizes, milliseconds to step DoorOpening-lite-v0 with its front camera rendered, and the
     training step of CCDP with the pixel task configs' encoder (3 ResNet stages) at that size.
-(b') Real lerobot-train runs on --cli-episodes recorded pixel demos of DoorOpening-v0 (video, decoded with
+(b') Real lerobot-train runs on --cli-episodes recorded pixel demos of DoorOpening-lite-v0 (video, decoded with
     pyav): steps/s from lerobot-train's own timers for diffusion, CCDP at history_length 0 and 2 (same encoder),
     and CCDP with the pixel task configs' encoder (`--policy.vision_backbone_stages=3`).
 """
@@ -41,7 +41,7 @@ from lerobot_ccdp.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 
 STATE, CAMERA, ACTION = "observation.state", "observation.images.front", "action"
-TASK, REPO_ID = "DoorOpening-v0", "local/door_pixels_bench"
+TASK, REPO_ID = "DoorOpening-lite-v0", "local/door_pixels_bench"
 LATENCY_TARGET, TRAIN_TARGET = 1.5, 1.1
 
 

@@ -25,12 +25,13 @@ from pathlib import Path
 import torch
 import yaml
 
+from lerobot_ccdp.envs.tasks import TASKS
+from lerobot_ccdp.pipeline import TASK_GROUPS, task_slug
+
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
-RECIPES = {
-    "reaching2d": "reaching2d", "DoorOpening-v0": "door_opening", "ButtonSearch-v0": "button_search",
-    "ObjectManipulation-v0": "object_manipulation", "ObjectPacking-v0": "object_packing", "Bartender-v0": "bartender",
-}
+# Task -> its recipe's name: the 2-D task, and the five benchmark tasks and their lite versions by slug.
+RECIPES = {"reaching2d": "reaching2d", **{task: task_slug(task) for task in TASKS}}
 FIG2_ROWS = 96
 SHARE_ROWS = 512
 # (title, recovery_mode, failed goals) of the three Fig. 2 panels, also the rows of the sampler table.
@@ -143,7 +144,7 @@ def sampler_shares(checkpoint: Path) -> dict[str, dict[str, list[float]]]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", nargs="+", default=list(RECIPES), choices=list(RECIPES))
+    parser.add_argument("--tasks", nargs="+", default=["reaching2d", *TASK_GROUPS["all"]], choices=list(RECIPES))
     parser.add_argument("--base", nargs="*", default=[], metavar="TASK=CHECKPOINT",
                         help="use an existing base checkpoint instead of training one")
     parser.add_argument("--base-steps", type=int, default=1000)

@@ -25,9 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_ccdp.comparison import MethodMetrics
-from lerobot_ccdp.envs.tasks import TASKS
 from lerobot_ccdp.episodes import Episodes
-from lerobot_ccdp.pipeline import BIN, CHECKPOINT, TaskFiles
+from lerobot_ccdp.pipeline import BIN, CHECKPOINT, TASK_GROUPS, TaskFiles, expand_tasks
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -52,12 +51,13 @@ def evaluate(files: TaskFiles, candidates: int, rounds: int, seed: int) -> tuple
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=Path("outputs/benchmark"), help="a make benchmark run")
-    parser.add_argument("--tasks", nargs="+", default=list(TASKS))
+    parser.add_argument("--tasks", nargs="+", default=["all"], help=f"task ids, or one of {list(TASK_GROUPS)}")
     parser.add_argument("--candidates", nargs="+", type=int, default=[16, 32])
     parser.add_argument("--rounds", nargs="+", type=int, default=[1, 4])
     parser.add_argument("--seed", type=int, default=1000, help="first development seed")
     parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
     args = parser.parse_args(argv)
+    args.tasks = expand_tasks(args.tasks)
     files = {t: TaskFiles.locate(t, REPO / "configs", REPO / "datasets_recipes", args.out) for t in args.tasks}
     missing = [t for t, f in files.items() if not (f.out / "recovery" / CHECKPOINT).is_dir()]
     if missing:

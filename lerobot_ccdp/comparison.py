@@ -34,9 +34,14 @@ METRIC_LABELS = {
     "preference": "preference adherence",
 }
 CHART_METRICS = ("success", "attempts", "repeats_per_opportunity", "preference")
-# Tasks whose demonstrations carry a preference among working options (DESIGN section 7).
-PREFERENCE_TASKS = ("ObjectManipulation-v0", "ObjectPacking-v0", "Bartender-v0")
+# Tasks whose demonstrations carry a preference among working options (DESIGN section 7), in both versions.
+PREFERENCE_TASKS = ("ObjectManipulation", "ObjectPacking", "Bartender")
 Z95 = 1.959963984540054
+
+
+def has_preference(task: str) -> bool:
+    """Whether `task` (e.g. "Bartender-v0" or "Bartender-lite-v0") is one of PREFERENCE_TASKS."""
+    return task.split("-")[0] in PREFERENCE_TASKS
 
 
 def wilson(successes: int, n: int) -> Estimate:

@@ -48,10 +48,10 @@ from lerobot_ccdp.stage_stamps import StampBook, stamp
 from lerobot_ccdp.targets import target_checks
 
 METHODS = ("dp", "dp_star", "ccdp")
-# Named groups of --tasks: the benchmark's five geometric tasks, and their physics versions on the Panda.
+# Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric versions.
 TASK_GROUPS = {
-    "all": [t for t in TASKS if "-physics-" not in t],
-    "physics": [t for t in TASKS if "-physics-" in t],
+    "all": [t for t in TASKS if "-lite-" not in t],
+    "lite": [t for t in TASKS if "-lite-" in t],
 }
 # Observation type -> suffix of the settings folder and recipe that hold its configs.
 OBS_VARIANTS = {"state": "", "pixels_agent_pos": "_pixels"}
@@ -69,9 +69,14 @@ class PipelineError(RuntimeError):
 
 def task_slug(task: str) -> str:
     """File name of a task's configs and recipe: DoorOpening-v0 -> door_opening,
-    ObjectManipulation-physics-v0 -> object_manipulation_physics."""
+    ObjectManipulation-lite-v0 -> object_manipulation_lite."""
     name = task.removesuffix("-v0")
     return re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower().replace("-", "_")
+
+
+def expand_tasks(names: list[str]) -> list[str]:
+    """`--tasks` as given: task ids, or one group name of TASK_GROUPS."""
+    return TASK_GROUPS[names[0]] if len(names) == 1 and names[0] in TASK_GROUPS else names
 
 
 @dataclass(frozen=True)
@@ -397,8 +402,8 @@ def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[Ta
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", required=True,
-                        help=f"task ids, `all` (the five geometric tasks: {', '.join(TASK_GROUPS['all'])}) or "
-                             "`physics` (the same five on the Franka Panda with contact physics)")
+                        help=f"task ids, `all` (the five tasks: {', '.join(TASK_GROUPS['all'])}) or "
+                             "`lite` (their geometric versions, `<Task>-lite-v0`)")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
                         help="recovery modes to evaluate (the no-repeat oracle always runs)")
     parser.add_argument("--out", type=Path, default=Path("outputs/pipeline"), help="root of every output")
@@ -416,7 +421,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--report-only", action="store_true",
                         help="write the report from the evaluations already in --out, running no stage")
     args = parser.parse_args(argv)
-    tasks = TASK_GROUPS[args.tasks[0]] if len(args.tasks) == 1 and args.tasks[0] in TASK_GROUPS else args.tasks
+    tasks = expand_tasks(args.tasks)
     files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type) for t in tasks]
     if args.fresh and args.report_only:
         parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")

@@ -7,7 +7,7 @@ threshold is `not distinguishable` at the number of episodes run, and every seed
 
 from __future__ import annotations
 
-from lerobot_ccdp.comparison import METHOD_LABELS, PREFERENCE_TASKS
+from lerobot_ccdp.comparison import METHOD_LABELS, has_preference
 from lerobot_ccdp.episodes import Episodes, Estimate
 from lerobot_ccdp.paired import (
     attempts_ratio,
@@ -42,7 +42,7 @@ def target_checks(episodes: dict[str, dict[str, Episodes]]) -> str:
                 sign = ">" if strict else ">="
                 row(task, f"success {sign} {METHOD_LABELS[ref]}", f"CCDP - {METHOD_LABELS[ref]}", diff,
                     verdict(diff, low_bound=0.0, strict=strict))
-        if task in PREFERENCE_TASKS and "dp_star" in methods:
+        if has_preference(task) and "dp_star" in methods:
             both = ccdp.success & methods["dp_star"].success  # compare preference, not success
             diff = paired_difference(ccdp.subset(both), methods["dp_star"].subset(both), preference_rate)
             row(task, "preference >= DP* (episodes both solved)", "CCDP - DP*", diff, verdict(diff, low_bound=0.0))

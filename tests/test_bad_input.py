@@ -134,7 +134,7 @@ def test_a_full_disk_while_writing_a_dataset_is_named_and_leaves_nothing(tmp_pat
     writes = fill_the_disk(monkeypatch, at_open)
     out = tmp_path / "out"
     with pytest.raises(OSError, match=f"No space left on device in {out} while writing demos.*Free space") as error:
-        record_dataset(RecordRecipe(task="DoorOpening-v0", n_episodes=2, seed=0), "local/d", out / "demos",
+        record_dataset(RecordRecipe(task="DoorOpening-lite-v0", n_episodes=2, seed=0), "local/d", out / "demos",
                        progress=False)
     assert error.value.errno == errno.ENOSPC and writes[0] >= 3
     del error

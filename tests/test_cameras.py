@@ -25,7 +25,7 @@ from lerobot_ccdp.recipes.synthesize import FAILURE_ACTION, RECIPE_COPY, synthes
 from lerobot_ccdp.reaching2d import record_reaching_dataset
 from policy_factory import untrained_checkpoint
 
-REPO_ID, TASK, SIZE = "local/door_pixels", "DoorOpening-v0", 48
+REPO_ID, TASK, SIZE = "local/door_pixels", "DoorOpening-lite-v0", 48
 CAMERA = f"{OBS_IMAGES}.front"
 PIXELS = {"obs_type": "pixels_agent_pos", "observation_width": SIZE, "observation_height": SIZE}
 ENCODER = {"vision_backbone_stages": 3}  # a 3x3 feature map at 48 px

@@ -87,7 +87,7 @@ def test_overrides_merge_with_the_own_section_of_the_recipe_file():
 
 def test_each_command_reads_only_its_own_section(tmp_path):
     recipe = tmp_path / "recipe.yaml"
-    recipe.write_text(yaml.safe_dump({"record": {"task": "DoorOpening-v0", "n_episodes": 3, "seed": 0},
+    recipe.write_text(yaml.safe_dump({"record": {"task": "DoorOpening-lite-v0", "n_episodes": 3, "seed": 0},
                                       "recovery": {"no_such_field": 1}}))
     assert parse_cli(RecordConfig, [f"--config_path={recipe}", *DEMOS]).record.n_episodes == 3
     with pytest.raises(SystemExit, match=r"unknown field\(s\) in `recovery:`: no_such_field"):
@@ -95,9 +95,9 @@ def test_each_command_reads_only_its_own_section(tmp_path):
 
 
 def test_a_config_builds_from_flags_alone():
-    cfg = parse_cli(RecordConfig, ["--record.task=ButtonSearch-v0", "--record.n_episodes=5", "--record.seed=7",
+    cfg = parse_cli(RecordConfig, ["--record.task=ButtonSearch-lite-v0", "--record.n_episodes=5", "--record.seed=7",
                                    "--record.env_kwargs={obs_type: pixels_agent_pos}", *DEMOS])
-    assert cfg.record == RecordRecipe(task="ButtonSearch-v0", n_episodes=5, seed=7,
+    assert cfg.record == RecordRecipe(task="ButtonSearch-lite-v0", n_episodes=5, seed=7,
                                       env_kwargs={"obs_type": "pixels_agent_pos"})
     assert cfg.dataset == LocalDatasetConfig("local/door", Path("data/door"))
     cfg = parse_cli(SynthesizeConfig, ["--recovery.failure_feature=action", *SYNTHESIS])
@@ -126,7 +126,7 @@ def test_an_unknown_field_is_refused_naming_it(capsys, tmp_path):
     assert exit_info.value.code == 2
     assert "unrecognized arguments: --record.n_epsiodes=3" in capsys.readouterr().err
     recipe = tmp_path / "recipe.yaml"
-    recipe.write_text(yaml.safe_dump({"record": {"task": "DoorOpening-v0", "n_epsiodes": 3, "seed": 0}}))
+    recipe.write_text(yaml.safe_dump({"record": {"task": "DoorOpening-lite-v0", "n_epsiodes": 3, "seed": 0}}))
     with pytest.raises(SystemExit, match=r"unknown field\(s\) in `record:`: n_epsiodes"):
         parse_cli(RecordConfig, [f"--config_path={recipe}", *DEMOS])
 

@@ -97,11 +97,11 @@ def test_verdicts_name_met_missed_and_not_distinguishable():
 def test_targets_table_judges_from_paired_intervals():
     good = _episodes([True] * 40, [2] * 40, [0] * 40, [True] * 40)
     poor = _episodes([True] * 10 + [False] * 30, [1] * 10 + [3] * 30, [0] * 10 + [1] * 30, [True] * 10 + [False] * 30)
-    checks = target_checks({"ObjectPacking-v0": {"dp": poor, "dp_star": good, "ccdp": good, "oracle": good}})
-    assert "| ObjectPacking-v0 | success > DP | CCDP - DP 0.75 [0.60, 0.88] | met |" in checks
-    assert "| ObjectPacking-v0 | success >= DP* | CCDP - DP* 0.00 [0.00, 0.00] | tie |" in checks
-    assert "| ObjectPacking-v0 | preference >= DP* (episodes both solved) | CCDP - DP* 0.00 [0.00, 0.00] | tie |" in checks
-    assert "| ObjectPacking-v0 | repeated-failure rate <= 0.05 | CCDP rate 0.00 [0.00, 0.00] | met |" in checks
-    swapped = target_checks({"ObjectPacking-v0": {"dp": good, "ccdp": poor}})
+    checks = target_checks({"ObjectPacking-lite-v0": {"dp": poor, "dp_star": good, "ccdp": good, "oracle": good}})
+    assert "| ObjectPacking-lite-v0 | success > DP | CCDP - DP 0.75 [0.60, 0.88] | met |" in checks
+    assert "| ObjectPacking-lite-v0 | success >= DP* | CCDP - DP* 0.00 [0.00, 0.00] | tie |" in checks
+    assert "| ObjectPacking-lite-v0 | preference >= DP* (episodes both solved) | CCDP - DP* 0.00 [0.00, 0.00] | tie |" in checks
+    assert "| ObjectPacking-lite-v0 | repeated-failure rate <= 0.05 | CCDP rate 0.00 [0.00, 0.00] | met |" in checks
+    swapped = target_checks({"ObjectPacking-lite-v0": {"dp": good, "ccdp": poor}})
     assert "success > DP | CCDP - DP -0.75 [" in swapped and "| missed |" in swapped
-    assert "| ObjectPacking-v0 | CCDP | 40 | 0.25 [" in markdown_table({"ObjectPacking-v0": {"ccdp": MethodMetrics.of(poor)}})
+    assert "| ObjectPacking-lite-v0 | CCDP | 40 | 0.25 [" in markdown_table({"ObjectPacking-lite-v0": {"ccdp": MethodMetrics.of(poor)}})

@@ -12,7 +12,7 @@ from lerobot_ccdp.envs import CCDPEnvConfig, gym_id
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 from lerobot_ccdp.eval_metrics import EPISODE_INFO_KEYS, EpisodeInfoRecorder, is_ccdp_env
 
-TASK = "ButtonSearch-v0"
+TASK = "ButtonSearch-lite-v0"
 
 
 def _oracle_batch(vec: gym.vector.VectorEnv, seeds: list[int]) -> None:
@@ -49,7 +49,7 @@ def test_recorder_keeps_every_episodes_final_info_in_eval_order():
 
 
 def test_eval_one_is_wrapped_once_a_ccdp_env_is_configured():
-    CCDPEnvConfig(task="DoorOpening-v0")
+    CCDPEnvConfig(task="DoorOpening-lite-v0")
     assert getattr(lerobot_eval.eval_one, "_ccdp_episode_metrics", False)
 
 

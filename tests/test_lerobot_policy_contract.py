@@ -28,7 +28,7 @@ from lerobot_ccdp.recipes.camera_windows import video_backend
 from lerobot_ccdp.recipes.recipe_file import RecordRecipe
 from lerobot_ccdp.recipes.record import record_dataset
 
-TASK = "DoorOpening-v0"
+TASK = "DoorOpening-lite-v0"
 JOINTS = ["shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper"]
 
 

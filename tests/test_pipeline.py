@@ -31,7 +31,7 @@ from lerobot_ccdp.run_lock import exclusive
 from lerobot_ccdp.stage_stamps import stamp
 
 REPO = Path(__file__).resolve().parents[1]
-TASK = "DoorOpening-v0"
+TASK = "DoorOpening-lite-v0"
 SLUG = task_slug(TASK)
 METHODS = ["dp", "ccdp"]
 N_DEMOS, N_EPISODES = 8, 4
@@ -119,7 +119,7 @@ def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
 def test_report_table_chart_and_timings(pipeline_run):
     out, stdout = pipeline_run
     report = (out / "report.md").read_text()
-    for label in ("| DoorOpening-v0 | DP |", "| DoorOpening-v0 | CCDP |", "| DoorOpening-v0 | no-repeat oracle |",
+    for label in ("| DoorOpening-lite-v0 | DP |", "| DoorOpening-lite-v0 | CCDP |", "| DoorOpening-lite-v0 | no-repeat oracle |",
                   "success > DP", "attempts within 15% of oracle", "data loading"):
         assert label in report, label
     assert report.split("## Targets")[0] in stdout  # the table is printed too
@@ -258,7 +258,7 @@ def test_bad_task_and_missing_settings_are_named(settings, tmp_path):
     with pytest.raises(ValueError, match="Unknown task"):
         TaskFiles.locate("PushT-v0", configs, recipes, tmp_path)
     with pytest.raises(FileNotFoundError, match="button_search"):
-        TaskFiles.locate("ButtonSearch-v0", configs, recipes, tmp_path)
+        TaskFiles.locate("ButtonSearch-lite-v0", configs, recipes, tmp_path)
     with pytest.raises(SystemExit):
         main(["--tasks", TASK, "--methods", "oracle"])
 
@@ -280,7 +280,7 @@ def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
     assert not recovery_meta.video_keys and f"{OBS_IMAGES}.front" in recovery_meta.stats
     for method in METHODS:
         assert len(Episodes.from_eval_info(task_out / "eval" / method / "eval_info.json")) == 2
-    assert "| DoorOpening-v0 | CCDP |" in (out / "report.md").read_text()
+    assert "| DoorOpening-lite-v0 | CCDP |" in (out / "report.md").read_text()
 
 
 def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):

@@ -19,7 +19,7 @@ loaded = sorted(m for m in sys.modules if m == "mujoco" or m.startswith(("lerobo
 policy, env = PreTrainedConfig.get_choice_class("ccdp"), EnvConfig.get_choice_class("ccdp")
 
 import gymnasium as gym
-made = gym.make("lerobot_ccdp/DoorOpening-v0")
+made = gym.make("lerobot_ccdp/DoorOpening-lite-v0")
 made.reset(seed=0)
 print(json.dumps({"loaded": loaded, "policy": policy.__name__, "env": env.__name__,
                   "made": type(made.unwrapped).__name__, "mujoco_after_make": "mujoco" in sys.modules}))

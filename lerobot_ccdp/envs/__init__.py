@@ -1,4 +1,5 @@
-"""The five CCDP evaluation tasks as gymnasium envs (`lerobot_ccdp/<Task>-v0`) and the LeRobot env type `ccdp`.
+"""The five CCDP evaluation tasks as gymnasium envs and the LeRobot env type `ccdp`: `lerobot_ccdp/<Task>-v0`
+with contact physics on the Franka Panda, `lerobot_ccdp/<Task>-lite-v0` their geometric versions.
 
 Importing this package registers both without importing MuJoCo or any task; the env machinery
 (`CCDPTaskEnv`, `Outcome`, `OutcomeKind`, `Waypoint`) loads on first access.

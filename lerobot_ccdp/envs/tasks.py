@@ -16,21 +16,21 @@ if TYPE_CHECKING:
 
 GYM_NAMESPACE = "lerobot_ccdp"
 
-# Task id -> (env class as "module:Class", step limit of its gym id). The step limit repeats the class's
+# Task id -> (env class as "module:Class", step limit of its gym id). `<Task>-v0` is the task with contact physics
+# on the Franka Panda, `<Task>-lite-v0` its geometric version. The step limit repeats the class's
 # `default_episode_steps` so registering needs no import; tests/test_plugin_import.py checks that they agree.
 ENTRY_POINTS: dict[str, tuple[str, int]] = {
-    "DoorOpening-v0": ("lerobot_ccdp.envs.door_opening:DoorOpeningEnv", 150),
-    "DoorOpening-physics-v0": ("lerobot_ccdp.envs.door_opening_physics:DoorOpeningPhysicsEnv", 150),
-    "ButtonSearch-v0": ("lerobot_ccdp.envs.button_search:ButtonSearchEnv", 200),
-    "ButtonSearch-physics-v0": ("lerobot_ccdp.envs.button_search_physics:ButtonSearchPhysicsEnv", 200),
-    "ObjectManipulation-v0": ("lerobot_ccdp.envs.object_manipulation:ObjectManipulationEnv", 150),
-    "ObjectManipulation-physics-v0": (
-        "lerobot_ccdp.envs.object_manipulation_physics:ObjectManipulationPhysicsEnv", 150
-    ),
-    "ObjectPacking-v0": ("lerobot_ccdp.envs.object_packing:ObjectPackingEnv", 300),
-    "ObjectPacking-physics-v0": ("lerobot_ccdp.envs.object_packing_physics:ObjectPackingPhysicsEnv", 300),
-    "Bartender-v0": ("lerobot_ccdp.envs.bartender:BartenderEnv", 250),
-    "Bartender-physics-v0": ("lerobot_ccdp.envs.bartender_physics:BartenderPhysicsEnv", 250),
+    "DoorOpening-v0": ("lerobot_ccdp.envs.door_opening_physics:DoorOpeningPhysicsEnv", 150),
+    "ButtonSearch-v0": ("lerobot_ccdp.envs.button_search_physics:ButtonSearchPhysicsEnv", 200),
+    "ObjectManipulation-v0": ("lerobot_ccdp.envs.object_manipulation_physics:ObjectManipulationPhysicsEnv", 150),
+    "ObjectPacking-v0": ("lerobot_ccdp.envs.object_packing_physics:ObjectPackingPhysicsEnv", 300),
+    "Bartender-v0": ("lerobot_ccdp.envs.bartender_physics:BartenderPhysicsEnv", 250),
+    # The same tasks with geometric interaction rules on a free gripper, 20-40x faster per step (docs/tasks.md).
+    "DoorOpening-lite-v0": ("lerobot_ccdp.envs.door_opening:DoorOpeningEnv", 150),
+    "ButtonSearch-lite-v0": ("lerobot_ccdp.envs.button_search:ButtonSearchEnv", 200),
+    "ObjectManipulation-lite-v0": ("lerobot_ccdp.envs.object_manipulation:ObjectManipulationEnv", 150),
+    "ObjectPacking-lite-v0": ("lerobot_ccdp.envs.object_packing:ObjectPackingEnv", 300),
+    "Bartender-lite-v0": ("lerobot_ccdp.envs.bartender:BartenderEnv", 250),
 }
 
 

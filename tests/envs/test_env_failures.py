@@ -10,16 +10,16 @@ from env_helpers import FixedOptions, make
 
 # (task, hidden_param, an option that fails in the first stage under that hidden_param)
 FAILING = [
-    ("DoorOpening-v0", 1, 0),
-    ("DoorOpening-physics-v0", 1, 0),  # the stop holds the door when pushed left
-    ("ButtonSearch-v0", 2, 0),
-    ("ButtonSearch-physics-v0", 2, 0),  # button 0's cap goes down, and it is not the live one
-    ("ObjectManipulation-v0", 1, 0),  # heavy box: picking slips
-    ("ObjectManipulation-physics-v0", 1, 0),  # heavy box: it slips out of the 2F-85's grasp
-    ("ObjectPacking-v0", encode_capacities([0, 2, 0]), 0),  # nearest basket has no room
-    ("ObjectPacking-physics-v0", encode_capacities([0, 2, 0]), 0),  # the object comes to rest in the slot
-    ("Bartender-v0", 0b0110, 0),  # nearest cup unavailable
-    ("Bartender-physics-v0", 0b0110, 0),
+    ("DoorOpening-lite-v0", 1, 0),
+    ("DoorOpening-v0", 1, 0),  # the stop holds the door when pushed left
+    ("ButtonSearch-lite-v0", 2, 0),
+    ("ButtonSearch-v0", 2, 0),  # button 0's cap goes down, and it is not the live one
+    ("ObjectManipulation-lite-v0", 1, 0),  # heavy box: picking slips
+    ("ObjectManipulation-v0", 1, 0),  # heavy box: it slips out of the 2F-85's grasp
+    ("ObjectPacking-lite-v0", encode_capacities([0, 2, 0]), 0),  # nearest basket has no room
+    ("ObjectPacking-v0", encode_capacities([0, 2, 0]), 0),  # the object comes to rest in the slot
+    ("Bartender-lite-v0", 0b0110, 0),  # nearest cup unavailable
+    ("Bartender-v0", 0b0110, 0),
 ]
 
 
@@ -47,7 +47,7 @@ def test_failure_is_flagged_once_and_robot_is_restored(task, hidden, option):
     assert not np.allclose(history[-2]["agent_pos"], reset_obs["agent_pos"], atol=1e-3)  # it had moved away
     # Lite tasks put the objects back exactly; on the physics tasks they stay where the simulation left them
     # (the box that slipped out of the grasp lands within millimetres of where it lay).
-    atol = 0.01 if "physics" in task else 1e-6
+    atol = 1e-6 if "-lite-" in task else 0.01
     np.testing.assert_allclose(failed["environment_state"], reset_obs["environment_state"], atol=atol)
     assert info["failures"] == 1 and info["attempts"] == 1 and info["repeated_failures"] == 0
     assert info["option"] == option and info["is_success"] is False
@@ -78,14 +78,14 @@ def test_oracle_recovers_without_repeating(task, hidden, option):
 @pytest.mark.parametrize(
     ("task", "hidden", "options", "matched"),
     [
-        ("ObjectManipulation-v0", 0, [0], True),  # light: pick, as demonstrated
-        ("ObjectManipulation-v0", 0, [1], False),  # light but pushed: works, not the preference
-        ("ObjectManipulation-v0", 1, [1], True),  # heavy: push is the only way
-        ("ObjectPacking-v0", encode_capacities([1, 1, 0]), [0, 1], True),
-        ("ObjectPacking-v0", encode_capacities([1, 1, 0]), [1, 0], False),  # skipped the nearest basket
-        ("Bartender-v0", 0b1111, [0, 1], True),
-        ("Bartender-v0", 0b1111, [1, 0], False),  # filled the farther cup first
-        ("ButtonSearch-v0", 3, [3], True),
+        ("ObjectManipulation-lite-v0", 0, [0], True),  # light: pick, as demonstrated
+        ("ObjectManipulation-lite-v0", 0, [1], False),  # light but pushed: works, not the preference
+        ("ObjectManipulation-lite-v0", 1, [1], True),  # heavy: push is the only way
+        ("ObjectPacking-lite-v0", encode_capacities([1, 1, 0]), [0, 1], True),
+        ("ObjectPacking-lite-v0", encode_capacities([1, 1, 0]), [1, 0], False),  # skipped the nearest basket
+        ("Bartender-lite-v0", 0b1111, [0, 1], True),
+        ("Bartender-lite-v0", 0b1111, [1, 0], False),  # filled the farther cup first
+        ("ButtonSearch-lite-v0", 3, [3], True),
     ],
 )
 def test_preference_labelling(task, hidden, options, matched):
@@ -97,7 +97,7 @@ def test_preference_labelling(task, hidden, options, matched):
 
 
 def test_rejected_object_goes_back_and_full_basket_stays_full():
-    env = make("ObjectPacking-v0")
+    env = make("ObjectPacking-lite-v0")
     # Basket 0 takes one object: the second object into basket 0 is rejected, then basket 1 takes it.
     episode = run_episode(env, FixedOptions(env, [0, 0, 1]), seed=0, hidden_param=encode_capacities([1, 1, 0]))
     assert episode.success
@@ -107,7 +107,7 @@ def test_rejected_object_goes_back_and_full_basket_stays_full():
 
 
 def test_expert_labels_are_options_and_follow_the_hidden_parameter():
-    env = make("DoorOpening-v0")
+    env = make("DoorOpening-lite-v0")
     for hidden in (0, 1):
         episode = run_episode(env, Expert(env), seed=0, hidden_param=hidden)
         assert set(episode.options) == {hidden}

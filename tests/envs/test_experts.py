@@ -25,7 +25,7 @@ def test_expert_succeeds_on_every_seed(task):
         steps = np.linalg.norm(np.diff(np.array(episode.actions)[:, :3], axis=0), axis=1)
         # Smooth: bounded end-effector speed. A plan starts from the measured pose, which on the physics tasks'
         # arm lags the previous command by millimetres.
-        assert steps.max() <= 0.025 + (0.005 if "physics" in task else 1e-6)
+        assert steps.max() <= 0.025 + (1e-6 if "-lite-" in task else 0.005)
         assert all(0 <= o < env.unwrapped.n_options for o in episode.options)
 
 

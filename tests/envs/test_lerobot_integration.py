@@ -18,9 +18,9 @@ from env_helpers import run_cli
 
 def test_env_type_is_registered_with_lerobot():
     assert EnvConfig.get_choice_class("ccdp") is CCDPEnvConfig
-    cfg = CCDPEnvConfig(task="Bartender-v0")
-    assert cfg.type == "ccdp" and cfg.gym_id == "lerobot_ccdp/Bartender-v0" and cfg.fps == 10
-    assert cfg.episode_length == TASKS["Bartender-v0"].default_episode_steps
+    cfg = CCDPEnvConfig(task="Bartender-lite-v0")
+    assert cfg.type == "ccdp" and cfg.gym_id == "lerobot_ccdp/Bartender-lite-v0" and cfg.fps == 10
+    assert cfg.episode_length == TASKS["Bartender-lite-v0"].default_episode_steps
     assert cfg.features_map == {"action": "action", "agent_pos": "observation.state",
                                 "environment_state": "observation.environment_state"}
     assert "failure" not in cfg.features
@@ -32,7 +32,7 @@ def test_bad_env_config_is_named():
     with pytest.raises(ValueError, match="known tasks"):
         CCDPEnvConfig(task="PushT-v0")
     with pytest.raises(ValueError, match="fixed 10 fps"):
-        CCDPEnvConfig(task="DoorOpening-v0", fps=30)
+        CCDPEnvConfig(task="DoorOpening-lite-v0", fps=30)
 
 
 @pytest.mark.parametrize("task", list(TASKS))
@@ -74,10 +74,10 @@ def _train_and_eval(task: str, tmp_path):
 
 
 def test_lerobot_train_diffusion_and_eval_door_opening(tmp_path):
-    _train_and_eval("DoorOpening-v0", tmp_path)
+    _train_and_eval("DoorOpening-lite-v0", tmp_path)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("task", [t for t in TASKS if t != "DoorOpening-v0"])
+@pytest.mark.parametrize("task", [t for t in TASKS if t != "DoorOpening-lite-v0"])
 def test_lerobot_train_diffusion_and_eval(task, tmp_path):
     _train_and_eval(task, tmp_path)

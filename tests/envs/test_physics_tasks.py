@@ -15,11 +15,11 @@ from lerobot_ccdp.envs.scripted import Expert, run_episode
 
 from env_helpers import FixedOptions, make
 
-TASK = "ObjectManipulation-physics-v0"
-DOOR = "DoorOpening-physics-v0"
-BUTTONS = "ButtonSearch-physics-v0"
-BARTENDER = "Bartender-physics-v0"
-PACKING = "ObjectPacking-physics-v0"
+TASK = "ObjectManipulation-v0"
+DOOR = "DoorOpening-v0"
+BUTTONS = "ButtonSearch-v0"
+BARTENDER = "Bartender-v0"
+PACKING = "ObjectPacking-v0"
 
 
 def _attempt(task: str, hidden: int, option: int, seed: int, probe):

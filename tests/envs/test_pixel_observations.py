@@ -28,7 +28,7 @@ def test_gymnasium_env_checker_with_cameras(task):
 
 
 def test_cameras_see_the_robot_move_and_seeds_repeat():
-    env = make("ButtonSearch-v0", **PIXELS)
+    env = make("ButtonSearch-lite-v0", **PIXELS)
     first = run_episode(env, Expert(env), seed=4)
     second = run_episode(env, Expert(env), seed=4)
     frames = [o["pixels"]["front"] for o in first.observations]
@@ -37,7 +37,7 @@ def test_cameras_see_the_robot_move_and_seeds_repeat():
         np.testing.assert_array_equal(a["pixels"]["front"], b["pixels"]["front"])
 
 
-@pytest.mark.parametrize("task", ["DoorOpening-v0", "ButtonSearch-v0"])
+@pytest.mark.parametrize("task", ["DoorOpening-lite-v0", "ButtonSearch-lite-v0"])
 def test_images_at_reset_do_not_show_the_hidden_parameter(task):
     env = make(task, **PIXELS)
     values = env.unwrapped.hidden_values()
@@ -47,7 +47,7 @@ def test_images_at_reset_do_not_show_the_hidden_parameter(task):
 
 
 def test_env_config_maps_cameras_to_observation_images():
-    config = CCDPEnvConfig(task="DoorOpening-v0", obs_type="pixels_agent_pos", cameras=["front", "top"],
+    config = CCDPEnvConfig(task="DoorOpening-lite-v0", obs_type="pixels_agent_pos", cameras=["front", "top"],
                            observation_width=48, observation_height=40, render_mode=None)
     features = env_to_policy_features(config)
     assert {k: tuple(f.shape) for k, f in features.items() if k.startswith("observation")} == {
@@ -67,7 +67,7 @@ def test_env_config_maps_cameras_to_observation_images():
 ])
 def test_bad_observation_settings_are_named(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        make("DoorOpening-v0", **kwargs)
+        make("DoorOpening-lite-v0", **kwargs)
     if "cameras" not in kwargs:
         with pytest.raises(ValueError, match="--env.obs_type"):
-            CCDPEnvConfig(task="DoorOpening-v0", **kwargs)
+            CCDPEnvConfig(task="DoorOpening-lite-v0", **kwargs)

@@ -61,25 +61,25 @@ def test_crash_leaves_nothing_half_written(tmp_path, monkeypatch):
     real = record.run_episode
     monkeypatch.setattr(record, "run_episode", crash_on_third)
     with pytest.raises(KeyboardInterrupt):
-        record.record_dataset(RecordRecipe(task="ButtonSearch-v0", n_episodes=5, seed=0), "local/x", tmp_path / "ds")
+        record.record_dataset(RecordRecipe(task="ButtonSearch-lite-v0", n_episodes=5, seed=0), "local/x", tmp_path / "ds")
     assert list(tmp_path.iterdir()) == []
 
 
 def test_recipe_ignores_other_sections_and_names_problems(tmp_path):
     recipe = RecordRecipe.load(
-        _write(tmp_path, {"record": {"task": "Bartender-v0", "n_episodes": 4, "seed": 1}, "recovery": {"sigma": 0.1}})
+        _write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_episodes": 4, "seed": 1}, "recovery": {"sigma": 0.1}})
     )
-    assert recipe == RecordRecipe(task="Bartender-v0", n_episodes=4, seed=1)
+    assert recipe == RecordRecipe(task="Bartender-lite-v0", n_episodes=4, seed=1)
     with pytest.raises(ValueError, match="missing required field.*seed"):
-        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-v0", "n_episodes": 4}}))
+        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_episodes": 4}}))
     with pytest.raises(ValueError, match="unknown field.*n_epsiodes"):
-        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-v0", "n_epsiodes": 4, "seed": 0}}))
+        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_epsiodes": 4, "seed": 0}}))
     with pytest.raises(ValueError, match="known tasks: DoorOpening-v0"):
         RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bar-v0", "n_episodes": 4, "seed": 0}}))
     with pytest.raises(ValueError, match="no top-level `record:` section"):
         RecordRecipe.load(_write(tmp_path, {"recovery": {}}))
     with pytest.raises(ValueError, match="n_episodes must be a positive integer"):
-        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-v0", "n_episodes": 0, "seed": 0}}))
+        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_episodes": 0, "seed": 0}}))
 
 
 @pytest.mark.parametrize("field, value, expected", [
@@ -89,20 +89,20 @@ def test_recipe_ignores_other_sections_and_names_problems(tmp_path):
     ("max_episode_steps", 2.5, r"record.max_episode_steps must be int \| None"),
 ])
 def test_recipe_fields_of_the_wrong_type_are_named(tmp_path, field, value, expected):
-    content = {"task": "Bartender-v0", "n_episodes": 4, "seed": 0, field: value}
+    content = {"task": "Bartender-lite-v0", "n_episodes": 4, "seed": 0, field: value}
     with pytest.raises(ValueError, match=expected):
         RecordRecipe.load(_write(tmp_path, {"record": content}))
 
 
 def test_recipe_yaml_errors_name_the_file(tmp_path):
     path = tmp_path / "broken.yaml"
-    path.write_text("record:\n  task: [DoorOpening-v0\n")
+    path.write_text("record:\n  task: [DoorOpening-lite-v0\n")
     with pytest.raises(ValueError, match=f"Recipe {path} is not valid YAML"):
         RecordRecipe.load(path)
 
 
 def test_overwrite_replaces_only_a_dataset(tmp_path, monkeypatch):
-    recipe = RecordRecipe(task="DoorOpening-v0", n_episodes=1, seed=0)
+    recipe = RecordRecipe(task="DoorOpening-lite-v0", n_episodes=1, seed=0)
     notes = tmp_path / "mydir" / "notes.txt"
     notes.parent.mkdir()
     notes.write_text("keep me")
@@ -119,5 +119,5 @@ def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(tmp_path):
     root = tmp_path / "ds"
     stale = tmp_path / f".ds.{2**22 + 7}.abc.partial"  # a pid above Linux's pid_max: no such process
     (stale / "dataset").mkdir(parents=True)
-    record.record_dataset(RecordRecipe(task="DoorOpening-v0", n_episodes=1, seed=0), "local/x", root, progress=False)
+    record.record_dataset(RecordRecipe(task="DoorOpening-lite-v0", n_episodes=1, seed=0), "local/x", root, progress=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
