@@ -32,13 +32,14 @@ LID = WALL + DEPTH  # height of the lid's underside
 LIFTED = HALF + 0.02  # an object this high has been picked up
 RESTED = 0.02  # m/s: a released object slower than this has come to rest
 CRATE = "0.6 0.45 0.25 1"
+HIDDEN_GROUP = 3  # MuJoCo renders geom groups 0-2 by default
 
 
-def _box(size, pos, name: str = "") -> str:
+def _box(size, pos, name: str = "", group: int = 0) -> str:
     """One box geom of a crate, in the crate's colour."""
     named = f'name="{name}" ' if name else ""
     return (f'<geom {named}type="box" size="{size[0]} {size[1]} {size[2]}" pos="{pos[0]} {pos[1]} {pos[2]}"'
-            f' rgba="{CRATE}"/>')
+            f' rgba="{CRATE}" group="{group}"/>')
 
 
 def _crate_xml(i: int) -> str:
@@ -52,9 +53,10 @@ def _crate_xml(i: int) -> str:
     lid = [_box((sx, sy, WALL / 2), (px, py, LID + WALL / 2))
            for sx, sy, px, py in [(outer, gap, 0, SLOT + gap), (outer, gap, 0, -SLOT - gap),
                                   (gap, SLOT, SLOT + gap, 0), (gap, SLOT, -SLOT - gap, 0)]]
-    # Compiled at its largest (MuJoCo's collision bounds come from the compiled size); sized at reset.
+    # Compiled at its largest (MuJoCo's collision bounds come from the compiled size); sized at reset. In geom
+    # group 3, which cameras do not draw: seen through the slot it would show the hidden capacity.
     filler = [_box((INNER - 0.001, INNER - 0.001, MAX_CAPACITY * HALF), (0, 0, WALL + MAX_CAPACITY * HALF),
-                   f"filler_{i}")]
+                   f"filler_{i}", group=HIDDEN_GROUP)]
     return f'<body name="basket_{i}" pos="{x} {y} 0">{"".join(floor + walls + lid + filler)}</body>'
 
 
