@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_ccdp.envs.tasks import task_family
 from lerobot_ccdp.episodes import Episodes, Estimate
 from lerobot_ccdp.paired import cluster_bootstrap, repeats_per_attempt, repeats_per_opportunity
 
@@ -41,7 +42,7 @@ Z95 = 1.959963984540054
 
 def has_preference(task: str) -> bool:
     """Whether `task` (e.g. "Bartender-v0" or "Bartender-lite-v0") is one of PREFERENCE_TASKS."""
-    return task.split("-")[0] in PREFERENCE_TASKS
+    return task_family(task) in PREFERENCE_TASKS
 
 
 def wilson(successes: int, n: int) -> Estimate:

@@ -41,6 +41,7 @@ from lerobot_ccdp.comparison import (
 )
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
+from lerobot_ccdp.envs.tasks import is_lite
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 from lerobot_ccdp.run_lock import PipelineRunning, die_with_parent, exclusive
@@ -50,8 +51,8 @@ from lerobot_ccdp.targets import target_checks
 METHODS = ("dp", "dp_star", "ccdp")
 # Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric versions.
 TASK_GROUPS = {
-    "all": [t for t in TASKS if "-lite-" not in t],
-    "lite": [t for t in TASKS if "-lite-" in t],
+    "all": [t for t in TASKS if not is_lite(t)],
+    "lite": [t for t in TASKS if is_lite(t)],
 }
 # Observation type -> suffix of the settings folder and recipe that hold its configs.
 OBS_VARIANTS = {"state": "", "pixels_agent_pos": "_pixels"}

@@ -62,6 +62,16 @@ def _task_name(task: str) -> str:
     return name
 
 
+def is_lite(task: str) -> bool:
+    """Whether `task` is a geometric version (`<Task>-lite-v0`) rather than the physics task on the Panda."""
+    return task.endswith("-lite-v0")
+
+
+def task_family(task: str) -> str:
+    """The task both versions share: "Bartender-v0" and "Bartender-lite-v0" -> "Bartender"."""
+    return task.removeprefix(f"{GYM_NAMESPACE}/").split("-")[0]
+
+
 def task_class(task: str) -> type[CCDPTaskEnv]:
     """Env class of a task id such as "DoorOpening-v0" (imports the task's module, and MuJoCo)."""
     return TASKS[_task_name(task)]

@@ -5,6 +5,7 @@ import pytest
 
 from lerobot_ccdp.envs.object_packing import encode_capacities
 from lerobot_ccdp.envs.scripted import Expert, NoRepeatOracle, run_episode
+from lerobot_ccdp.envs.tasks import is_lite
 
 from env_helpers import FixedOptions, make
 
@@ -47,7 +48,7 @@ def test_failure_is_flagged_once_and_robot_is_restored(task, hidden, option):
     assert not np.allclose(history[-2]["agent_pos"], reset_obs["agent_pos"], atol=1e-3)  # it had moved away
     # Lite tasks put the objects back exactly; on the physics tasks they stay where the simulation left them
     # (the box that slipped out of the grasp lands within millimetres of where it lay).
-    atol = 1e-6 if "-lite-" in task else 0.01
+    atol = 1e-6 if is_lite(task) else 0.01
     np.testing.assert_allclose(failed["environment_state"], reset_obs["environment_state"], atol=atol)
     assert info["failures"] == 1 and info["attempts"] == 1 and info["repeated_failures"] == 0
     assert info["option"] == option and info["is_success"] is False

@@ -5,6 +5,7 @@ import pytest
 
 from lerobot_ccdp.envs import TASKS
 from lerobot_ccdp.envs.scripted import Expert, NoRepeatOracle, run_episode
+from lerobot_ccdp.envs.tasks import is_lite, task_family
 
 from env_helpers import make
 
@@ -19,13 +20,13 @@ def test_expert_succeeds_on_every_seed(task):
         episode = run_episode(env, expert, seed=seed)
         assert episode.success, f"seed {seed}, hidden_param {episode.hidden_param}: {episode.info}"
         assert episode.info["failures"] == 0
-        assert episode.info["attempts"] == STAGES.get(task.split("-")[0], 1)
+        assert episode.info["attempts"] == STAGES.get(task_family(task), 1)
         assert episode.info["preference_matched"] is True
         assert len(episode.actions) < 100
         steps = np.linalg.norm(np.diff(np.array(episode.actions)[:, :3], axis=0), axis=1)
         # Smooth: bounded end-effector speed. A plan starts from the measured pose, which on the physics tasks'
         # arm lags the previous command by millimetres.
-        assert steps.max() <= 0.025 + (1e-6 if "-lite-" in task else 0.005)
+        assert steps.max() <= 0.025 + (1e-6 if is_lite(task) else 0.005)
         assert all(0 <= o < env.unwrapped.n_options for o in episode.options)
 
 
