@@ -12,6 +12,7 @@ RECOVERY_MODES = ("ccdp", "dp", "dp_star")
 FAILURE_FEATURES = ("final_state", "action", "primitive")
 TRAINING_STAGES = ("base", "recovery")
 RECOVERY_HEADS = ("unet", "mlp", "classifier")
+CLASSIFIER_CHUNKS = ("demonstrations", "base_samples")
 Z_REFERENCES = ("eps_a", "eps_z_null")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
@@ -127,6 +128,12 @@ class CCDPConfig(PreTrainedConfig):
     recovery_hidden_dim: int = 128
     recovery_num_blocks: int = 3
     failure_set_train_size: int = 3
+    # What the failure-set classifier learns from: the demonstrated chunks ("demonstrations": guidance then keeps the
+    # demonstrations' proportions among the options left) or chunks the frozen base samples at the batch's states,
+    # labelled through the outcome table ("base_samples": it keeps the base policy's own proportions, what DP* keeps;
+    # from a pool refreshed with a batch of base samples every `classifier_resample_every` steps).
+    classifier_chunks: str = "demonstrations"
+    classifier_resample_every: int = 4
     # z dropout while training the recovery head, so that it also yields eps_z_null.
     p_drop_failure: float = 0.1
 
@@ -157,6 +164,7 @@ class CCDPConfig(PreTrainedConfig):
         self._check_choice("failure_feature", FAILURE_FEATURES)
         self._check_choice("training_stage", TRAINING_STAGES)
         self._check_choice("recovery_head", RECOVERY_HEADS)
+        self._check_choice("classifier_chunks", CLASSIFIER_CHUNKS)
         self._check_choice("z_reference", Z_REFERENCES)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
         self._check_vision()
@@ -172,10 +180,11 @@ class CCDPConfig(PreTrainedConfig):
         bad_steps = [s for s in self.failure_action_steps if not 0 <= s < self.horizon]
         if bad_steps:
             raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon}).")
-        counts = (self.max_failures, self.dp_star_candidates, self.dp_star_rounds, self.failure_set_train_size)
+        counts = (self.max_failures, self.dp_star_candidates, self.dp_star_rounds, self.failure_set_train_size,
+                  self.classifier_resample_every)
         if min(counts) < 1 or self.history_length < 0:
-            raise ValueError("`max_failures`, `dp_star_candidates`, `dp_star_rounds` and `failure_set_train_size` "
-                             "must be >= 1, `history_length` >= 0.")
+            raise ValueError("`max_failures`, `dp_star_candidates`, `dp_star_rounds`, `failure_set_train_size` and "
+                             "`classifier_resample_every` must be >= 1, `history_length` >= 0.")
         if self.horizon % 2 ** len(self.down_dims) != 0:
             raise ValueError(
                 f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = {2 ** len(self.down_dims)}."

@@ -13,6 +13,7 @@ from lerobot.utils.constants import (
 )
 from torch import Tensor
 
+from lerobot_ccdp.base_sample_pool import POOL_BATCHES, BaseSamplePool
 from lerobot_ccdp.checkpoint_files import checkpoint_loading
 from lerobot_ccdp.composition import CompositionWeights, compose_eps, guide_away_from_failures
 from lerobot_ccdp.configuration_ccdp import (
@@ -81,6 +82,7 @@ class CCDPPolicy(PreTrainedPolicy):
         # Whether anything could tell this policy about a failure (warned about once otherwise).
         self._heard_failure_source = self.failure_signal is not None
         self._warned_deaf = False
+        self._sample_pool: BaseSamplePool | None = None  # classifier_chunks=base_samples, while training
         self._set_trainable()
         self.reset()
 
@@ -155,13 +157,16 @@ class CCDPPolicy(PreTrainedPolicy):
         return frames[:, h:].flatten(start_dim=1), history, actions[:, h:], pad
 
     def _failure_set_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """The failure-set classifier on the demonstrations. Each row gets a failure set F of 1..failure_set_train_size
-        z drawn from other rows (so F is independent of the row's own chunk) and is a repeat when its own z lies
+        """The failure-set classifier on the demonstrated chunks (or, with `classifier_chunks=base_samples`, on chunks
+        the base samples at the same states). Each row gets a failure set F of 1..failure_set_train_size z drawn from
+        other rows (so F is independent of the row's own chunk) and is a repeat when its own z lies
         within delta_z of a failure in F; the classifier learns P(repeat | a_t, s) with the base's noise schedule.
         The state is dropped as in the base: where it already names the option, a state-conditioned row says little
         about F, while state-free rows tie F to the chunks it excludes, in the same network."""
         cfg = self.config
-        state, _, chunk, _ = self._windows(batch)
+        state, history, chunk, _ = self._windows(batch)
+        if cfg.classifier_chunks == "base_samples":
+            state, chunk = self._base_samples(state, history)
         b, n = chunk.shape[0], cfg.failure_set_train_size
         if b < 2:
             raise ValueError("The classifier draws each row's failures from the other rows: use --batch_size >= 2.")
@@ -175,6 +180,22 @@ class CCDPPolicy(PreTrainedPolicy):
         _, timesteps, noisy = self._noised(chunk)
         logits = self.recovery(noisy, timesteps, state, z_set, z_mask, keep_s)
         return F.binary_cross_entropy_with_logits(logits, repeats), {}
+
+    @torch.no_grad()
+    def _base_samples(self, state: Tensor, history: Tensor) -> tuple[Tensor, Tensor]:
+        """(states, chunks) for `classifier_chunks=base_samples`: chunks the frozen base draws as DP plans (no
+        failures) at demonstrated states, from a pool refreshed with this batch's states every
+        `classifier_resample_every` steps (`base_sample_pool.py`). The classifier then learns P(repeat | a_t, s) under
+        the base's own chunk distribution, so its guidance keeps the base's proportions among the options left."""
+        cfg, rows = self.config, state.shape[0]
+        if self._sample_pool is None:
+            self._sample_pool, self._pool_step = BaseSamplePool(POOL_BATCHES * rows), 0
+        if self._pool_step % cfg.classifier_resample_every == 0:
+            noise = torch.randn(rows, cfg.horizon, cfg.action_dim, device=state.device)
+            no_failures = torch.zeros(rows, 0, cfg.failure_feature_dim, device=state.device)
+            self._sample_pool.add(state, self._denoise(noise, state, history, no_failures, no_failures[..., 0].bool()))
+        self._pool_step += 1
+        return self._sample_pool.draw(rows)
 
     def _recovery_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config
