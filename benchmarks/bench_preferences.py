@@ -1,17 +1,18 @@
 """Does recovery keep the demonstrated preferences? A seeded family of 2-D reaching tasks (issue 17).
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_preferences.py [--members 0 1 ... 11] [--w-z 1 2 4] \
-        [--out outputs/preferences]
+        [--classifier-chunks demonstrations base_samples] [--out outputs/preferences]
 
 Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences, bent
 paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a LeRobot
 dataset, its base is trained with lerobot-train, and the failure-set classifier (`--policy.recovery_head=classifier`)
-is trained from that base with lerobot-train as a user would. Failed share and preference error after one and after
+is trained from that base with lerobot-train as a user would, once per --classifier-chunks value (on the
+demonstrated chunks, or on chunks the base samples at their states). Failed share and preference error after one and after
 two failures (`lerobot_ccdp/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
 rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z (a sampling setting,
 set as lerobot-eval's --policy.w_z would: every weight runs on the same checkpoint and seeds). Prints the table,
-writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferences.png` (CCDP at the first weight)
-under --out. Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
+writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferences.png`
+under --out (CCDP with the first classifier at the first weight). Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
 family; settings are chosen on the development members 100-103 (`--members 100 101 102 103`).
 """
 
@@ -28,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from lerobot_ccdp.configuration_ccdp import CLASSIFIER_CHUNKS
 from lerobot_ccdp.reaching2d import ReachingTask
 from lerobot_ccdp.reaching_preferences import Method, measure
 from lerobot_ccdp.stage_stamps import StampBook, stamp
@@ -40,11 +42,20 @@ BASELINES = {
 }
 
 
-def methods(guidance_weights: list[float], demos: LeRobotDataset) -> dict[str, Method]:
-    """DP, DP*, CCDP's classifier guidance at each weight w_z (a sampling setting: one checkpoint serves all) and the
-    reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start chunks."""
-    ccdp = {f"CCDP w_z={w:g}": Method("ccdp", {"w_z": w}) for w in guidance_weights}
+def methods(chunks: str, first: bool, guidance_weights: list[float], demos: LeRobotDataset) -> dict[str, Method]:
+    """The methods measured on the classifier trained on `chunks` (a `classifier_chunks` value): its guidance at each
+    weight w_z (a sampling setting: one checkpoint serves all) and, on the first classifier only (they share the
+    base), DP, DP* and the reference row: the same base guided at w_z = 1 by the exact classifier of the
+    demonstrated start chunks."""
+    ccdp = {ccdp_name(chunks, w): Method("ccdp", {"w_z": w}) for w in guidance_weights}
+    if not first:
+        return ccdp
     return {**BASELINES, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
+
+
+def ccdp_name(chunks: str, w_z: float) -> str:
+    """The table's name of CCDP guided by the classifier trained on `chunks` at weight `w_z`."""
+    return f"CCDP {chunks} w_z={w_z:g}"
 
 
 def train(name: str, out: Path, args: list[str], upstream: str | None, book: StampBook) -> tuple[Path, str]:
@@ -70,8 +81,10 @@ def member_dataset(seed: int, out: Path) -> tuple[Path, str]:
     return out / f"member_{seed}" / "data", f"local/reaching_family_{seed}"
 
 
-def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episodes: int) -> Path:
-    """Record member `seed`, train its base and its classifier head; return the head's checkpoint."""
+def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episodes: int,
+                   classifier_chunks: list[str]) -> dict[str, Path]:
+    """Record member `seed`, train its base and, from it, one classifier head per `classifier_chunks` value; return
+    the heads' checkpoints by that value."""
     task = ReachingTask.family_member(seed)
     root = out / f"member_{seed}"
     root.mkdir(parents=True, exist_ok=True)
@@ -87,10 +100,10 @@ def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episo
     dataset = [f"--dataset.repo_id={repo}", f"--dataset.root={data}"]
     base, base_stamp = train("base", root / "base", ["--policy.type=ccdp", *z, *dataset, f"--steps={base_steps}",
                                                      "--batch_size=64", f"--save_freq={base_steps}"], data_stamp, book)
-    head, _ = train("classifier", root / "classifier", [
-        f"--policy.path={base}", "--policy.training_stage=recovery", "--policy.recovery_head=classifier", *dataset,
-        f"--steps={head_steps}", "--batch_size=64", f"--save_freq={head_steps}"], base_stamp, book)
-    return head
+    return {chunks: train(f"classifier_{chunks}", root / f"classifier_{chunks}", [
+        f"--policy.path={base}", "--policy.training_stage=recovery", "--policy.recovery_head=classifier",
+        f"--policy.classifier_chunks={chunks}", *dataset, f"--steps={head_steps}", "--batch_size=64",
+        f"--save_freq={head_steps}"], base_stamp, book)[0] for chunks in classifier_chunks}
 
 
 def table(results: dict[int, dict]) -> str:
@@ -161,6 +174,8 @@ def main() -> None:
     parser.add_argument("--rows", type=int, default=512)
     parser.add_argument("--w-z", type=float, nargs="+", default=[1.0],
                         help="classifier guidance weights to measure (sampling settings: no retraining)")
+    parser.add_argument("--classifier-chunks", nargs="+", choices=CLASSIFIER_CHUNKS, default=["base_samples"],
+                        help="what the failure-set classifier learns from: one head per value, from the same base")
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -173,9 +188,16 @@ def main() -> None:
         task = ReachingTask.family_member(seed)
         print(f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, bend "
               f"{task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}", flush=True)
-        checkpoint = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes)
+        heads = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes, args.classifier_chunks)
         root, repo = member_dataset(seed, args.out)
-        results[seed] = measure(task, checkpoint, methods(args.w_z, LeRobotDataset(repo, root=root)), args.rows)
+        demos = LeRobotDataset(repo, root=root)
+        for k, (chunks, checkpoint) in enumerate(heads.items()):
+            measured = measure(task, checkpoint, methods(chunks, k == 0, args.w_z, demos), args.rows)
+            if k == 0:
+                results[seed] = measured
+            else:
+                results[seed]["methods"].update(measured["methods"])
+                results[seed]["positions"].update(measured["positions"])
         results_path.write_text(json.dumps(results))
         print(f"member {seed} done in {time.perf_counter() - started:.0f} s", flush=True)
     chosen = {seed: results[seed] for seed in args.members}
@@ -183,8 +205,9 @@ def main() -> None:
     print(text)
     (args.out / "preferences.md").write_text(
         f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base {args.base_steps} "
-        f"steps, classifier {args.head_steps} steps, guidance weights {args.w_z}.\n\n{text}\n")
-    panel_grid(chosen, args.out / "preferences.png", f"CCDP w_z={args.w_z[0]:g}")
+        f"steps, classifier {args.head_steps} steps on {args.classifier_chunks}, guidance weights {args.w_z}.\n\n"
+        f"{text}\n")
+    panel_grid(chosen, args.out / "preferences.png", ccdp_name(args.classifier_chunks[0], args.w_z[0]))
 
 
 if __name__ == "__main__":
