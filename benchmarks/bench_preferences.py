@@ -174,7 +174,7 @@ def main() -> None:
     parser.add_argument("--rows", type=int, default=512)
     parser.add_argument("--w-z", type=float, nargs="+", default=[1.0],
                         help="classifier guidance weights to measure (sampling settings: no retraining)")
-    parser.add_argument("--classifier-chunks", nargs="+", choices=CLASSIFIER_CHUNKS, default=["base_samples"],
+    parser.add_argument("--classifier-chunks", nargs="+", choices=CLASSIFIER_CHUNKS, default=["demonstrations"],
                         help="what the failure-set classifier learns from: one head per value, from the same base")
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
     args = parser.parse_args()

@@ -28,6 +28,8 @@ from lerobot_ccdp.recipes.record import record_dataset
         ({"failure_feature": "primitive"}, "num_primitives"),
         ({"failure_action_steps": [0, 99]}, "failure_action_steps"),
         ({"horizon": 12}, "multiple"),
+        ({"classifier_chunks": "rollouts"}, "classifier_chunks"),
+        ({"classifier_resample_every": 0}, "classifier_resample_every"),
     ],
 )
 def test_invalid_config_is_rejected(overrides, message):
