@@ -67,9 +67,9 @@ def settings(tmp_path_factory) -> tuple[Path, Path]:
     return _shrunk_settings(tmp_path_factory.mktemp("settings"), SLUG)
 
 
-def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str) -> str:
+def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str, methods: list[str] = METHODS) -> str:
     result = subprocess.run(
-        [sys.executable, "-m", "lerobot_ccdp.pipeline", "--tasks", TASK, "--methods", *METHODS, "--out", str(out),
+        [sys.executable, "-m", "lerobot_ccdp.pipeline", "--tasks", TASK, "--methods", *methods, "--out", str(out),
          "--configs", str(configs), "--recipes", str(recipes), "--eval-seed", str(EVAL_SEED), *extra],
         capture_output=True, text=True, cwd=REPO)
     if result.returncode != 0:
@@ -264,12 +264,12 @@ def test_bad_task_and_missing_settings_are_named(settings, tmp_path):
 
 
 def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
-    """--obs-type pixels_agent_pos: camera demos as video, a camera checkpoint, image-free recovery rows, and
-    every method evaluated on rendered frames."""
+    """--obs-type pixels_agent_pos: camera demos as video, a camera checkpoint, image-free recovery rows, and CCDP
+    evaluated on rendered frames (DP runs the same checkpoint with its recovery off)."""
     slug = f"{SLUG}_pixels"
     configs, recipes = _shrunk_settings(tmp_path / "settings", slug, n_episodes=2)
     out = tmp_path / "out"
-    _run_pipeline(configs, recipes, out, "--obs-type", "pixels_agent_pos", "--no-chart")
+    _run_pipeline(configs, recipes, out, "--obs-type", "pixels_agent_pos", "--no-chart", methods=["ccdp"])
     task_out = out / slug
 
     demos = LeRobotDataset(f"local/{slug}", root=task_out / "demos", video_backend=video_backend())
@@ -278,8 +278,7 @@ def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
     assert bool(recovery.recovery_trained) and list(recovery.config.image_features) == [f"{OBS_IMAGES}.front"]
     recovery_meta = LeRobotDataset(f"local/{slug}_recovery", root=task_out / "recovery_data").meta
     assert not recovery_meta.video_keys and f"{OBS_IMAGES}.front" in recovery_meta.stats
-    for method in METHODS:
-        assert len(Episodes.from_eval_info(task_out / "eval" / method / "eval_info.json")) == 2
+    assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
     assert "| DoorOpening-lite-v0 | CCDP |" in (out / "report.md").read_text()
 
 
@@ -299,7 +298,7 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     _shrink_json(configs / SLUG / "train_base.json", configs / SLUG / "train_base.json",
                  {"policy": {"recovery_head": "classifier", "w_z": 1.0}})
     out = tmp_path / "out"
-    stdout = _run_pipeline(configs, recipes, out, "--no-chart")
+    stdout = _run_pipeline(configs, recipes, out, "--no-chart", methods=["ccdp"])
     task_out = out / SLUG
 
     assert not (task_out / "recovery_data").exists()
@@ -307,6 +306,5 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
     assert recovery.config.recovery_head == "classifier" and bool(recovery.recovery_trained)
     assert f"--dataset.root={task_out / 'demos'} --output_dir={task_out / 'recovery'}" in stdout
-    for method in METHODS:
-        assert len(Episodes.from_eval_info(task_out / "eval" / method / "eval_info.json")) == 2
+    assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
     assert "failures by classifier guidance, w_z 1" in (out / "report.md").read_text()
