@@ -222,6 +222,6 @@ def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
 
 def test_every_task_recipe_has_a_valid_recovery_section():
     recipes = sorted(Path(__file__).parents[1].joinpath("datasets_recipes").glob("*.yaml"))
-    assert len(recipes) == len(TASKS) + 3  # every task, two of them also with cameras, and the 2-D task
+    assert len(recipes) == len(TASKS) + 5  # every task, four of them also with cameras, and the 2-D task
     for path in recipes:
         RecoveryRecipe.load(path)
