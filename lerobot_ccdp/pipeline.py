@@ -49,6 +49,10 @@ from lerobot_ccdp.stage_stamps import StampBook, stamp
 from lerobot_ccdp.targets import target_checks
 
 METHODS = ("dp", "dp_star", "ccdp")
+# lerobot-eval saves videos of its first 10 episodes: kept for DP and CCDP, the pair `lerobot_ccdp.watch` shows
+# side by side. DP* runs with `--env.render_mode=null`: on the Panda each frame costs about 40 ms and LeRobot
+# renders 10 envs at every step of the first batch, so its videos alone cost minutes of the benchmark's 2 hours.
+VIDEO_METHODS = ("dp", "ccdp")
 # Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric versions.
 TASK_GROUPS = {
     "all": [t for t in TASKS if not is_lite(t)],
@@ -134,8 +138,9 @@ class TaskFiles:
 
     def eval_command(self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str]) -> list[str]:
         """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`."""
+        videos = [] if method in VIDEO_METHODS else ["--env.render_mode=null"]
         return ["lerobot-eval", f"--config_path={self.eval}", f"--policy.path={checkpoint}",
-                f"--policy.recovery_mode={method}", *flags, f"--seed={seed}", f"--output_dir={out}"]
+                f"--policy.recovery_mode={method}", *flags, *videos, f"--seed={seed}", f"--output_dir={out}"]
 
     @property
     def demos(self) -> Path:

@@ -21,6 +21,7 @@ from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.pipeline import (
     CHECKPOINT,
+    VIDEO_METHODS,
     TaskFiles,
     latest_progress,
     main,
@@ -111,7 +112,8 @@ def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
         assert len(episodes) == N_EPISODES
         # One-stage task: every attempt after the first follows a failure (the env's count reached eval_info.json).
         assert (episodes.attempts_after_failure == np.maximum(episodes.attempts - 1, 0)).all()
-        assert len(list((task_out / "eval" / method).rglob("eval_episode_*.mp4"))) == N_EPISODES  # rendered
+        videos = list((task_out / "eval" / method).rglob("eval_episode_*.mp4"))
+        assert len(videos) == (N_EPISODES if method in VIDEO_METHODS else 0)  # what lerobot_ccdp.watch shows
     oracle = Episodes.from_infos(json.loads((task_out / "oracle.json").read_text()))
     assert len(oracle) == N_EPISODES and oracle.success.all() and not oracle.repeated_failures.any()
 
@@ -195,6 +197,15 @@ def test_method_settings_name_known_methods(settings, tmp_path):
         (configs / SLUG / "methods.json").unlink()
 
 
+def test_only_the_watched_methods_render_videos(settings, tmp_path):
+    """DP* runs with rendering off (videos of the Panda scene cost minutes); DP and CCDP keep lerobot-eval's."""
+    files = TaskFiles.locate(TASK, *settings, tmp_path)
+    for method in ("dp", "dp_star", "ccdp"):
+        command = files.eval_command(Path("checkpoint"), method, 0, tmp_path / method, [])
+        assert ("--env.render_mode=null" in command) == (method not in VIDEO_METHODS), method
+        assert command[-2:] == ["--seed=0", f"--output_dir={tmp_path / method}"]
+
+
 def test_stamps_follow_settings_files_and_upstream_stages(tmp_path):
     config = tmp_path / "train.json"
     config.write_text('{"steps": 10}')
@@ -240,7 +251,7 @@ def test_a_killed_pipeline_leaves_no_stage_running_and_a_rerun_resumes(settings,
     while any(_running(pid) for pid in children):  # the kernel delivers the child's death signal
         time.sleep(0.2)
     assert "End of training" not in (out / SLUG / "logs" / "train_base.log").read_text()  # killed, not finished
-    stdout = _run_pipeline(configs, recipes, out, "--no-chart")
+    stdout = _run_pipeline(configs, recipes, out, "--no-chart", methods=["dp"])
     assert "record: done already" in stdout and "train_base: lerobot-train" in stdout  # the killed stage reruns
     assert (out / SLUG / "eval" / "dp" / "eval_info.json").exists()
 
