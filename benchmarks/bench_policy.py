@@ -1,7 +1,8 @@
 """CCDP versus LeRobot's stock DiffusionPolicy: planning latency and training speed, side by side.
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
-        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp|classifier] [--out outputs/bench_policy.json]
+        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp|classifier] [--classifier-query set|each]
+        [--out outputs/bench_policy.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
 kernel 5, 8 groups, n_obs_steps 1, horizon 16, n_action_steps 8, DDIM with 10 inference steps) and the same
@@ -44,7 +45,7 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
-from lerobot_ccdp.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.configuration_ccdp import CLASSIFIER_QUERIES, CCDPConfig
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 
 STATE, ENV, ACTION = "observation.state", "observation.environment_state", "action"
@@ -112,9 +113,10 @@ def interleaved_medians(calls: dict[str, callable], repeats: int, warmup: int) -
 # ----- (a) planning latency -------------------------------------------------------------------------------
 
 
-def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates: int, recovery_head: str) -> dict:
+def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates: int, recovery_head: str,
+                     classifier_query: str) -> dict:
     torch.manual_seed(0)
-    make = functools.partial(make_ccdp, recovery_head=recovery_head)
+    make = functools.partial(make_ccdp, recovery_head=recovery_head, classifier_query=classifier_query)
     obs = {STATE: torch.randn(1, 2), ENV: torch.randn(1, env_dim)}
 
     diffusion = make_diffusion(env_dim).eval()
@@ -325,6 +327,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--dp-star-candidates", type=int, default=16)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--recovery-head", choices=["unet", "mlp", "classifier"], default="unet", help="recovery head")
+    parser.add_argument("--classifier-query", choices=CLASSIFIER_QUERIES, default="set",
+                        help="how the classifier head is asked about the failures (recovery head classifier)")
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")
     parser.add_argument("--cli-log-freq", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")
@@ -339,7 +343,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     print("(a) planning latency ...", flush=True)
     results["latency"] = planning_latency(args.env_dim, args.repeats, args.warmup, args.dp_star_candidates,
-                                          args.recovery_head)
+                                          args.recovery_head, args.classifier_query)
     print("(b) training step ...", flush=True)
     results["train_step"] = training_step_time(args.env_dim, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:

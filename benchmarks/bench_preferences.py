@@ -1,7 +1,8 @@
 """Does recovery keep the demonstrated preferences? A seeded family of 2-D reaching tasks (issue 17).
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_preferences.py [--members 0 1 ... 11] [--w-z 1 2 4] \
-        [--classifier-chunks demonstrations base_samples] [--out outputs/preferences]
+        [--classifier-chunks demonstrations base_samples] [--classifier-query set each] [--redraws 0 1] \
+        [--out outputs/preferences]
 
 Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences, bent
 paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a LeRobot
@@ -9,10 +10,12 @@ dataset, its base is trained with lerobot-train, and the failure-set classifier 
 is trained from that base with lerobot-train as a user would, once per --classifier-chunks value (on the
 demonstrated chunks, or on chunks the base samples at their states). Failed share and preference error after one and after
 two failures (`lerobot_ccdp/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
-rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z (a sampling setting,
-set as lerobot-eval's --policy.w_z would: every weight runs on the same checkpoint and seeds). Prints the table,
+rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z and each way of
+querying the classifier of --classifier-query, with each count of --redraws (sampling settings, set as lerobot-eval's
+--policy.w_z, --policy.classifier_query and --policy.ccdp_redraws would: every combination runs on the same
+checkpoint and seeds). Prints the table,
 writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferences.png`
-under --out (CCDP with the first classifier at the first weight). Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
+under --out (CCDP with the first classifier, query, weight and redraw count). Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
 family; settings are chosen on the development members 100-103 (`--members 100 101 102 103`).
 """
 
@@ -29,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from lerobot_ccdp.configuration_ccdp import CLASSIFIER_CHUNKS
+from lerobot_ccdp.configuration_ccdp import CLASSIFIER_CHUNKS, CLASSIFIER_QUERIES
 from lerobot_ccdp.reaching2d import ReachingTask
 from lerobot_ccdp.reaching_preferences import Method, measure
 from lerobot_ccdp.stage_stamps import StampBook, stamp
@@ -42,20 +45,22 @@ BASELINES = {
 }
 
 
-def methods(chunks: str, first: bool, guidance_weights: list[float], demos: LeRobotDataset) -> dict[str, Method]:
-    """The methods measured on the classifier trained on `chunks` (a `classifier_chunks` value): its guidance at each
-    weight w_z (a sampling setting: one checkpoint serves all) and, on the first classifier only (they share the
-    base), DP, DP* and the reference row: the same base guided at w_z = 1 by the exact classifier of the
-    demonstrated start chunks."""
-    ccdp = {ccdp_name(chunks, w): Method("ccdp", {"w_z": w}) for w in guidance_weights}
+def methods(chunks: str, first: bool, sampling: argparse.Namespace, demos: LeRobotDataset) -> dict[str, Method]:
+    """The methods measured on the classifier trained on `chunks` (a `classifier_chunks` value): its guidance for
+    each query, weight w_z and redraw count of `sampling` (sampling settings: one checkpoint serves all) and, on the
+    first classifier only (they share the base), DP, DP* and the reference row: the same base guided at w_z = 1 by
+    the exact classifier of the demonstrated start chunks."""
+    ccdp = {ccdp_name(chunks, q, w, n): Method("ccdp", {"w_z": w, "classifier_query": q, "ccdp_redraws": n})
+            for q in sampling.classifier_query for w in sampling.w_z for n in sampling.redraws}
     if not first:
         return ccdp
     return {**BASELINES, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
-def ccdp_name(chunks: str, w_z: float) -> str:
-    """The table's name of CCDP guided by the classifier trained on `chunks` at weight `w_z`."""
-    return f"CCDP {chunks} w_z={w_z:g}"
+def ccdp_name(chunks: str, query: str, w_z: float, redraws: int) -> str:
+    """The table's name of CCDP guided by the classifier trained on `chunks`, queried as `query`, at weight `w_z`,
+    redrawing repeats up to `redraws` times."""
+    return f"CCDP {chunks} {query} w_z={w_z:g}" + (f" +{redraws} redraws" if redraws else "")
 
 
 def train(name: str, out: Path, args: list[str], upstream: str | None, book: StampBook) -> tuple[Path, str]:
@@ -176,6 +181,10 @@ def main() -> None:
                         help="classifier guidance weights to measure (sampling settings: no retraining)")
     parser.add_argument("--classifier-chunks", nargs="+", choices=CLASSIFIER_CHUNKS, default=["demonstrations"],
                         help="what the failure-set classifier learns from: one head per value, from the same base")
+    parser.add_argument("--classifier-query", nargs="+", choices=CLASSIFIER_QUERIES, default=["set"],
+                        help="how sampling asks the classifier: the whole failure set, or each failure (no retraining)")
+    parser.add_argument("--redraws", type=int, nargs="+", default=[0],
+                        help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)")
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -192,7 +201,7 @@ def main() -> None:
         root, repo = member_dataset(seed, args.out)
         demos = LeRobotDataset(repo, root=root)
         for k, (chunks, checkpoint) in enumerate(heads.items()):
-            measured = measure(task, checkpoint, methods(chunks, k == 0, args.w_z, demos), args.rows)
+            measured = measure(task, checkpoint, methods(chunks, k == 0, args, demos), args.rows)
             if k == 0:
                 results[seed] = measured
             else:
@@ -205,9 +214,10 @@ def main() -> None:
     print(text)
     (args.out / "preferences.md").write_text(
         f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base {args.base_steps} "
-        f"steps, classifier {args.head_steps} steps on {args.classifier_chunks}, guidance weights {args.w_z}.\n\n"
+        f"steps, classifier {args.head_steps} steps on {args.classifier_chunks}, queries {args.classifier_query}, "
+        f"guidance weights {args.w_z}, redraws {args.redraws}.\n\n"
         f"{text}\n")
-    panel_grid(chosen, args.out / "preferences.png", ccdp_name(args.classifier_chunks[0], args.w_z[0]))
+    panel_grid(chosen, args.out / "preferences.png", ccdp_name(args.classifier_chunks[0], args.classifier_query[0], args.w_z[0], args.redraws[0]))
 
 
 if __name__ == "__main__":

@@ -3,7 +3,11 @@
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F  # noqa: N812
 from torch import Tensor
+
+# Floor of P(a_0 outside F | a_t, s) in `log_no_repeat`: learnt per-failure probabilities may sum past 1.
+MIN_OUTSIDE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -86,6 +90,22 @@ def guide_away_from_failures(eps: Tensor, no_repeat_gradient: Tensor, alpha_bar:
     the log probability and `alpha_bar` the step's cumulative signal level.
     """
     return eps - w_z * (1 - alpha_bar).sqrt() * no_repeat_gradient
+
+
+def log_no_repeat(logits: Tensor, distinct: Tensor | None = None) -> Tensor:
+    """log P(a_0 outside F | a_t, s), the quantity whose gradient `guide_away_from_failures` follows, from the
+    classifier's logits of "repeats a failure".
+
+    `classifier_query="set"`: one logit per row, for the whole set F: log(1 - sigmoid(logit)) = -softplus(logit).
+    `classifier_query="each"`: (R, N) logits, one per failure z_i queried alone, with `distinct` (R, N) marking each
+    row's distinct failures. A chunk heads to one option, so "repeats z_i" and "repeats z_j" are disjoint events for
+    distinct failed options, and at every noise level P(a_0 outside F) = 1 - sum_i P(a_0 repeats z_i), exact
+    wherever the per-failure probabilities are, however many failures F holds.
+    """
+    if distinct is None:
+        return -F.softplus(logits)
+    inside = (torch.sigmoid(logits) * distinct).sum(dim=1)
+    return (1 - inside).clamp_min(MIN_OUTSIDE).log()
 
 
 def _require(term: Tensor | None, name: str) -> Tensor:

@@ -13,6 +13,7 @@ FAILURE_FEATURES = ("final_state", "action", "primitive")
 TRAINING_STAGES = ("base", "recovery")
 RECOVERY_HEADS = ("unet", "mlp", "classifier")
 CLASSIFIER_CHUNKS = ("demonstrations", "base_samples")
+CLASSIFIER_QUERIES = ("set", "each")
 Z_REFERENCES = ("eps_a", "eps_z_null")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
@@ -117,6 +118,11 @@ class CCDPConfig(PreTrainedConfig):
     # before it falls back to the candidate farthest from every failure (1 = no redraw). A redraw costs time
     # only where every candidate repeats a failure; with one round, one-hot z made the fallback a repeat.
     dp_star_rounds: int = 4
+    # CCDP: plans redrawn, at most this many times, where the chunk CCDP sampled still repeats a failure (its outcome
+    # looked up as DP* looks up its candidates'). 0, the default, is the method itself: one sample per plan. Above 0
+    # the kept chunks follow CCDP's distribution restricted to the options that did not fail, at the cost of one more
+    # denoising pass for the few rows that repeated (`dp_star.reject_repeats` with one candidate per round).
+    ccdp_redraws: int = 0
     # Demonstrated chunks kept to look up the outcome (final state, primitive) of a sampled chunk.
     outcome_index_size: int = 20000
     # Recovery head: "unet" (eps_z, LeRobot's diffusion UNet conditioned on z, trained on a synthesised recovery
@@ -134,6 +140,11 @@ class CCDPConfig(PreTrainedConfig):
     # from a pool refreshed with a batch of base samples every `classifier_resample_every` steps).
     classifier_chunks: str = "demonstrations"
     classifier_resample_every: int = 4
+    # How sampling asks the classifier about the failures: "set" (one query with the whole set F) or "each" (one
+    # query per distinct failure, P(outside F) = 1 - sum_i P(repeats z_i): exact for disjoint options, and it asks
+    # only about single failures, which every training row's set can be; composition.log_no_repeat). A sampling
+    # setting: the same trained classifier serves both.
+    classifier_query: str = "set"
     # z dropout while training the recovery head, so that it also yields eps_z_null.
     p_drop_failure: float = 0.1
 
@@ -165,6 +176,7 @@ class CCDPConfig(PreTrainedConfig):
         self._check_choice("training_stage", TRAINING_STAGES)
         self._check_choice("recovery_head", RECOVERY_HEADS)
         self._check_choice("classifier_chunks", CLASSIFIER_CHUNKS)
+        self._check_choice("classifier_query", CLASSIFIER_QUERIES)
         self._check_choice("z_reference", Z_REFERENCES)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
         self._check_vision()
@@ -182,9 +194,9 @@ class CCDPConfig(PreTrainedConfig):
             raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon}).")
         counts = (self.max_failures, self.dp_star_candidates, self.dp_star_rounds, self.failure_set_train_size,
                   self.classifier_resample_every)
-        if min(counts) < 1 or self.history_length < 0:
+        if min(counts) < 1 or self.history_length < 0 or self.ccdp_redraws < 0:
             raise ValueError("`max_failures`, `dp_star_candidates`, `dp_star_rounds`, `failure_set_train_size` and "
-                             "`classifier_resample_every` must be >= 1, `history_length` >= 0.")
+                             "`classifier_resample_every` must be >= 1, `history_length` and `ccdp_redraws` >= 0.")
         if self.horizon % 2 ** len(self.down_dims) != 0:
             raise ValueError(
                 f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = {2 ** len(self.down_dims)}."

@@ -49,3 +49,11 @@ class FailureBuffer:
         n = int(count.max()) if count.numel() else 0
         mask = torch.arange(n, device=count.device)[None, :] < count[:, None]
         return z[:, :n], mask
+
+
+def distinct_failures(z: Tensor, z_mask: Tensor, delta_z: float) -> Tensor:
+    """(R, N) mask of the failures that are not a repeat of an earlier one in their row: within `delta_z` (squared
+    distance, as the classifier's labels and DP*'s rejection measure it) of an earlier failure is the same option."""
+    close = ((z[:, :, None] - z[:, None]) ** 2).sum(dim=-1) <= delta_z  # (R, N, N): failure i near failure j
+    earlier = torch.ones(z.shape[1], z.shape[1], dtype=torch.bool, device=z.device).tril(diagonal=-1)
+    return z_mask & ~(close & earlier & z_mask[:, None]).any(dim=-1)

@@ -15,7 +15,7 @@ from torch import Tensor
 
 from lerobot_ccdp.base_sample_pool import POOL_BATCHES, BaseSamplePool
 from lerobot_ccdp.checkpoint_files import checkpoint_loading
-from lerobot_ccdp.composition import CompositionWeights, compose_eps, guide_away_from_failures
+from lerobot_ccdp.composition import CompositionWeights, compose_eps, guide_away_from_failures, log_no_repeat
 from lerobot_ccdp.configuration_ccdp import (
     FAILURE_FEATURE_KEY,
     FAILURE_FLAG_KEY,
@@ -23,7 +23,7 @@ from lerobot_ccdp.configuration_ccdp import (
 )
 from lerobot_ccdp.denoisers import BaseDenoiser, make_recovery_denoiser
 from lerobot_ccdp.dp_star import nearest_failure_distance, reject_repeats
-from lerobot_ccdp.failure_buffer import FailureBuffer
+from lerobot_ccdp.failure_buffer import FailureBuffer, distinct_failures
 from lerobot_ccdp.failure_features import FailureFeature
 from lerobot_ccdp.failure_signal import FailureSignalFile
 from lerobot_ccdp.image_encoder import ImageEncoder
@@ -370,6 +370,8 @@ class CCDPPolicy(PreTrainedPolicy):
             z, z_mask = z[:, :0], z_mask[:, :0]
         shape = (state.shape[0], cfg.horizon, cfg.action_dim)
         sample = noise[rows] if noise is not None else torch.randn(shape, device=state.device)
+        if mode == "ccdp" and cfg.ccdp_redraws and z_mask.any():
+            return self._sample_ccdp_redrawn(sample, state, history, z, z_mask)
         return self._denoise(sample, state, history, z, z_mask)
 
     @torch.no_grad()
@@ -461,9 +463,31 @@ class CCDPPolicy(PreTrainedPolicy):
         torch.inference_mode(), where no gradient exists: the inputs are copied into ordinary tensors first."""
         with torch.inference_mode(False), torch.enable_grad():
             noisy = sample.clone().requires_grad_(True)
-            logit = self.recovery(noisy, step.clone(), state.clone(), z.clone(), z_mask.clone())
-            (gradient,) = torch.autograd.grad(-F.softplus(logit).sum(), noisy)
+            step, state, z, z_mask = step.clone(), state.clone(), z.clone(), z_mask.clone()
+            if self.config.classifier_query == "set":
+                log_outside = log_no_repeat(self.recovery(noisy, step, state, z, z_mask))
+            else:  # one classifier call for every (row, failure) pair
+                rows, n = z_mask.shape
+                logits = self.recovery(noisy.repeat_interleave(n, dim=0), step.repeat_interleave(n, dim=0),
+                                       state.repeat_interleave(n, dim=0), z.reshape(rows * n, 1, -1),
+                                       z_mask.new_ones(rows * n, 1))
+                log_outside = log_no_repeat(logits.view(rows, n), distinct_failures(z, z_mask, self.config.delta_z))
+            (gradient,) = torch.autograd.grad(log_outside.sum(), noisy)
         return gradient
+
+    def _sample_ccdp_redrawn(self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
+        """CCDP's chunks from the noise `sample`; a row whose chunk repeats a failure draws again from fresh noise,
+        up to `ccdp_redraws` times (`dp_star.reject_repeats` with one candidate per round)."""
+        cfg, first_noise = self.config, iter([sample])  # the first round plans every row from `sample`
+
+        def draw(rows: Tensor) -> tuple[Tensor, Tensor]:
+            noise = next(first_noise, None)
+            noise = torch.randn_like(sample[rows]) if noise is None else noise
+            chunks = self._denoise(noise, state[rows], history[rows], z[rows], z_mask[rows])
+            outcome = self.feature.from_chunk(chunks, self.outcomes)[:, None]
+            return chunks[:, None], nearest_failure_distance(outcome, z[rows], z_mask[rows])
+
+        return reject_repeats(draw, state.shape[0], 1 + cfg.ccdp_redraws, cfg.delta_z, state.device)
 
     def _sample_dp_star(self, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
         """DP* (`dp_star.reject_repeats`) with candidates from the base composition, failures ignored."""

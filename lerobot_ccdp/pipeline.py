@@ -333,12 +333,16 @@ def method_forms(runs: list[TaskRun]) -> str:
         dp_star = {"dp_star_candidates": c["dp_star_candidates"],
                    "dp_star_rounds": c.get("dp_star_rounds", CCDPConfig.dp_star_rounds),  # older checkpoints
                    **r.files.method_settings("dp_star")}
-        if c.get("recovery_head") == "classifier":
-            form = f"w_s {c['w_s']:g}, w_h {c['w_h']:g}; failures by classifier guidance, w_z {c['w_z']:g}"
+        ccdp = {**c, **r.files.method_settings("ccdp")}  # the checkpoint's settings, as CCDP's flags changed them
+        if ccdp.get("recovery_head") == "classifier":
+            form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance "
+                    f"({ccdp.get('classifier_query', 'set')} query), w_z {ccdp['w_z']:g}")
             synthesis = "none (classifier learns from the demos)"
         else:
-            form = f"w_s {c['w_s']:g}, w_h {c['w_h']:g}, w_z {c['w_z']:g} against {c['z_reference']}"
+            form = f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}, w_z {ccdp['w_z']:g} against {ccdp['z_reference']}"
             synthesis = f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}"
+        if ccdp.get("ccdp_redraws", 0):
+            form += f"; a repeat redrawn up to {ccdp['ccdp_redraws']} times"
         lines.append(
             f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {c['failure_feature']} | {form} | "
             f"{c['noise_scheduler_type']} {c['num_inference_steps']} steps | {synthesis} | {steps} | "

@@ -29,6 +29,8 @@ from lerobot_ccdp.recipes.record import record_dataset
         ({"failure_action_steps": [0, 99]}, "failure_action_steps"),
         ({"horizon": 12}, "multiple"),
         ({"classifier_chunks": "rollouts"}, "classifier_chunks"),
+        ({"classifier_query": "pairs"}, "classifier_query"),
+        ({"ccdp_redraws": -1}, "ccdp_redraws"),
         ({"classifier_resample_every": 0}, "classifier_resample_every"),
     ],
 )

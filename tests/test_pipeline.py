@@ -304,10 +304,12 @@ def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):
 
 def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     """A base config naming `recovery_head: classifier` makes the recovery stage learn from the demonstrations:
-    no synthesis stage runs, the checkpoint holds a trained classifier, and the report names the guided form."""
+    no synthesis stage runs, the checkpoint holds a trained classifier, lerobot-eval runs CCDP with the sampling
+    settings of methods.json (each failure queried, repeats redrawn), and the report names that form."""
     configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG, n_episodes=2)
     _shrink_json(configs / SLUG / "train_base.json", configs / SLUG / "train_base.json",
                  {"policy": {"recovery_head": "classifier", "w_z": 1.0}})
+    (configs / SLUG / "methods.json").write_text(json.dumps({"ccdp": {"classifier_query": "each", "ccdp_redraws": 2}}))
     out = tmp_path / "out"
     stdout = _run_pipeline(configs, recipes, out, "--no-chart", methods=["ccdp"])
     task_out = out / SLUG
@@ -318,4 +320,6 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     assert recovery.config.recovery_head == "classifier" and bool(recovery.recovery_trained)
     assert f"--dataset.root={task_out / 'demos'} --output_dir={task_out / 'recovery'}" in stdout
     assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
-    assert "failures by classifier guidance, w_z 1" in (out / "report.md").read_text()
+    assert "--policy.classifier_query=each --policy.ccdp_redraws=2" in stdout
+    report = (out / "report.md").read_text()
+    assert "failures by classifier guidance (each query), w_z 1; a repeat redrawn up to 2 times" in report

@@ -154,13 +154,15 @@ def mode_shares(policy, modes, failed: list[int], rows: int = 1024) -> torch.Ten
     return torch.bincount(nearest, minlength=4).float() / rows
 
 
-def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_failed_in_proportion():
+@pytest.mark.parametrize("query", ["set", "each"])
+def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_failed_in_proportion(query):
     """With the exact noisy-chunk classifier, guidance (under LeRobot's inference mode) draws the remaining modes in
-    their demonstrated proportions after one and after two failures, unlike the per-failure sums of eq. (4) below;
+    their demonstrated proportions after one and after two failures, unlike the per-failure sums of eq. (4) below,
+    whether it asks about the whole set at once or about each distinct failure (a repeated failure counts once);
     in a batch where only some rows failed, the others keep the base's shares."""
-    policy, modes = mixture_policy(recovery_head="classifier")
+    policy, modes = mixture_policy(recovery_head="classifier", classifier_query=query)
     torch.manual_seed(1)
-    for failed in ([0], [0, 1], [2]):
+    for failed in ([0], [0, 1], [2], [1, 3, 1]):
         expected = DEMONSTRATED.clone()
         expected[failed] = 0
         expected /= expected.sum()
@@ -177,6 +179,24 @@ def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_faile
     nearest = ((chunks[:, None] - modes[None, :, : chunks.shape[1]]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
     failed_rows, fresh_rows = (torch.bincount(part, minlength=4) / (rows // 2) for part in nearest.split(rows // 2))
     assert failed_rows[0] < 0.02 and (fresh_rows - DEMONSTRATED).abs().max() < 0.05, (failed_rows, fresh_rows)
+
+
+def test_ccdp_redraws_drop_repeats_and_keep_the_remaining_shares():
+    """ccdp_redraws: a row whose chunk repeats a failure (its outcome looked up as DP* does) plans again. With the
+    guidance off (w_z = 0) CCDP samples the base, and three redraws leave about 0.4^4 of the failed mode's 0.4 while
+    the other modes keep their demonstrated proportions; without redraws the failed mode keeps its 0.4."""
+    shares = {}
+    for redraws in (0, 3):
+        policy, modes = mixture_policy(recovery_head="classifier", w_z=0.0, ccdp_redraws=redraws)
+        policy.outcomes.fill(modes, torch.zeros(4, 2), torch.arange(4))
+        torch.manual_seed(2)
+        with torch.inference_mode():
+            shares[redraws] = mode_shares(policy, modes, [0])
+    print("shares after mode 0 failed, by redraws:", {k: [round(x, 3) for x in v.tolist()] for k, v in shares.items()})
+    assert abs(shares[0][0] - DEMONSTRATED[0]) < 0.05
+    assert shares[3][0] < 0.05
+    remaining = DEMONSTRATED[1:] / DEMONSTRATED[1:].sum()
+    assert (shares[3][1:] / shares[3][1:].sum() - remaining).abs().max() < 0.05
 
 
 @pytest.mark.parametrize("w_z", [1.0, 3.0])
@@ -200,9 +220,10 @@ def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_p
     assert two[0] + two[1] < 0.2 and two[2] > two[3], report
 
 
-@pytest.mark.parametrize("mode", ["ccdp", "dp"])
-def test_network_calls_per_step_do_not_grow_with_failures(mode):
-    policy = make_policy(recovery_mode=mode, w_h=0.5, max_failures=8)
+@pytest.mark.parametrize("mode, head", [("ccdp", {}), ("dp", {}), ("ccdp", {"recovery_head": "classifier"}),
+                                        ("ccdp", {"recovery_head": "classifier", "classifier_query": "each"})])
+def test_network_calls_per_step_do_not_grow_with_failures(mode, head):
+    policy = make_policy(recovery_mode=mode, w_h=0.5, max_failures=8, **head)
     policy.recovery_trained.fill_(True)
     calls = {"base": 0, "recovery": 0}
     policy.base.register_forward_hook(lambda *_: calls.__setitem__("base", calls["base"] + 1))

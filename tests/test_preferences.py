@@ -3,8 +3,9 @@ classifier guidance samples the failed goals almost never, where DP keeps drawin
 
 The reduced form of `benchmarks/bench_preferences.py`: the same members, measurement and settings, trained in memory
 (`in_memory_training.py`) instead of through lerobot-train so that CI can afford it. Member 0 carries `primitive`
-labels; member 1 has none and uses `final_state` z. Issue 17's targets (failed share <= 0.03 and preference error
-<= 0.08 on the family's mean) are not met yet and so are not asserted: the scores are printed
+labels; member 1 has none and uses `final_state` z. Issue 17's failed-share target (<= 0.03) is asserted for CCDP
+asked about each failure with up to three redraws of a repeat; its preference-error target (<= 0.08) is not, as
+these short trainings leave even the exact classifier's guidance above it: the scores are printed
 (`pytest -s -k preferences`), and docs/benchmarks.md has the family's figures and what was tried.
 """
 
@@ -27,6 +28,7 @@ ROWS = 512
 # count, where these checkpoints measured 0.000 to 0.035 (2026-11-25, 500 and 1000 steps).
 FAILED_SHARE = 0.10
 EXACT_FAILED_SHARE = 0.05
+REDRAWN_FAILED_SHARE = 0.03  # issue 17's target, with classifier_query=each and ccdp_redraws=3
 
 
 def member_checkpoint(seed: int, tmp: Path) -> tuple[Path, LeRobotDataset]:
@@ -50,6 +52,7 @@ def measured(tmp_path_factory) -> dict[int, dict]:
     for seed in (0, 1):
         checkpoint, demos = member_checkpoint(seed, tmp_path_factory.mktemp(f"m{seed}"))
         methods = {"DP": Method("dp", {}), "CCDP": Method("ccdp", {"w_z": 1.0}),
+                   "CCDP each +3": Method("ccdp", {"w_z": 1.0, "classifier_query": "each", "ccdp_redraws": 3}),
                    "CCDP exact": Method("ccdp", {"w_z": 1.0}, demos)}
         results[seed] = measure(ReachingTask.family_member(seed), checkpoint, methods, ROWS)
     return results
@@ -57,7 +60,7 @@ def measured(tmp_path_factory) -> dict[int, dict]:
 
 def test_classifier_guidance_avoids_failed_goals_where_dp_repeats_them(measured):
     scores = {(seed, method, count): (round(m["failed_share"], 3), round(m["preference_error"], 3))
-              for seed, result in measured.items() for method in ("DP", "CCDP", "CCDP exact")
+              for seed, result in measured.items() for method in ("DP", "CCDP", "CCDP each +3", "CCDP exact")
               for count, m in result["methods"][method].items()}
     report = f"(failed share, preference error) per (member, method, failures): {scores}"
     print(report)
@@ -66,6 +69,9 @@ def test_classifier_guidance_avoids_failed_goals_where_dp_repeats_them(measured)
             dp_failed, ccdp_failed = scores[(seed, "DP", count)][0], scores[(seed, "CCDP", count)][0]
             assert dp_failed > 0.2, report  # without memory the base keeps drawing its favourite goals
             assert ccdp_failed <= min(FAILED_SHARE, dp_failed / 4), report
+            # Asked about each failure and redrawing the rare repeat (up to 3 times), issue 17's failed-share target
+            # holds on each member and count (measured 0.000 to 0.004 here, 2026-11-26).
+            assert scores[(seed, "CCDP each +3", count)][0] <= REDRAWN_FAILED_SHARE, report
             # The same learnt base guided by the exact classifier of the demonstrated start chunks: the guidance, the
             # sampler and the gradient under inference mode leave almost nothing of the failed goals (measured 0.002
             # to 0.008 on these checkpoints, 2026-11-25).
