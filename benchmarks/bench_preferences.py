@@ -217,7 +217,8 @@ def main() -> None:
         f"steps, classifier {args.head_steps} steps on {args.classifier_chunks}, queries {args.classifier_query}, "
         f"guidance weights {args.w_z}, redraws {args.redraws}.\n\n"
         f"{text}\n")
-    panel_grid(chosen, args.out / "preferences.png", ccdp_name(args.classifier_chunks[0], args.classifier_query[0], args.w_z[0], args.redraws[0]))
+    shown = ccdp_name(args.classifier_chunks[0], args.classifier_query[0], args.w_z[0], args.redraws[0])
+    panel_grid(chosen, args.out / "preferences.png", shown)
 
 
 if __name__ == "__main__":

@@ -364,14 +364,16 @@ class CCDPPolicy(PreTrainedPolicy):
                                "sampling as plain DP. Train the recovery stage to use failures.")
                 self._warned_untrained = True
             mode = "dp"
-        if mode == "dp_star" and z_mask.any():
-            return self._sample_dp_star(state, history, z, z_mask)
+        if mode == "dp_star" and z_mask.any():  # DP*: the base's candidates, failures ignored, repeats rejected
+            return self._sample_without_repeats(state, history, z, z_mask, cfg.dp_star_candidates,
+                                                cfg.dp_star_rounds, guided=False)
         if mode != "ccdp":
             z, z_mask = z[:, :0], z_mask[:, :0]
         shape = (state.shape[0], cfg.horizon, cfg.action_dim)
         sample = noise[rows] if noise is not None else torch.randn(shape, device=state.device)
-        if mode == "ccdp" and cfg.ccdp_redraws and z_mask.any():
-            return self._sample_ccdp_redrawn(sample, state, history, z, z_mask)
+        if mode == "ccdp" and cfg.ccdp_redraws and z_mask.any():  # a plan that still repeats is drawn again
+            return self._sample_without_repeats(state, history, z, z_mask, 1, 1 + cfg.ccdp_redraws, guided=True,
+                                                first_noise=sample)
         return self._denoise(sample, state, history, z, z_mask)
 
     @torch.no_grad()
@@ -475,39 +477,32 @@ class CCDPPolicy(PreTrainedPolicy):
             (gradient,) = torch.autograd.grad(log_outside.sum(), noisy)
         return gradient
 
-    def _sample_ccdp_redrawn(self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
-        """CCDP's chunks from the noise `sample`; a row whose chunk repeats a failure draws again from fresh noise,
-        up to `ccdp_redraws` times (`dp_star.reject_repeats` with one candidate per round)."""
-        cfg, first_noise = self.config, iter([sample])  # the first round plans every row from `sample`
-
-        def draw(rows: Tensor) -> tuple[Tensor, Tensor]:
-            noise = next(first_noise, None)
-            noise = torch.randn_like(sample[rows]) if noise is None else noise
-            chunks = self._denoise(noise, state[rows], history[rows], z[rows], z_mask[rows])
-            outcome = self.feature.from_chunk(chunks, self.outcomes)[:, None]
-            return chunks[:, None], nearest_failure_distance(outcome, z[rows], z_mask[rows])
-
-        return reject_repeats(draw, state.shape[0], 1 + cfg.ccdp_redraws, cfg.delta_z, state.device)
-
-    def _sample_dp_star(self, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
-        """DP* (`dp_star.reject_repeats`) with candidates from the base composition, failures ignored."""
-        cfg = self.config
-        m = cfg.dp_star_candidates
+    def _sample_without_repeats(self, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor, candidates: int,
+                                rounds: int, guided: bool, first_noise: Tensor | None = None) -> Tensor:
+        """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round draws
+        `candidates` chunks per pending row, from CCDP's guided composition (`guided`: `ccdp_redraws`, one candidate,
+        the first round from the caller's `first_noise`) or from the base composition with failures ignored (DP*),
+        and labels them with the outcome of the nearest demonstrated chunk."""
+        cfg, noises = self.config, iter([] if first_noise is None else [first_noise])
+        failures = slice(None) if guided else slice(0)
 
         def draw(rows: Tensor) -> tuple[Tensor, Tensor]:
             r = rows.shape[0]
-            candidates = self._denoise(
-                torch.randn(r * m, cfg.horizon, cfg.action_dim, device=state.device),
-                state[rows].repeat_interleave(m, dim=0),
-                history[rows].repeat_interleave(m, dim=0),
-                z[rows, :0].repeat_interleave(m, dim=0),
-                z_mask[rows, :0].repeat_interleave(m, dim=0),
+            noise = next(noises, None)
+            if noise is None:
+                noise = torch.randn(r * candidates, cfg.horizon, cfg.action_dim, device=state.device)
+            chunks = self._denoise(
+                noise,
+                state[rows].repeat_interleave(candidates, dim=0),
+                history[rows].repeat_interleave(candidates, dim=0),
+                z[rows][:, failures].repeat_interleave(candidates, dim=0),
+                z_mask[rows][:, failures].repeat_interleave(candidates, dim=0),
             )
-            z_candidates = self.feature.from_chunk(candidates, self.outcomes).view(r, m, -1)
+            z_candidates = self.feature.from_chunk(chunks, self.outcomes).view(r, candidates, -1)
             distance = nearest_failure_distance(z_candidates, z[rows], z_mask[rows])
-            return candidates.view(r, m, cfg.horizon, cfg.action_dim), distance
+            return chunks.view(r, candidates, cfg.horizon, cfg.action_dim), distance
 
-        return reject_repeats(draw, state.shape[0], cfg.dp_star_rounds, cfg.delta_z, state.device)
+        return reject_repeats(draw, state.shape[0], rounds, cfg.delta_z, state.device)
 
     # ----- inputs ---------------------------------------------------------------------------------------
 
