@@ -32,6 +32,10 @@ FINGER_CTRL = 255.0  # the 2F-85 actuator's control at full closure
 DRIVER_CLOSED = 0.8  # driver joint angle (rad) of a closed empty gripper
 IK_ITERATIONS, IK_DAMPING, IK_NULLSPACE_GAIN = 5, 1e-3, 0.1
 SERVO_SUBSTEPS = 5  # a control step's joint targets are ramped over this many equal slices
+# Farthest a command may put the target from the pinch point (m): 1 m/s at 10 fps, under the Panda's 1.7 m/s
+# Cartesian limit and twice what the scripted experts ask (0.05). Without it a wild command (a random action
+# across the workspace) makes the IK jump the joints by radians and the simulation goes unstable.
+MAX_REACH = 0.1
 
 
 def gym_hil_assets() -> Path:
@@ -158,9 +162,12 @@ class PandaArm:
         self.target = self.ee_pos()
 
     def step(self, action: np.ndarray) -> None:
-        """One control step: IK of the target from the current joint targets, ramped in over the step."""
+        """One control step: IK of the target (at most `MAX_REACH` from the pinch point, as a real arm's
+        Cartesian limits would have it) from the current joint targets, ramped in over the step."""
         previous = self.data.ctrl[self._arm_ctrl].copy()
-        self.target = np.asarray(action[:3], dtype=np.float64).copy()
+        pinch = self.data.site_xpos[self._site]
+        reach = np.asarray(action[:3], dtype=np.float64) - pinch
+        self.target = pinch + reach * min(1.0, MAX_REACH / max(float(np.linalg.norm(reach)), 1e-12))
         goal = self.ik(self.target, previous)
         self.data.ctrl[self._finger_ctrl] = FINGER_CTRL * float(action[3])
         for k in range(1, SERVO_SUBSTEPS + 1):
