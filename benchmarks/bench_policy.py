@@ -1,7 +1,7 @@
 """CCDP versus LeRobot's stock DiffusionPolicy: planning latency and training speed, side by side.
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
-        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp|classifier] [--classifier-query set|each]
+        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp|classifier] [--classifier-query each|set]
         [--out outputs/bench_policy.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
@@ -327,7 +327,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--dp-star-candidates", type=int, default=16)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--recovery-head", choices=["unet", "mlp", "classifier"], default="unet", help="recovery head")
-    parser.add_argument("--classifier-query", choices=CLASSIFIER_QUERIES, default="set",
+    parser.add_argument("--classifier-query", choices=CLASSIFIER_QUERIES, default="each",
                         help="how the classifier head is asked about the failures (recovery head classifier)")
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")
     parser.add_argument("--cli-log-freq", type=int, default=20)

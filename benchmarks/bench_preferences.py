@@ -1,7 +1,7 @@
 """Does recovery keep the demonstrated preferences? A seeded family of 2-D reaching tasks (issue 17).
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_preferences.py [--members 0 1 ... 11] [--w-z 1 2 4] \
-        [--classifier-chunks demonstrations base_samples] [--classifier-query set each] [--redraws 0 1] \
+        [--classifier-chunks demonstrations base_samples] [--classifier-query each set] [--redraws 0 1] \
         [--out outputs/preferences]
 
 Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences, bent
@@ -32,10 +32,14 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from lerobot_ccdp.comparison import bootstrap_mean
 from lerobot_ccdp.configuration_ccdp import CLASSIFIER_CHUNKS, CLASSIFIER_QUERIES
+from lerobot_ccdp.paired import verdict
 from lerobot_ccdp.reaching2d import ReachingTask
 from lerobot_ccdp.reaching_preferences import Method, measure
 from lerobot_ccdp.stage_stamps import StampBook, stamp
+
+TARGETS = {"failed_share": 0.03, "preference_error": 0.08}  # issue 17, on the family's mean
 
 BIN = Path(sys.executable).parent
 CHECKPOINT = Path("checkpoints/last/pretrained_model")
@@ -49,12 +53,12 @@ def methods(chunks: str, first: bool, sampling: argparse.Namespace, demos: LeRob
     """The methods measured on the classifier trained on `chunks` (a `classifier_chunks` value): its guidance for
     each query, weight w_z and redraw count of `sampling` (sampling settings: one checkpoint serves all) and, on the
     first classifier only (they share the base), DP, DP* and the reference row: the same base guided at w_z = 1 by
-    the exact classifier of the demonstrated start chunks."""
+    the exact classifier of the demonstrated start chunks (asked about the whole set, as it was first measured)."""
     ccdp = {ccdp_name(chunks, q, w, n): Method("ccdp", {"w_z": w, "classifier_query": q, "ccdp_redraws": n})
             for q in sampling.classifier_query for w in sampling.w_z for n in sampling.redraws}
     if not first:
         return ccdp
-    return {**BASELINES, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
+    return {**BASELINES, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0, "classifier_query": "set"}, demos)}
 
 
 def ccdp_name(chunks: str, query: str, w_z: float, redraws: int) -> str:
@@ -135,6 +139,31 @@ def table(results: dict[int, dict]) -> str:
     return "\n".join(lines)
 
 
+def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
+    """Markdown: per method and failure count, the family's mean failed share and preference error with a 95%
+    bootstrap interval over members and the verdict against issue 17's targets, and the preference error minus
+    `reference`'s, paired member by member (the same checkpoint and start states)."""
+    names = [n for n in next(iter(results.values()))["methods"] if n != "DP"]
+    lines = ["| method | failures | failed share (target <= 0.03) | preference error (target <= 0.08) | "
+             f"preference error minus {reference}'s |", "|---|---|---|---|---|"]
+    for name in names:
+        for count in "12":
+            cells = []
+            for metric, target in TARGETS.items():
+                estimate = bootstrap_mean([r["methods"][name][count][metric] for r in results.values()])
+                cells.append(f"{_three(estimate)} {verdict(estimate, high_bound=target)}")
+            difference = bootstrap_mean([r["methods"][name][count]["preference_error"]
+                                         - r["methods"][reference][count]["preference_error"] for r in results.values()])
+            judged = {"met": "lower", "missed": "higher"}.get(verdict(difference, high_bound=0.0), "not distinguishable")
+            cells.append("" if name == reference else f"{_three(difference)} {judged}")
+            lines.append(f"| {name} | {count} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _three(estimate) -> str:
+    return f"{estimate.value:.3f} [{estimate.low:.3f}, {estimate.high:.3f}]"
+
+
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
     """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`) after
     one and two failures."""
@@ -181,8 +210,8 @@ def main() -> None:
                         help="classifier guidance weights to measure (sampling settings: no retraining)")
     parser.add_argument("--classifier-chunks", nargs="+", choices=CLASSIFIER_CHUNKS, default=["demonstrations"],
                         help="what the failure-set classifier learns from: one head per value, from the same base")
-    parser.add_argument("--classifier-query", nargs="+", choices=CLASSIFIER_QUERIES, default=["set"],
-                        help="how sampling asks the classifier: the whole failure set, or each failure (no retraining)")
+    parser.add_argument("--classifier-query", nargs="+", choices=CLASSIFIER_QUERIES, default=["each"],
+                        help="how sampling asks the classifier: each failure, or the whole failure set (no retraining)")
     parser.add_argument("--redraws", type=int, nargs="+", default=[0],
                         help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)")
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
@@ -210,7 +239,8 @@ def main() -> None:
         results_path.write_text(json.dumps(results))
         print(f"member {seed} done in {time.perf_counter() - started:.0f} s", flush=True)
     chosen = {seed: results[seed] for seed in args.members}
-    text = table(chosen)
+    text = f"{table(chosen)}\n\nOver the {len(chosen)} members (95% bootstrap intervals over members):\n\n" \
+           f"{family_summary(chosen)}"
     print(text)
     (args.out / "preferences.md").write_text(
         f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base {args.base_steps} "

@@ -140,11 +140,12 @@ class CCDPConfig(PreTrainedConfig):
     # from a pool refreshed with a batch of base samples every `classifier_resample_every` steps).
     classifier_chunks: str = "demonstrations"
     classifier_resample_every: int = 4
-    # How sampling asks the classifier about the failures: "set" (one query with the whole set F) or "each" (one
-    # query per distinct failure, P(outside F) = 1 - sum_i P(repeats z_i): exact for disjoint options, and it asks
-    # only about single failures, which every training row's set can be; composition.log_no_repeat). A sampling
-    # setting: the same trained classifier serves both.
-    classifier_query: str = "set"
+    # How sampling asks the classifier about the failures: "each" (one query per distinct failure, P(outside F) =
+    # 1 - sum_i P(repeats z_i): exact for disjoint options, and it asks only about single failures, which every
+    # training row's set can be; composition.log_no_repeat) or "set" (one query with the whole set F). A sampling
+    # setting: the same trained classifier serves both. "each" kept the base's proportions better on the 2-D
+    # family's development members (docs/benchmarks.md).
+    classifier_query: str = "each"
     # z dropout while training the recovery head, so that it also yields eps_z_null.
     p_drop_failure: float = 0.1
 

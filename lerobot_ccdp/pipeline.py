@@ -336,7 +336,7 @@ def method_forms(runs: list[TaskRun]) -> str:
         ccdp = {**c, **r.files.method_settings("ccdp")}  # the checkpoint's settings, as CCDP's flags changed them
         if ccdp.get("recovery_head") == "classifier":
             form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance "
-                    f"({ccdp.get('classifier_query', 'set')} query), w_z {ccdp['w_z']:g}")
+                    f"({ccdp.get('classifier_query', CCDPConfig.classifier_query)} query), w_z {ccdp['w_z']:g}")
             synthesis = "none (classifier learns from the demos)"
         else:
             form = f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}, w_z {ccdp['w_z']:g} against {ccdp['z_reference']}"
