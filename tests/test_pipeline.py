@@ -274,6 +274,7 @@ def test_bad_task_and_missing_settings_are_named(settings, tmp_path):
         main(["--tasks", TASK, "--methods", "oracle"])
 
 
+@pytest.mark.slow  # about 100 s; the camera paths are covered stage by stage in tests/test_cameras.py
 def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
     """--obs-type pixels_agent_pos: camera demos as video, a camera checkpoint, image-free recovery rows, and CCDP
     evaluated on rendered frames (DP runs the same checkpoint with its recovery off)."""
