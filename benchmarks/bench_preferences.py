@@ -15,7 +15,8 @@ querying the classifier of --classifier-query, with each count of --redraws (sam
 --policy.w_z, --policy.classifier_query and --policy.ccdp_redraws would: every combination runs on the same
 checkpoint and seeds). Prints the table,
 writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferences.png`
-under --out (CCDP with the first classifier, query, weight and redraw count). Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
+under --out (CCDP with the first classifier, query, weight and redraw count). Members run side by side each with its own
+--out are tabulated together with `--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
 family; settings are chosen on the development members 100-103 (`--members 100 101 102 103`).
 """
 
@@ -164,6 +165,12 @@ def _three(estimate) -> str:
     return f"{estimate.value:.3f} [{estimate.low:.3f}, {estimate.high:.3f}]"
 
 
+def measured_members(out: Path) -> dict[int, dict]:
+    """The members measured under `out` (its results.json), by seed."""
+    path = out / "results.json"
+    return {int(k): v for k, v in json.loads(path.read_text()).items()} if path.exists() else {}
+
+
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
     """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`) after
     one and two failures."""
@@ -215,11 +222,17 @@ def main() -> None:
     parser.add_argument("--redraws", type=int, nargs="+", default=[0],
                         help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)")
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
+    parser.add_argument("--merge", type=Path, nargs="+", default=[],
+                        help="with --report-only: also take the members measured under these --out folders (members "
+                             "run side by side, each with its own --out) into --out's results")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     results_path = args.out / "results.json"
-    results = {int(k): v for k, v in json.loads(results_path.read_text()).items()} if results_path.exists() else {}
+    results = measured_members(args.out)
     if args.report_only:
+        for folder in args.merge:
+            results.update(measured_members(folder))
+        results_path.write_text(json.dumps(results))
         args.members = [seed for seed in args.members if seed in results]
     for seed in [] if args.report_only else args.members:
         started = time.perf_counter()
