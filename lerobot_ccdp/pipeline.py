@@ -191,7 +191,7 @@ class TaskRun:
             self._stage(f"eval_{method}", out / "eval_info.json",
                         f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method)),
                         upstream=recovery_stamp, clear=out)
-        return self.episodes(methods)
+        return self.episodes(methods) if methods else {}
 
     def episodes(self, methods: list[str]) -> dict[str, Episodes]:
         """Every method's evaluated episodes, and the oracle's on the same seeds (run here if missing)."""
@@ -405,7 +405,8 @@ def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[Ta
         run = TaskRun(f, args.eval_seed)
         episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
         runs.append(run)
-        print(markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}), flush=True)
+        if episodes[f.task]:
+            print(markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}), flush=True)
     return runs, episodes
 
 
@@ -430,17 +431,27 @@ def main(argv: list[str] | None = None) -> None:
                         help="also write the report here (its chart beside it), e.g. docs/benchmark_report.md")
     parser.add_argument("--report-only", action="store_true",
                         help="write the report from the evaluations already in --out, running no stage")
+    parser.add_argument("--train-only", action="store_true",
+                        help="record, train and synthesise, evaluate nothing and write no report (e.g. to tune a "
+                             "method's settings on the development seeds: benchmarks/tune_methods.py)")
     args = parser.parse_args(argv)
+    if args.train_only:
+        args.methods = []
     tasks = expand_tasks(args.tasks)
     files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type) for t in tasks]
     if args.fresh and args.report_only:
         parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")
+    if args.train_only and args.report_only:
+        parser.error("--train-only runs the training stages and --report-only runs none; pass one of them")
     start = time.perf_counter()
     try:
         with exclusive(args.out):
             runs, episodes = run_tasks(files, args)
     except (PipelineError, PipelineRunning) as error:
         sys.exit(str(error))
+    if args.train_only:
+        print(f"Trained: {', '.join(str(f.out / 'recovery' / CHECKPOINT) for f in files)}")
+        return
     command = "python -m lerobot_ccdp.pipeline " + shlex.join(argv if argv is not None else sys.argv[1:])
     report = write_report(runs, episodes, args.out, command, chart=not args.no_chart)
     print(report)

@@ -157,6 +157,20 @@ def test_a_second_run_resumes_every_stage(settings, pipeline_run):
     assert (out / "summary.json").read_text() == summary
 
 
+def test_train_only_stops_before_the_evaluations_and_the_report(settings, pipeline_run):
+    out, _ = pipeline_run
+    report = (out / "report.md").read_text()
+    (out / SLUG / "oracle.json").rename(out / "oracle.json.kept")
+    try:
+        stdout = _run_pipeline(*settings, out, "--train-only")
+        assert stdout.count("done already") == 4  # record, base, synthesis, recovery
+        assert "eval_" not in stdout and not (out / SLUG / "oracle.json").exists()
+        assert f"Trained: {out / SLUG / 'recovery' / CHECKPOINT}" in stdout
+        assert (out / "report.md").read_text() == report
+    finally:
+        (out / "oracle.json.kept").rename(out / SLUG / "oracle.json")
+
+
 def test_a_changed_config_reruns_its_stage_and_those_after_it(settings, pipeline_run):
     out, _ = pipeline_run
     configs, _ = settings

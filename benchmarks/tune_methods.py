@@ -1,0 +1,130 @@
+"""Choose a recovery method's settings on the development seeds, with the same care for every method.
+
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/benchmark \
+        --method dp_star --grid dp_star_candidates=16,32 dp_star_rounds=1,4 [--seed 1000] [--write]
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/benchmark \
+        --tasks ButtonSearch-v0 --method ccdp --grid ccdp_redraws=0,3 [--write]
+
+Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy fields
+on each task's recovery checkpoint of a `make benchmark` run (or `python -m lerobot_ccdp.pipeline --train-only`),
+through lerobot-eval with the task's eval config and the method's other settings from `methods.json`, but on the
+development seeds (`--seed`, default 1000: episode i uses seed + i; the configs' test seeds start at 2000), without
+rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
+evaluation time) and picks one setting for the tasks given: the highest mean success, then the fewest repeats, then
+the first in the grid's order (list the cheapest value first). With `--write` it stores the pick under the method's
+key of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
+lerobot-eval (so those evaluations rerun and nothing else).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import shutil
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lerobot_ccdp.comparison import MethodMetrics
+from lerobot_ccdp.episodes import Episodes
+from lerobot_ccdp.pipeline import BIN, CHECKPOINT, METHODS, TASK_GROUPS, TaskFiles, expand_tasks
+
+REPO = Path(__file__).resolve().parents[1]
+Setting = tuple[tuple[str, Any], ...]  # ((field, value), ...) in the grid's order
+
+
+def parse_grid(items: list[str]) -> list[Setting]:
+    """`["dp_star_candidates=16,32", "dp_star_rounds=1,4"]` -> every combination, in the order given."""
+    axes = []
+    for item in items:
+        field, sep, values = item.partition("=")
+        if not sep or not field or not values:
+            raise SystemExit(f"--grid takes FIELD=V1,V2,... (a policy field and its values), got {item!r}")
+        axes.append([(field, value_of(v)) for v in values.split(",")])
+    return list(itertools.product(*axes))
+
+
+def value_of(text: str) -> Any:
+    """A grid value as lerobot-eval will parse it: a number or boolean, otherwise the word itself ("each")."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def label(setting: Setting) -> str:
+    return ", ".join(f"{field} {value}" for field, value in setting)
+
+
+def evaluate(files: TaskFiles, method: str, setting: Setting, seed: int) -> tuple[MethodMetrics, float]:
+    """`method` with `setting` on one task's recovery checkpoint, evaluated as the benchmark evaluates it but
+    unrendered: its metrics and the evaluation's wall time."""
+    name = "_".join(f"{field}{value}" for field, value in setting)
+    run_dir = files.out / f"tune_{method}" / f"{name}_seed{seed}"
+    shutil.rmtree(run_dir, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
+    settings = {**files.method_settings(method), **dict(setting)}
+    flags = [f"--policy.{field}={value}" for field, value in settings.items()] + ["--env.render_mode=null"]
+    command = files.eval_command(files.out / "recovery" / CHECKPOINT, method, seed, run_dir, flags)
+    command[0] = str(BIN / command[0])
+    start = time.perf_counter()
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise SystemExit(f"{' '.join(command)} failed:\n{result.stderr[-4000:]}")
+    seconds = time.perf_counter() - start
+    return MethodMetrics.of(Episodes.from_eval_info(run_dir / "eval_info.json")), seconds
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, default=Path("outputs/benchmark"), help="a make benchmark run")
+    parser.add_argument("--tasks", nargs="+", default=["all"], help=f"task ids, or one of {list(TASK_GROUPS)}")
+    parser.add_argument("--method", choices=[m for m in METHODS if m != "dp"], default="dp_star")
+    parser.add_argument("--grid", nargs="+", default=["dp_star_candidates=16,32", "dp_star_rounds=1,4"],
+                        help="policy fields and the values to try, FIELD=V1,V2,...")
+    parser.add_argument("--seed", type=int, default=1000, help="first development seed")
+    parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
+    args = parser.parse_args(argv)
+    args.tasks = expand_tasks(args.tasks)
+    settings = parse_grid(args.grid)
+    files = {t: TaskFiles.locate(t, REPO / "configs", REPO / "datasets_recipes", args.out) for t in args.tasks}
+    missing = [t for t, f in files.items() if not (f.out / "recovery" / CHECKPOINT).is_dir()]
+    if missing:
+        raise SystemExit(f"No recovery checkpoint of {missing} under {args.out}; run `make benchmark` or "
+                         "`python -m lerobot_ccdp.pipeline --train-only` first.")
+    for task, f in files.items():
+        config = f.eval_config()
+        test, n = config["seed"], config["eval"]["n_episodes"]
+        if args.seed < test + n and test < args.seed + n:
+            raise SystemExit(f"--seed {args.seed} overlaps {task}'s test seeds {test}-{test + n - 1}; "
+                             "tune on development seeds.")
+
+    rows, scores = [], {s: [] for s in settings}
+    for task, setting in itertools.product(args.tasks, settings):
+        metrics, seconds = evaluate(files[task], args.method, setting, args.seed)
+        scores[setting].append((metrics.success.value, metrics.repeats_per_opportunity.value))
+        rows.append(f"| {task} | {label(setting)} | {metrics.success} | {metrics.repeats_per_opportunity} | "
+                    f"{metrics.attempts} | {seconds:.0f} |")
+        print(rows[-1], flush=True)
+    print(f"\n{args.method} on seeds {args.seed}-{args.seed + 99}\n\n| task | setting | success | repeats per attempt "
+          "after a failure | attempts (successes) | eval s |\n|---|---|---|---|---|---|\n" + "\n".join(rows))
+
+    means = {s: np.nanmean(np.array(v, dtype=float), axis=0) for s, v in scores.items()}  # (success, repeats)
+    for setting, (success, repeats) in means.items():
+        print(f"{label(setting)}: mean success {success:.3f}, mean repeats {repeats:.3f}")
+    pick = min(settings, key=lambda s: (-means[s][0], means[s][1], settings.index(s)))
+    print(f"pick for {args.method}: {label(pick)} (seeds {args.seed}-{args.seed + 99})")
+    if args.write:
+        for f in files.values():
+            path = f.eval.with_name("methods.json")
+            current = json.loads(path.read_text()) if path.is_file() else {}
+            current[args.method] = {**current.get(args.method, {}), **dict(pick)}
+            path.write_text(json.dumps(current, indent=2) + "\n")
+            print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
