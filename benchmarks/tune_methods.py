@@ -10,10 +10,11 @@ on each task's recovery checkpoint of a `make benchmark` run (or `python -m lero
 through lerobot-eval with the task's eval config and the method's other settings from `methods.json`, but on the
 development seeds (`--seed`, default 1000: episode i uses seed + i; the configs' test seeds start at 2000), without
 rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
-evaluation time) and picks one setting for the tasks given: the highest mean success, then the fewest repeats, then
-the first in the grid's order (list the cheapest value first). With `--write` it stores the pick under the method's
+evaluation time; success and repeats also as paired differences against the grid's first setting) and picks one
+setting for the tasks given: the highest mean success, then the fewest repeats, then the first in the grid's order
+(list the cheapest value first). With `--write` it stores the pick under the method's
 key of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
-lerobot-eval (so those evaluations rerun and nothing else).
+lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import numpy as np
 
 from lerobot_ccdp.comparison import MethodMetrics
 from lerobot_ccdp.episodes import Episodes
+from lerobot_ccdp.paired import paired_difference, repeats_per_opportunity, success_rate
 from lerobot_ccdp.pipeline import BIN, CHECKPOINT, METHODS, TASK_GROUPS, TaskFiles, expand_tasks
 
 REPO = Path(__file__).resolve().parents[1]
@@ -60,22 +62,36 @@ def label(setting: Setting) -> str:
     return ", ".join(f"{field} {value}" for field, value in setting)
 
 
-def evaluate(files: TaskFiles, method: str, setting: Setting, seed: int) -> tuple[MethodMetrics, float]:
-    """`method` with `setting` on one task's recovery checkpoint, evaluated as the benchmark evaluates it but
-    unrendered: its metrics and the evaluation's wall time."""
+def run_dir(files: TaskFiles, method: str, setting: Setting, seed: int) -> Path:
     name = "_".join(f"{field}{value}" for field, value in setting)
-    run_dir = files.out / f"tune_{method}" / f"{name}_seed{seed}"
-    shutil.rmtree(run_dir, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
+    return files.out / f"tune_{method}" / f"{name}_seed{seed}"
+
+
+def evaluate(files: TaskFiles, method: str, setting: Setting, seed: int) -> float:
+    """`method` with `setting` on one task's recovery checkpoint, evaluated as the benchmark evaluates it but
+    unrendered, into `run_dir`: the evaluation's wall time."""
+    out = run_dir(files, method, setting, seed)
+    shutil.rmtree(out, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
     settings = {**files.method_settings(method), **dict(setting)}
     flags = [f"--policy.{field}={value}" for field, value in settings.items()] + ["--env.render_mode=null"]
-    command = files.eval_command(files.out / "recovery" / CHECKPOINT, method, seed, run_dir, flags)
+    command = files.eval_command(files.out / "recovery" / CHECKPOINT, method, seed, out, flags)
     command[0] = str(BIN / command[0])
     start = time.perf_counter()
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode != 0:
         raise SystemExit(f"{' '.join(command)} failed:\n{result.stderr[-4000:]}")
     seconds = time.perf_counter() - start
-    return MethodMetrics.of(Episodes.from_eval_info(run_dir / "eval_info.json")), seconds
+    (out / "seconds.txt").write_text(f"{seconds:.1f}\n")
+    return seconds
+
+
+def measured(files: TaskFiles, method: str, setting: Setting, seed: int) -> tuple[Episodes, float]:
+    """The episodes of one evaluation already in `run_dir`, and its wall time."""
+    out = run_dir(files, method, setting, seed)
+    if not (out / "eval_info.json").is_file():
+        raise SystemExit(f"No evaluation of {method} with {label(setting)} under {out}; run without --report-only.")
+    seconds = out / "seconds.txt"
+    return Episodes.from_eval_info(out / "eval_info.json"), float(seconds.read_text()) if seconds.is_file() else np.nan
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -87,6 +103,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="policy fields and the values to try, FIELD=V1,V2,...")
     parser.add_argument("--seed", type=int, default=1000, help="first development seed")
     parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
+    parser.add_argument("--report-only", action="store_true",
+                        help="tabulate the evaluations of an earlier run of this grid under --out, running none")
     args = parser.parse_args(argv)
     args.tasks = expand_tasks(args.tasks)
     settings = parse_grid(args.grid)
@@ -103,14 +121,24 @@ def main(argv: list[str] | None = None) -> None:
                              "tune on development seeds.")
 
     rows, scores = [], {s: [] for s in settings}
-    for task, setting in itertools.product(args.tasks, settings):
-        metrics, seconds = evaluate(files[task], args.method, setting, args.seed)
-        scores[setting].append((metrics.success.value, metrics.repeats_per_opportunity.value))
-        rows.append(f"| {task} | {label(setting)} | {metrics.success} | {metrics.repeats_per_opportunity} | "
-                    f"{metrics.attempts} | {seconds:.0f} |")
-        print(rows[-1], flush=True)
-    print(f"\n{args.method} on seeds {args.seed}-{args.seed + 99}\n\n| task | setting | success | repeats per attempt "
-          "after a failure | attempts (successes) | eval s |\n|---|---|---|---|---|---|\n" + "\n".join(rows))
+    for task in args.tasks:
+        episodes = {}
+        for setting in settings:
+            if not args.report_only:
+                evaluate(files[task], args.method, setting, args.seed)
+            episodes[setting], seconds = measured(files[task], args.method, setting, args.seed)
+            metrics = MethodMetrics.of(episodes[setting])
+            scores[setting].append((metrics.success.value, metrics.repeats_per_opportunity.value))
+            first = episodes[settings[0]]
+            rows.append(f"| {task} | {label(setting)} | {metrics.success} | "
+                        f"{paired_difference(episodes[setting], first, success_rate)} | "
+                        f"{metrics.repeats_per_opportunity} | "
+                        f"{paired_difference(episodes[setting], first, repeats_per_opportunity)} | "
+                        f"{metrics.attempts} | {seconds:.0f} |")
+            print(rows[-1], flush=True)
+    print(f"\n{args.method} on seeds {args.seed}-{args.seed + 99}; differences are paired (same seeds) against "
+          f"{label(settings[0])}\n\n| task | setting | success | difference | repeats per attempt after a failure | "
+          "difference | attempts (successes) | eval s |\n|---|---|---|---|---|---|---|---|\n" + "\n".join(rows))
 
     means = {s: np.nanmean(np.array(v, dtype=float), axis=0) for s, v in scores.items()}  # (success, repeats)
     for setting, (success, repeats) in means.items():
