@@ -12,9 +12,9 @@ development seeds (`--seed`, default 1000: episode i uses seed + i; the configs'
 rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
 evaluation time; success and repeats also as paired differences against the grid's first setting) and picks one
 setting for the tasks given: the highest mean success, then the fewest repeats, then the first in the grid's order
-(list the cheapest value first). With `--write` it stores the pick under the method's
-key of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
-lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
+(list the cheapest value first). With `--write` it stores the pick under the method's key of each of those tasks'
+`configs/<task>/methods.json`, which `make benchmark` passes to that method's lerobot-eval (so those evaluations
+rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
 """
 
 from __future__ import annotations
@@ -72,8 +72,7 @@ def evaluate(files: TaskFiles, method: str, setting: Setting, seed: int) -> floa
     unrendered, into `run_dir`: the evaluation's wall time."""
     out = run_dir(files, method, setting, seed)
     shutil.rmtree(out, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
-    settings = {**files.method_settings(method), **dict(setting)}
-    flags = [f"--policy.{field}={value}" for field, value in settings.items()] + ["--env.render_mode=null"]
+    flags = files.method_flags(method, dict(setting)) + ["--env.render_mode=null"]
     command = files.eval_command(files.out / "recovery" / CHECKPOINT, method, seed, out, flags)
     command[0] = str(BIN / command[0])
     start = time.perf_counter()
@@ -116,6 +115,7 @@ def main(argv: list[str] | None = None) -> None:
     for task, f in files.items():
         config = f.eval_config()
         test, n = config["seed"], config["eval"]["n_episodes"]
+        last = args.seed + n - 1
         if args.seed < test + n and test < args.seed + n:
             raise SystemExit(f"--seed {args.seed} overlaps {task}'s test seeds {test}-{test + n - 1}; "
                              "tune on development seeds.")
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> None:
                         f"{paired_difference(episodes[setting], first, repeats_per_opportunity)} | "
                         f"{metrics.attempts} | {seconds:.0f} |")
             print(rows[-1], flush=True)
-    print(f"\n{args.method} on seeds {args.seed}-{args.seed + 99}; differences are paired (same seeds) against "
+    print(f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "
           f"{label(settings[0])}\n\n| task | setting | success | difference | repeats per attempt after a failure | "
           "difference | attempts (successes) | eval s |\n|---|---|---|---|---|---|---|---|\n" + "\n".join(rows))
 
@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None) -> None:
     for setting, (success, repeats) in means.items():
         print(f"{label(setting)}: mean success {success:.3f}, mean repeats {repeats:.3f}")
     pick = min(settings, key=lambda s: (-means[s][0], means[s][1], settings.index(s)))
-    print(f"pick for {args.method}: {label(pick)} (seeds {args.seed}-{args.seed + 99})")
+    print(f"pick for {args.method}: {label(pick)} (seeds {args.seed}-{last})")
     if args.write:
         for f in files.values():
             path = f.eval.with_name("methods.json")

@@ -132,9 +132,10 @@ class TaskFiles:
             raise ValueError(f"{path} names unknown method(s) {unknown}; its keys are among {list(METHODS)}")
         return settings.get(method, {})
 
-    def method_flags(self, method: str) -> list[str]:
-        """`method_settings` as lerobot-eval's `--policy.*` overrides."""
-        return [f"--policy.{key}={value}" for key, value in self.method_settings(method).items()]
+    def method_flags(self, method: str, overrides: dict[str, Any] | None = None) -> list[str]:
+        """`method_settings`, with `overrides` on top (a setting being tuned), as lerobot-eval's `--policy.*` flags."""
+        settings = {**self.method_settings(method), **(overrides or {})}
+        return [f"--policy.{key}={value}" for key, value in settings.items()]
 
     def eval_command(self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str]) -> list[str]:
         """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`."""
