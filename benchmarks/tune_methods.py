@@ -10,7 +10,7 @@ on each task's recovery checkpoint of a `make benchmark` run (or `python -m lero
 through lerobot-eval with the task's eval config and the method's other settings from `methods.json`, but on the
 development seeds (`--seed`, default 1000: episode i uses seed + i; the configs' test seeds start at 2000), without
 rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
-evaluation time; success and repeats also as paired differences against the grid's first setting) and picks one
+why episodes were lost, evaluation time; success and repeats also as paired differences against the grid's first setting) and picks one
 setting for the tasks given: the highest mean success, then the fewest repeats, then the first in the grid's order
 (list the cheapest value first). With `--write` it stores the pick under the method's key of each of those tasks'
 `configs/<task>/methods.json`, which `make benchmark` passes to that method's lerobot-eval (so those evaluations
@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from lerobot_ccdp.comparison import MethodMetrics
-from lerobot_ccdp.episodes import Episodes
+from lerobot_ccdp.comparison import LOST_HEADER, MethodMetrics
+from lerobot_ccdp.episodes import Episodes, LostEpisodes
 from lerobot_ccdp.paired import paired_difference, repeats_per_opportunity, success_rate
 from lerobot_ccdp.pipeline import BIN, CHECKPOINT, METHODS, TASK_GROUPS, TaskFiles, expand_tasks
 
@@ -134,11 +134,12 @@ def main(argv: list[str] | None = None) -> None:
                         f"{paired_difference(episodes[setting], first, success_rate)} | "
                         f"{metrics.repeats_per_opportunity} | "
                         f"{paired_difference(episodes[setting], first, repeats_per_opportunity)} | "
-                        f"{metrics.attempts} | {seconds:.0f} |")
+                        f"{metrics.attempts} | {LostEpisodes.of(episodes[setting])} | {seconds:.0f} |")
             print(rows[-1], flush=True)
     print(f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "
           f"{label(settings[0])}\n\n| task | setting | success | difference | repeats per attempt after a failure | "
-          "difference | attempts (successes) | eval s |\n|---|---|---|---|---|---|---|---|\n" + "\n".join(rows))
+          f"difference | attempts (successes) | {LOST_HEADER} | eval s |\n|---|---|---|---|---|---|---|---|---|\n"
+          + "\n".join(rows))
 
     means = {s: np.nanmean(np.array(v, dtype=float), axis=0) for s, v in scores.items()}  # (success, repeats)
     for setting, (success, repeats) in means.items():

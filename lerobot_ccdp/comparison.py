@@ -9,7 +9,9 @@ Metrics, from each episode's final env info:
 - repeated-failure rate per opportunity: the same repeats over the attempts made after at least one failure,
   the only attempts that could repeat one; and the share of episodes with any repeat. Both ratios over
   attempts use an episode-level (cluster) bootstrap, as attempts of one episode are not independent;
-- preference adherence: successful episodes whose every choice was the demonstrated preference (Wilson).
+- preference adherence: successful episodes whose every choice was the demonstrated preference (Wilson);
+- why the other episodes were lost (`LostEpisodes`): a repeated failure, no failed attempt at all, or distinct
+  failures only.
 
 Comparisons between methods are paired by seed: `lerobot_ccdp.targets`.
 """
@@ -22,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_ccdp.envs.tasks import task_family
-from lerobot_ccdp.episodes import Episodes, Estimate
+from lerobot_ccdp.episodes import Episodes, Estimate, LostEpisodes
 from lerobot_ccdp.paired import cluster_bootstrap, repeats_per_attempt, repeats_per_opportunity
 
 METHOD_LABELS = {"dp": "DP", "dp_star": "DP*", "ccdp": "CCDP", "oracle": "no-repeat oracle"}
@@ -107,6 +109,18 @@ def markdown_table(results: Results) -> str:
         for method, metrics in methods.items():
             cells = " | ".join(str(getattr(metrics, name)) for name in METRIC_LABELS)
             lines.append(f"| {task} | {METHOD_LABELS[method]} | {metrics.success.n} | {cells} |")
+    return "\n".join(lines)
+
+
+LOST_HEADER = "lost: with a repeat / without any failure / after distinct failures only"
+
+
+def lost_table(episodes: dict[str, dict[str, Episodes]]) -> str:
+    """Per task and method, how many episodes were lost and why (`LostEpisodes`)."""
+    lines = [f"| task | method | {LOST_HEADER} |", "|---|---|---|"]
+    for task, methods in episodes.items():
+        for method, runs in methods.items():
+            lines.append(f"| {task} | {METHOD_LABELS[method]} | {LostEpisodes.of(runs)} |")
     return "\n".join(lines)
 
 

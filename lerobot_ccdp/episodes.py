@@ -35,6 +35,7 @@ class Episodes:
     repeated_failures: np.ndarray
     preference_matched: np.ndarray
     attempts_after_failure: np.ndarray  # NaN where the run predates the metric
+    failures: np.ndarray  # failed attempts; NaN where the run predates the metric
 
     @classmethod
     def from_infos(cls, infos: list[Mapping[str, Any]]) -> Episodes:
@@ -45,6 +46,7 @@ class Episodes:
             repeated_failures=np.array([int(i["repeated_failures"]) for i in infos]),
             preference_matched=np.array([bool(i["preference_matched"]) for i in infos]),
             attempts_after_failure=np.array([float(i.get("attempts_after_failure", np.nan)) for i in infos]),
+            failures=np.array([float(i.get("failures", np.nan)) for i in infos]),
         )
 
     @classmethod
@@ -68,6 +70,7 @@ class Episodes:
             preference_matched=np.asarray(metrics["preference_matched"], dtype=bool),
             attempts_after_failure=np.asarray(
                 metrics.get("attempts_after_failure", [np.nan] * len(metrics["successes"])), dtype=float),
+            failures=np.asarray(metrics.get("failures", [np.nan] * len(metrics["successes"])), dtype=float),
         )
 
     def subset(self, mask: np.ndarray) -> Episodes:
@@ -76,3 +79,30 @@ class Episodes:
 
     def __len__(self) -> int:
         return len(self.success)
+
+
+@dataclass(frozen=True)
+class LostEpisodes:
+    """Why the unsuccessful episodes of a run were lost, which says whether recovery or execution costs success:
+    `with_repeat` repeated a failed option (what recovery should prevent); `without_failure` ended before any attempt
+    failed (the policy never completed one: an execution problem that no failure memory can fix); `distinct_failures`
+    failed only different options and ran out of time or of allowed failures."""
+
+    lost: int
+    with_repeat: int
+    without_failure: int | None  # None where the run predates the per-episode failure count
+    distinct_failures: int | None
+
+    @classmethod
+    def of(cls, episodes: Episodes) -> LostEpisodes:
+        lost = ~episodes.success
+        repeat = lost & (episodes.repeated_failures > 0)
+        if np.isnan(episodes.failures).any():
+            return cls(int(lost.sum()), int(repeat.sum()), None, None)
+        none = lost & (episodes.failures == 0)
+        return cls(int(lost.sum()), int(repeat.sum()), int(none.sum()), int((lost & ~repeat & ~none).sum()))
+
+    def __str__(self) -> str:
+        if self.without_failure is None:
+            return f"{self.lost}: {self.with_repeat} / n/a / n/a"
+        return f"{self.lost}: {self.with_repeat} / {self.without_failure} / {self.distinct_failures}"

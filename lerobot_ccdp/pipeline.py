@@ -37,6 +37,7 @@ from lerobot_ccdp.comparison import (
     MethodMetrics,
     Results,
     bar_chart,
+    lost_table,
     markdown_table,
 )
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
@@ -372,6 +373,10 @@ def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], 
         "## Targets",
         "Judged from paired 95% intervals (same seeds for every method): `docs/evaluation.md`.",
         target_checks(episodes),
+        "## Lost episodes",
+        "Whether recovery or execution costs success: a lost episode repeated a failed option, or never had an "
+        "attempt fail (the policy did not complete one before the time limit), or failed distinct options only.",
+        lost_table(episodes),
         "## Time per stage (s)",
         time_breakdown(runs),
     ]

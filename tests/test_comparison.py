@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lerobot_ccdp.comparison import Episodes, MethodMetrics, bootstrap_mean, markdown_table, wilson
-from lerobot_ccdp.episodes import Estimate
+from lerobot_ccdp.episodes import Estimate, LostEpisodes
 from lerobot_ccdp.paired import cluster_bootstrap, paired_difference, repeats_per_attempt, success_rate, verdict
 from lerobot_ccdp.targets import target_checks
 
@@ -24,12 +24,27 @@ def test_bootstrap_interval_contains_the_mean_and_is_reproducible():
     assert first == second and first.low < values.mean() < first.high and first.n == 6
 
 
-def _episodes(success, attempts, repeated, preference, after_failure=None) -> Episodes:
-    """Episodes; attempts after a failure default to what a one-stage task gives: attempts - 1 if any failed."""
+def _episodes(success, attempts, repeated, preference, after_failure=None, failures=None) -> Episodes:
+    """Episodes; attempts after a failure and failures default to what a one-stage task gives: attempts - 1 if any
+    failed, and every attempt but a success."""
     attempts, success = np.array(attempts), np.array(success)
     if after_failure is None:
         after_failure = np.where(attempts > np.array(success, dtype=int), attempts - 1, 0)
-    return Episodes(success, attempts, np.array(repeated), np.array(preference), np.array(after_failure, dtype=float))
+    if failures is None:
+        failures = attempts - np.array(success, dtype=int)
+    return Episodes(success, attempts, np.array(repeated), np.array(preference), np.array(after_failure, dtype=float),
+                    np.array(failures, dtype=float))
+
+
+def test_lost_episodes_are_split_by_repeat_no_failure_and_distinct_failures():
+    # Lost: one repeated a failure, one never had an attempt fail (time ran out), two failed distinct options only.
+    runs = _episodes([True, False, False, False, False], [2, 3, 0, 2, 1], [0, 1, 0, 0, 0], [True] + [False] * 4,
+                     failures=[1, 3, 0, 2, 1])
+    lost = LostEpisodes.of(runs)
+    assert (lost.lost, lost.with_repeat, lost.without_failure, lost.distinct_failures) == (4, 1, 1, 2)
+    assert str(lost) == "4: 1 / 1 / 2"
+    older = _episodes([False, False], [1, 2], [0, 1], [False, False], failures=[np.nan, np.nan])  # no failure count
+    assert str(LostEpisodes.of(older)) == "2: 1 / n/a / n/a"
 
 
 def test_metrics_count_attempts_of_successes_and_repeats_over_all_attempts():

@@ -127,6 +127,10 @@ def test_report_table_chart_and_timings(pipeline_run):
     assert report.split("## Targets")[0] in stdout  # the table is printed too
     form = report.split("## What ran")[1].split("## Targets")[0]  # the form of the method that ran, and the seeds
     assert f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 3 against eps_z_null" in form
+    lost = report.split("## Lost episodes")[1].split("## Time per stage")[0]  # each method's lost episodes, by cause
+    for method in METHODS:
+        episodes = Episodes.from_eval_info(out / SLUG / "eval" / method / "eval_info.json")
+        assert f"| {TASK} | {method.upper()} | {(~episodes.success).sum()}: " in lost
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary[TASK]) == {*METHODS, "oracle"}
     assert summary[TASK]["oracle"]["success"]["value"] == 1.0
@@ -265,9 +269,10 @@ def test_a_killed_pipeline_leaves_no_stage_running_and_a_rerun_resumes(settings,
     while any(_running(pid) for pid in children):  # the kernel delivers the child's death signal
         time.sleep(0.2)
     assert "End of training" not in (out / SLUG / "logs" / "train_base.log").read_text()  # killed, not finished
-    stdout = _run_pipeline(configs, recipes, out, "--no-chart", methods=["dp"])
+    stdout = _run_pipeline(configs, recipes, out, "--train-only", methods=["dp"])  # the evaluations add nothing here
     assert "record: done already" in stdout and "train_base: lerobot-train" in stdout  # the killed stage reruns
-    assert (out / SLUG / "eval" / "dp" / "eval_info.json").exists()
+    assert "End of training" in (out / SLUG / "logs" / "train_base.log").read_text()
+    assert (out / SLUG / "recovery" / CHECKPOINT / "model.safetensors").exists()  # and the stages after it
 
 
 def _running(pid: int) -> bool:
