@@ -15,6 +15,10 @@ setting for the tasks given: the highest mean success, then the fewest repeats, 
 (list the cheapest value first). With `--write` it stores the pick under the method's key of each of those tasks'
 `configs/<task>/methods.json`, which `make benchmark` passes to that method's lerobot-eval (so those evaluations
 rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
+
+`--checkpoint NAME=PATH` adds another recovery checkpoint of the same base (a different recovery head, trained with
+lerobot-train from `<out>/<task>/base`), evaluated with every grid setting on the same seeds, so the heads compare
+paired; `--write` refuses a pick on such a checkpoint, as the head is chosen in the task's train_base.json.
 """
 
 from __future__ import annotations
@@ -62,18 +66,33 @@ def label(setting: Setting) -> str:
     return ", ".join(f"{field} {value}" for field, value in setting)
 
 
-def run_dir(files: TaskFiles, method: str, setting: Setting, seed: int) -> Path:
+def row_label(row: tuple[str, Setting]) -> str:
+    """A table row's name: the setting, after the checkpoint's name where it is not the run's own."""
+    name, setting = row
+    return label(setting) if name == OWN else f"{name}: {label(setting)}"
+
+
+OWN = "recovery"  # the name of the run's own recovery checkpoint, `<out>/<task>/recovery`
+
+
+def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, seed: int) -> Path:
     name = "_".join(f"{field}{value}" for field, value in setting)
-    return files.out / f"tune_{method}" / f"{name}_seed{seed}"
+    prefix = "" if checkpoint == OWN else f"{checkpoint}_"
+    return files.out / f"tune_{method}" / f"{prefix}{name}_seed{seed}"
 
 
-def evaluate(files: TaskFiles, method: str, setting: Setting, seed: int) -> float:
-    """`method` with `setting` on one task's recovery checkpoint, evaluated as the benchmark evaluates it but
+def checkpoint_path(files: TaskFiles, checkpoints: dict[str, str], name: str) -> Path:
+    """The recovery checkpoint `name` of one task: the run's own, or a `--checkpoint` path with `{slug}` filled."""
+    return files.out / "recovery" / CHECKPOINT if name == OWN else Path(checkpoints[name].format(slug=files.out.name))
+
+
+def evaluate(files: TaskFiles, method: str, checkpoint: Path, name: str, setting: Setting, seed: int) -> float:
+    """`method` with `setting` on one task's recovery `checkpoint`, evaluated as the benchmark evaluates it but
     unrendered, into `run_dir`: the evaluation's wall time."""
-    out = run_dir(files, method, setting, seed)
+    out = run_dir(files, method, name, setting, seed)
     shutil.rmtree(out, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
     flags = files.method_flags(method, dict(setting)) + ["--env.render_mode=null"]
-    command = files.eval_command(files.out / "recovery" / CHECKPOINT, method, seed, out, flags)
+    command = files.eval_command(checkpoint, method, seed, out, flags)
     command[0] = str(BIN / command[0])
     start = time.perf_counter()
     result = subprocess.run(command, capture_output=True, text=True)
@@ -84,9 +103,9 @@ def evaluate(files: TaskFiles, method: str, setting: Setting, seed: int) -> floa
     return seconds
 
 
-def measured(files: TaskFiles, method: str, setting: Setting, seed: int) -> tuple[Episodes, float]:
+def measured(files: TaskFiles, method: str, name: str, setting: Setting, seed: int) -> tuple[Episodes, float]:
     """The episodes of one evaluation already in `run_dir`, and its wall time."""
-    out = run_dir(files, method, setting, seed)
+    out = run_dir(files, method, name, setting, seed)
     if not (out / "eval_info.json").is_file():
         raise SystemExit(f"No evaluation of {method} with {label(setting)} under {out}; run without --report-only.")
     seconds = out / "seconds.txt"
@@ -100,18 +119,25 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--method", choices=[m for m in METHODS if m != "dp"], default="dp_star")
     parser.add_argument("--grid", nargs="+", default=["dp_star_candidates=16,32", "dp_star_rounds=1,4"],
                         help="policy fields and the values to try, FIELD=V1,V2,...")
+    parser.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
+                        help="also evaluate this recovery checkpoint (another head trained from the run's base; "
+                             "`{slug}` in PATH is the task's folder name), crossed with the grid")
     parser.add_argument("--seed", type=int, default=1000, help="first development seed")
     parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
     parser.add_argument("--report-only", action="store_true",
                         help="tabulate the evaluations of an earlier run of this grid under --out, running none")
     args = parser.parse_args(argv)
     args.tasks = expand_tasks(args.tasks)
-    settings = parse_grid(args.grid)
+    checkpoints = dict(item.split("=", 1) for item in args.checkpoint if "=" in item)
+    if len(checkpoints) != len(args.checkpoint) or OWN in checkpoints:
+        raise SystemExit(f"--checkpoint takes NAME=PATH with a NAME other than {OWN!r}, got {args.checkpoint}")
+    rows_of = [(name, setting) for name in [OWN, *checkpoints] for setting in parse_grid(args.grid)]
     files = {t: TaskFiles.locate(t, REPO / "configs", REPO / "datasets_recipes", args.out) for t in args.tasks}
-    missing = [t for t, f in files.items() if not (f.out / "recovery" / CHECKPOINT).is_dir()]
+    missing = [str(checkpoint_path(f, checkpoints, name)) for f in files.values() for name in [OWN, *checkpoints]
+               if not checkpoint_path(f, checkpoints, name).is_dir()]
     if missing:
-        raise SystemExit(f"No recovery checkpoint of {missing} under {args.out}; run `make benchmark` or "
-                         "`python -m lerobot_ccdp.pipeline --train-only` first.")
+        raise SystemExit(f"No recovery checkpoint at {missing}; run `make benchmark` or "
+                         "`python -m lerobot_ccdp.pipeline --train-only` first, and check the --checkpoint paths.")
     for task, f in files.items():
         config = f.eval_config()
         test, n = config["seed"], config["eval"]["n_episodes"]
@@ -120,32 +146,37 @@ def main(argv: list[str] | None = None) -> None:
             raise SystemExit(f"--seed {args.seed} overlaps {task}'s test seeds {test}-{test + n - 1}; "
                              "tune on development seeds.")
 
-    rows, scores = [], {s: [] for s in settings}
+    rows, scores = [], {row: [] for row in rows_of}
     for task in args.tasks:
         episodes = {}
-        for setting in settings:
+        for row in rows_of:
+            name, setting = row
             if not args.report_only:
-                evaluate(files[task], args.method, setting, args.seed)
-            episodes[setting], seconds = measured(files[task], args.method, setting, args.seed)
-            metrics = MethodMetrics.of(episodes[setting])
-            scores[setting].append((metrics.success.value, metrics.repeats_per_opportunity.value))
-            first = episodes[settings[0]]
-            rows.append(f"| {task} | {label(setting)} | {metrics.success} | "
-                        f"{paired_difference(episodes[setting], first, success_rate)} | "
+                evaluate(files[task], args.method, checkpoint_path(files[task], checkpoints, name), name, setting,
+                         args.seed)
+            episodes[row], seconds = measured(files[task], args.method, name, setting, args.seed)
+            metrics = MethodMetrics.of(episodes[row])
+            scores[row].append((metrics.success.value, metrics.repeats_per_opportunity.value))
+            first = episodes[rows_of[0]]
+            rows.append(f"| {task} | {row_label(row)} | {metrics.success} | "
+                        f"{paired_difference(episodes[row], first, success_rate)} | "
                         f"{metrics.repeats_per_opportunity} | "
-                        f"{paired_difference(episodes[setting], first, repeats_per_opportunity)} | "
-                        f"{metrics.attempts} | {LostEpisodes.of(episodes[setting])} | {seconds:.0f} |")
+                        f"{paired_difference(episodes[row], first, repeats_per_opportunity)} | "
+                        f"{metrics.attempts} | {LostEpisodes.of(episodes[row])} | {seconds:.0f} |")
             print(rows[-1], flush=True)
     print(f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "
-          f"{label(settings[0])}\n\n| task | setting | success | difference | repeats per attempt after a failure | "
+          f"{row_label(rows_of[0])}\n\n| task | setting | success | difference | repeats per attempt after a failure | "
           f"difference | attempts (successes) | {LOST_HEADER} | eval s |\n|---|---|---|---|---|---|---|---|---|\n"
           + "\n".join(rows))
 
-    means = {s: np.nanmean(np.array(v, dtype=float), axis=0) for s, v in scores.items()}  # (success, repeats)
-    for setting, (success, repeats) in means.items():
-        print(f"{label(setting)}: mean success {success:.3f}, mean repeats {repeats:.3f}")
-    pick = min(settings, key=lambda s: (-means[s][0], means[s][1], settings.index(s)))
-    print(f"pick for {args.method}: {label(pick)} (seeds {args.seed}-{last})")
+    means = {r: np.nanmean(np.array(v, dtype=float), axis=0) for r, v in scores.items()}  # (success, repeats)
+    for row, (success, repeats) in means.items():
+        print(f"{row_label(row)}: mean success {success:.3f}, mean repeats {repeats:.3f}")
+    name, pick = min(rows_of, key=lambda r: (-means[r][0], means[r][1], rows_of.index(r)))
+    print(f"pick for {args.method}: {row_label((name, pick))} (seeds {args.seed}-{last})")
+    if args.write and name != OWN:
+        raise SystemExit(f"Not written: the pick is the checkpoint {name!r}, not the run's own. A recovery head is "
+                         "part of the task's configs (`recovery_head` in train_base.json), not of methods.json.")
     if args.write:
         for f in files.values():
             path = f.eval.with_name("methods.json")
