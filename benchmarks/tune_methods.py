@@ -10,9 +10,9 @@ on each task's recovery checkpoint of a `make benchmark` run (or `python -m lero
 through lerobot-eval with the task's eval config and the method's other settings from `methods.json`, but on the
 development seeds (`--seed`, default 1000: episode i uses seed + i; the configs' test seeds start at 2000), without
 rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
-why episodes were lost, evaluation time; success and repeats also as paired differences against the grid's first setting) and picks one
-setting for the tasks given: the highest mean success, then the fewest repeats, then the first in the grid's order
-(list the cheapest value first). With `--write` it stores the pick under the method's key of each of those tasks'
+why episodes were lost, evaluation time; success and repeats also as paired differences against the grid's first
+setting) and picks one setting for the tasks given: the highest mean success, then the fewest repeats, then the
+first in the grid's order (list the cheapest value first). With `--write` it stores the pick under the method's key of each of those tasks'
 `configs/<task>/methods.json`, which `make benchmark` passes to that method's lerobot-eval (so those evaluations
 rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
 
@@ -66,13 +66,13 @@ def label(setting: Setting) -> str:
     return ", ".join(f"{field} {value}" for field, value in setting)
 
 
+OWN = "recovery"  # the name of the run's own recovery checkpoint, `<out>/<task>/recovery`
+
+
 def row_label(row: tuple[str, Setting]) -> str:
     """A table row's name: the setting, after the checkpoint's name where it is not the run's own."""
     name, setting = row
     return label(setting) if name == OWN else f"{name}: {label(setting)}"
-
-
-OWN = "recovery"  # the name of the run's own recovery checkpoint, `<out>/<task>/recovery`
 
 
 def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, seed: int) -> Path:
@@ -133,8 +133,8 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(f"--checkpoint takes NAME=PATH with a NAME other than {OWN!r}, got {args.checkpoint}")
     rows_of = [(name, setting) for name in [OWN, *checkpoints] for setting in parse_grid(args.grid)]
     files = {t: TaskFiles.locate(t, REPO / "configs", REPO / "datasets_recipes", args.out) for t in args.tasks}
-    missing = [str(checkpoint_path(f, checkpoints, name)) for f in files.values() for name in [OWN, *checkpoints]
-               if not checkpoint_path(f, checkpoints, name).is_dir()]
+    paths = {t: {name: checkpoint_path(f, checkpoints, name) for name in [OWN, *checkpoints]} for t, f in files.items()}
+    missing = [str(path) for by_name in paths.values() for path in by_name.values() if not path.is_dir()]
     if missing:
         raise SystemExit(f"No recovery checkpoint at {missing}; run `make benchmark` or "
                          "`python -m lerobot_ccdp.pipeline --train-only` first, and check the --checkpoint paths.")
@@ -152,8 +152,7 @@ def main(argv: list[str] | None = None) -> None:
         for row in rows_of:
             name, setting = row
             if not args.report_only:
-                evaluate(files[task], args.method, checkpoint_path(files[task], checkpoints, name), name, setting,
-                         args.seed)
+                evaluate(files[task], args.method, paths[task][name], name, setting, args.seed)
             episodes[row], seconds = measured(files[task], args.method, name, setting, args.seed)
             metrics = MethodMetrics.of(episodes[row])
             scores[row].append((metrics.success.value, metrics.repeats_per_opportunity.value))
