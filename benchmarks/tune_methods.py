@@ -12,9 +12,9 @@ development seeds (`--seed`, default 1000: episode i uses seed + i; the configs'
 rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
 why episodes were lost, evaluation time; success and repeats also as paired differences against the grid's first
 setting) and picks one setting for the tasks given: the highest mean success, then the fewest repeats, then the
-first in the grid's order (list the cheapest value first). With `--write` it stores the pick under the method's key of each of those tasks'
-`configs/<task>/methods.json`, which `make benchmark` passes to that method's lerobot-eval (so those evaluations
-rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
+first in the grid's order (list the cheapest value first). With `--write` it stores the pick under the method's
+key of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
+lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
 
 `--checkpoint NAME=PATH` adds another recovery checkpoint of the same base (a different recovery head, trained with
 lerobot-train from `<out>/<task>/base`), evaluated with every grid setting on the same seeds, so the heads compare
