@@ -265,7 +265,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        return self._video_renderer.render(self.model, self.data, "front")
+        return self._video_renderer.render(self.model, self.data, self.robot_class.video_camera)
 
     def close(self):
         self._video_renderer.close()

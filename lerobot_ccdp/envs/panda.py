@@ -58,8 +58,10 @@ def look_at(pos, target) -> str:
 
 def build_physics_scene(name: str, task_bodies: str) -> mujoco.MjModel:
     """The table, cameras and `task_bodies` (MJCF body elements, with contacts) with the Panda attached at
-    `BASE_POS`. `front` looks at the table from the arm's right, `top` from above it."""
+    `BASE_POS`. `front` looks at the table from the arm's right, `top` from above it, and `video` (the eval
+    videos') from in front of the table, over the arm's right shoulder, so a door's slide shows."""
     front = look_at((0.65, -0.2, 0.4), (0.0, 0.05, 0.08))
+    video = look_at((0.45, -0.5, 0.45), (0.0, 0.05, 0.1))
     world = mujoco.MjSpec.from_string(f"""
 <mujoco model="ccdp_{name}">
   <option timestep="{TIMESTEP}" integrator="implicitfast"/>
@@ -68,6 +70,7 @@ def build_physics_scene(name: str, task_bodies: str) -> mujoco.MjModel:
     {WORLD_LIGHT}
     <camera name="front" pos="0.65 -0.2 0.4" xyaxes="{front}" fovy="55"/>
     <camera name="top" pos="0 0 0.9" xyaxes="1 0 0 0 1 0" fovy="50"/>
+    <camera name="video" pos="0.45 -0.5 0.45" xyaxes="{video}" fovy="45"/>
     <geom name="table" type="plane" size="0.6 0.6 0.01" material="table" friction="0.5"/>
 {task_bodies}
   </worldbody>
@@ -112,6 +115,7 @@ class PandaArm:
         self.target = np.zeros(3)  # the end-effector target of the latest command (what the arm is trying to do)
 
     build_model = staticmethod(build_physics_scene)
+    video_camera = "video"
 
     def ee_pos(self) -> np.ndarray:
         return self.data.site_xpos[self._site].copy()

@@ -70,6 +70,8 @@ class CartesianGripper:
         self._qvel = np.array([model.joint(j).dofadr[0] for j in _JOINTS])
         self._frame_skip = round(1.0 / (CONTROL_FPS * model.opt.timestep))
 
+    video_camera = "front"  # the scene camera of `render` (LeRobot's eval videos)
+
     @staticmethod
     def build_model(name: str, task_bodies: str) -> mujoco.MjModel:
         return mujoco.MjModel.from_xml_string(build_scene_xml(name, task_bodies))

@@ -97,6 +97,19 @@ def test_a_door_pushed_the_right_way_slides_open(hidden):
     assert abs(slide[-1]) >= OPEN_SLIDE and np.sign(slide[-1]) == (1 if hidden else -1)
 
 
+def test_the_eval_video_shows_the_door_slide_open():
+    """LeRobot's eval videos (`render`) come from the scene's `video` camera, which faces the door: its slide
+    changes a tenth of the frame (from the `front` camera, which sees the door edge-on, 3%)."""
+    env = make(DOOR, render_mode="rgb_array")
+    env.reset(seed=0, options={"hidden_param": 1})
+    u = env.unwrapped
+    closed = env.render().astype(int)
+    u.data.qpos[u.model.joint("door").qposadr[0]] = OPEN_SLIDE
+    mujoco.mj_forward(u.model, u.data)
+    changed = (np.abs(env.render().astype(int) - closed).max(axis=-1) > 30).mean()
+    assert changed > 0.06
+
+
 def test_a_pressed_button_is_a_cap_pushed_into_its_housing_that_springs_back():
     env = make(BUTTONS)
     obs, info = env.reset(seed=2, options={"hidden_param": 3})
