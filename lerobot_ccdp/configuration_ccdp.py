@@ -10,6 +10,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 RECOVERY_MODES = ("ccdp", "dp", "dp_star")
 FAILURE_FEATURES = ("final_state", "action", "primitive")
+FAILURE_STATES_AT = ("attempt_end", "demonstrated_end")
 TRAINING_STAGES = ("base", "recovery")
 RECOVERY_HEADS = ("unet", "mlp", "classifier")
 CLASSIFIER_CHUNKS = ("demonstrations", "base_samples")
@@ -101,6 +102,12 @@ class CCDPConfig(PreTrainedConfig):
     # final_state: which observation and which of its dims form z (empty = all dims).
     failure_state_key: str = OBS_STATE
     failure_state_dims: list[int] = field(default_factory=list)
+    # final_state: where a failure's z is read. "attempt_end": the observed state where the failed attempt stopped.
+    # "demonstrated_end": the final state of the demonstration whose chunk is nearest the one executing when the
+    # failure was flagged, i.e. where the attempt was heading. The second matches the z the recovery head trained
+    # on when a failure is flagged mid-option (a pick that slips 4 cm above the box ends nowhere a pick is
+    # demonstrated to end); it needs the outcome table, as `primitive` does.
+    failure_state_at: str = "attempt_end"
     # action: which steps of the attempt's first chunk form z (empty = all steps).
     failure_action_steps: list[int] = field(default_factory=list)
     # primitive: the dataset column holding the per-frame primitive label, and how many labels exist.
@@ -174,6 +181,7 @@ class CCDPConfig(PreTrainedConfig):
                 raise ValueError(f"`{name}` must be in [0, 1); got {getattr(self, name)}.")
         self._check_choice("recovery_mode", RECOVERY_MODES)
         self._check_choice("failure_feature", FAILURE_FEATURES)
+        self._check_choice("failure_state_at", FAILURE_STATES_AT)
         self._check_choice("training_stage", TRAINING_STAGES)
         self._check_choice("recovery_head", RECOVERY_HEADS)
         self._check_choice("classifier_chunks", CLASSIFIER_CHUNKS)

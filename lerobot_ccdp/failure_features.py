@@ -55,14 +55,20 @@ class FailureFeature:
     def of_failure(
         self, frame_at_failure: Tensor, attempt_chunk: Tensor, latest_chunk: Tensor, outcomes: OutcomeIndex
     ) -> Tensor:
-        """z_f of failed attempts: the state where the attempt ended (`final_state`), the attempt's first chunk,
-        the one that chose the option (`action`), or the label of the chunk executing when the failure was
-        flagged (`primitive`). A label is a property of the whole attempt, and the latest chunk, near where the
-        attempt failed, names it far more reliably than the first, whose steps are mostly the approach that
-        every option shares (ButtonSearch: 0.99 vs 0.75 of failures given their true option, under DP*)."""
-        if self.kind == "final_state":
+        """z_f of failed attempts: the state where the attempt ended (`final_state` at "attempt_end") or the
+        final state of the demonstration it was following ("demonstrated_end"), the attempt's first chunk, the
+        one that chose the option (`action`), or the label of the chunk executing when the failure was flagged
+        (`primitive`). A label is a property of the whole attempt, and the latest chunk, near where the attempt
+        failed, names it far more reliably than the first, whose steps are mostly the approach that every option
+        shares (ButtonSearch: 0.99 vs 0.75 of failures given their true option, under DP*)."""
+        if self.reads_failure_frame:
             return self.from_frame(frame_at_failure)
-        return self.from_chunk(latest_chunk if self.kind == "primitive" else attempt_chunk, outcomes)
+        return self.from_chunk(attempt_chunk if self.kind == "action" else latest_chunk, outcomes)
+
+    @property
+    def reads_failure_frame(self) -> bool:
+        """Whether a failure's z comes from the observed state, so an attempt that planned no chunk has one."""
+        return self.kind == "final_state" and self.config.failure_state_at == "attempt_end"
 
     def one_hot(self, labels: Tensor) -> Tensor:
         return F.one_hot(labels.long(), self.config.num_primitives).to(torch.float32)

@@ -336,7 +336,7 @@ class CCDPPolicy(PreTrainedPolicy):
         memory, rows = self._memory, failed
         if z is None:
             unplanned = failed & ~memory.attempt_planned
-            if self.config.failure_feature != "final_state" and unplanned.any():
+            if not self.feature.reads_failure_frame and unplanned.any():
                 logger.warning("Row(s) %s failed before planning any chunk: no chunk to remember.",
                                unplanned.nonzero().flatten().tolist())
                 rows = failed & memory.attempt_planned

@@ -276,6 +276,23 @@ def test_failure_feature_of_a_flagged_failure_is_the_state_before_it():
     assert mask.all() and z[:, 0, 0].tolist() == pytest.approx([0.7, -0.4])
 
 
+def test_demonstrated_end_z_is_where_the_followed_demonstration_ended_not_where_the_attempt_stopped(monkeypatch):
+    """A pick that slips mid-lift stops far from where any pick is demonstrated to end; with
+    `failure_state_at="demonstrated_end"` its z is the end of the demonstration whose chunk it was executing."""
+    policy = make_policy(failure_feature="final_state", failure_state_dims=[1], n_action_steps=2,
+                         failure_state_at="demonstrated_end")
+    towards = torch.stack([torch.full((HORIZON, ACTION_DIM), -1.0), torch.full((HORIZON, ACTION_DIM), 1.0)])
+    policy.outcomes.fill(towards, torch.tensor([[-0.8], [0.6]]), torch.tensor([0, 0]))
+    planned = iter([towards[:1] * 0.9, towards[1:] * 0.9, towards[:1] * 0.9])  # the last one after the failure
+    monkeypatch.setattr(policy, "_sample", lambda rows, noise: next(planned))
+    obs = {"observation.state": torch.tensor([[0.0, 0.3]])}
+    for _ in range(3):  # plans the first chunk, executes it, then re-plans towards the second demonstration
+        policy.select_action(obs)
+    policy.select_action({**obs, "observation.failure": torch.tensor([[1.0]])})
+    z, mask = policy._failures.padded()
+    assert mask.all() and z[0, 0].tolist() == pytest.approx([0.6])
+
+
 @pytest.mark.parametrize("feature", ["primitive", "action"])
 def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_from_the_first(monkeypatch, feature):
     """An attempt whose first chunk heads to option 0 and whose re-planned chunk reaches option 1 failed at
