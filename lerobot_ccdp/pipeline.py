@@ -346,11 +346,20 @@ def method_forms(runs: list[TaskRun]) -> str:
         if ccdp.get("ccdp_redraws", 0):
             form += f"; a repeat redrawn up to {ccdp['ccdp_redraws']} times"
         lines.append(
-            f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {c['failure_feature']} | {form} | "
+            f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {z_description(ccdp)} | {form} | "
             f"{c['noise_scheduler_type']} {c['num_inference_steps']} steps | {synthesis} | {steps} | "
             f"{dp_star['dp_star_candidates']} candidates, "
             f"{dp_star['dp_star_rounds']} round(s), delta_z {c['delta_z']:g} |")
     return "\n".join(lines)
+
+
+def z_description(settings: dict[str, Any]) -> str:
+    """What z was: the feature, and for `final_state` which dims and where a failure's z was read."""
+    if settings["failure_feature"] != "final_state":
+        return settings["failure_feature"]
+    dims = settings.get("failure_state_dims") or "all"
+    at = settings.get("failure_state_at", CCDPConfig.failure_state_at)
+    return f"final_state: {settings['failure_state_key']} dims {dims}, a failure's read at {at}"
 
 
 def machine() -> str:

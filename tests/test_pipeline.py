@@ -26,6 +26,7 @@ from lerobot_ccdp.pipeline import (
     latest_progress,
     main,
     task_slug,
+    z_description,
 )
 from lerobot_ccdp.recipes.camera_windows import video_backend
 from lerobot_ccdp.run_lock import exclusive
@@ -343,3 +344,10 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     assert "--policy.classifier_query=each --policy.ccdp_redraws=2" in stdout
     report = (out / "report.md").read_text()
     assert "failures by classifier guidance (each query), w_z 1; a repeat redrawn up to 2 times" in report
+
+
+def test_the_report_names_where_a_label_free_failure_was_read():
+    settings = {"failure_feature": "final_state", "failure_state_key": "observation.state", "failure_state_dims": [1, 2],
+                "failure_state_at": "demonstrated_end"}
+    assert z_description(settings) == "final_state: observation.state dims [1, 2], a failure's read at demonstrated_end"
+    assert z_description({"failure_feature": "primitive"}) == "primitive"

@@ -2,14 +2,17 @@
 (`configs/<task>_pixels/`, `datasets_recipes/<task>_pixels.yaml`) is its state twin with only the camera fields
 changed, so a setting tuned on the state task cannot silently drift from its pixel copy."""
 
+import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 import yaml
 
+from lerobot_ccdp.configuration_ccdp import FAILURE_STATES_AT, CCDPConfig
 from lerobot_ccdp.envs import TASKS
 from lerobot_ccdp.pipeline import TaskFiles, task_slug
+from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
@@ -63,3 +66,30 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
     recipe, state_recipe = (yaml.safe_load(f.read_text()) for f in (pixels.recipe, state.recipe))
     assert recipe["record"].pop("env_kwargs") == {"obs_type": "pixels_agent_pos"}
     assert recipe == state_recipe
+
+
+def test_label_free_inputs_define_z_alike_in_the_recipe_and_the_policy_and_change_nothing_else(tmp_path):
+    """benchmarks/label_free_inputs.py: the synthesis stage refuses a recipe whose z differs from the base
+    checkpoint's, and every file it does not edit must stay the benchmark's own."""
+    spec = importlib.util.spec_from_file_location("label_free_inputs", REPO / "benchmarks" / "label_free_inputs.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    label_free = script.TASKS
+
+    script.write_inputs(tmp_path)
+    for task in TASKS:
+        slug = task_slug(task)
+        files = TaskFiles.locate(task, tmp_path / "configs", tmp_path / "recipes", tmp_path / "out")
+        shipped = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path / "out")
+        if slug not in label_free:
+            assert files.train_base.read_bytes() == shipped.train_base.read_bytes()
+            assert files.recipe.read_bytes() == shipped.recipe.read_bytes()
+            continue
+        policy = json.loads(files.train_base.read_text())["policy"]
+        wanted = RecoveryRecipe.load(files.recipe).failure_settings()
+        assert wanted["failure_feature"] == "final_state"
+        assert {k: policy.get(k, CCDPConfig.failure_state_key) for k in wanted} == wanted  # the key: its default
+        assert "num_primitives" not in policy
+        for method in ("dp_star", "ccdp"):
+            assert files.method_settings(method)["failure_state_at"] in FAILURE_STATES_AT
+        assert files.train_recovery.read_bytes() == shipped.train_recovery.read_bytes()

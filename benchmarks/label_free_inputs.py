@@ -1,0 +1,93 @@
+"""The benchmark's settings with label-free z (issue 17: the paper's claim without labels), for the pipeline.
+
+    .venv/bin/python benchmarks/label_free_inputs.py [--out outputs/label_free_inputs]
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python -m lerobot_ccdp.pipeline \
+        --tasks DoorOpening-v0 ObjectManipulation-v0 ButtonSearch-v0 \
+        --configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
+        --out outputs/label_free --publish docs/benchmark_label_free_report.md
+
+Copies `configs/` and `datasets_recipes/` under `--out` and switches the tasks below from `primitive` z to
+`final_state` z: chosen dims of the pinch point where an option ends. Nothing else changes (steps, weights,
+sampler, seeds, DP*'s candidates). The edits, per task:
+- `train_base.json`'s policy: `failure_feature: final_state`, the task's `failure_state_dims`, no
+  `num_primitives`, and a `primitive_key` that names no column, so the demos' labels are never read (a
+  demonstrated chunk's final state is its episode's end, not its labelled segment's);
+- the recipe's `recovery:` section: the same z, and the task's `delta_z` (eq. (5)'s threshold, below the squared
+  distance between two options' ends and above the spread of one option's);
+- `methods.json`: the task's `failure_state_at` for DP* and CCDP, the two methods that read z.
+The dims, thresholds and readings were chosen on the development seeds (docs/benchmarks.md, "Label-free z").
+Packing and the Bartender are not listed: their episodes hold several decisions, and without labels an episode's
+end is not the end of the decision that failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+NO_LABELS = "no_labels"  # a `primitive_key` naming no dataset column
+
+
+@dataclass(frozen=True)
+class LabelFree:
+    dims: list[int]  # of agent_pos, the pinch point's x, y, z and closure
+    delta_z: float
+    failure_state_at: str
+
+
+TASKS = {
+    # The door slides in x: the two options end 0.3 m apart, about 4 in squared normalised x.
+    "door_opening": LabelFree([0], 0.5, "demonstrated_end"),
+    # A pick and a push end at different heights and y; x spans only 2 cm. A failed pick is flagged 4 cm above
+    # the box, where no pick ends, hence "demonstrated_end".
+    "object_manipulation": LabelFree([1, 2], 0.1, "demonstrated_end"),
+    # Adjacent buttons lie 0.27 apart in squared normalised x, y.
+    "button_search": LabelFree([0, 1], 0.1, "demonstrated_end"),
+}
+
+
+def write_inputs(out: Path) -> None:
+    """Fresh copies under `out` (an earlier copy is removed, so no stale setting survives)."""
+    shutil.rmtree(out, ignore_errors=True)
+    shutil.copytree(REPO / "configs", out / "configs")
+    shutil.copytree(REPO / "datasets_recipes", out / "recipes")
+    for slug, task in TASKS.items():
+        configs = out / "configs" / slug
+        train = json.loads((configs / "train_base.json").read_text())
+        policy = train["policy"]
+        policy.update(failure_feature="final_state", primitive_key=NO_LABELS)
+        policy.pop("num_primitives", None)
+        policy["failure_state_dims"] = task.dims
+        (configs / "train_base.json").write_text(json.dumps(train, indent=2) + "\n")
+
+        recipe = out / "recipes" / f"{slug}.yaml"
+        head, sep, rest = recipe.read_text().partition("recovery:")
+        recovery = yaml.safe_load(sep + rest)["recovery"]
+        recovery["failure_feature"] = "final_state"
+        recovery.pop("num_primitives", None)
+        recovery["delta_z"] = task.delta_z
+        recovery["failure_state_dims"] = task.dims
+        recipe.write_text(head + yaml.safe_dump({"recovery": recovery}, sort_keys=False))
+
+        methods = json.loads((configs / "methods.json").read_text())
+        for method in ("dp_star", "ccdp"):
+            methods.setdefault(method, {})["failure_state_at"] = task.failure_state_at
+        (configs / "methods.json").write_text(json.dumps(methods, indent=2) + "\n")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, default=Path("outputs/label_free_inputs"))
+    args = parser.parse_args(argv)
+    write_inputs(args.out)
+    print(f"Wrote label-free settings for {', '.join(TASKS)} under {args.out}")
+
+
+if __name__ == "__main__":
+    main()
