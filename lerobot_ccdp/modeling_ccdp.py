@@ -200,6 +200,8 @@ class CCDPPolicy(PreTrainedPolicy):
     def _recovery_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config
         z = batch.get(FAILURE_FEATURE_KEY)
+        if z is not None and z.ndim == 1 and cfg.failure_feature_dim == 1:
+            z = z[:, None]  # LeRobotDataset stores a feature of shape (1,) as a scalar column: a batch is (B,)
         if z is None or z.shape[-1] != cfg.failure_feature_dim:
             got = "no such column" if z is None else f"shape {tuple(z.shape)}"
             raise ValueError(

@@ -23,6 +23,8 @@ from lerobot_ccdp.recipes.synthesize import FAILURE_ACTION, PAIR_SOURCE, RECIPE_
 FEATURE_SETTINGS = {
     "primitive": {"failure_feature": "primitive", "num_primitives": 4},
     "final_state": {"failure_feature": "final_state", "failure_state_dims": [0, 1]},
+    # A z of one dim is a column of shape (1,), which LeRobotDataset loads as a scalar per row.
+    "final_state_1d": {"failure_feature": "final_state", "failure_state_dims": [1]},
     "action": {"failure_feature": "action", "failure_action_steps": [7, 15]},
 }
 # Small and loose enough that an untrained base (near-random chunks) still yields pairs quickly.
@@ -35,8 +37,8 @@ def normalized_rows(checkpoint: Path, root: Path, chunk_column: str) -> tuple[CC
     policy = CCDPPolicy.from_pretrained(checkpoint)
     dataset = LeRobotDataset("local/recovery", root=root)
     rows = dataset.hf_dataset.with_format("torch")[:]
-    return policy, normalize_batch(policy.config, dataset.meta.stats, {
-        FAILURE_FEATURE_KEY: rows[FAILURE_FEATURE_KEY], ACTION: rows[chunk_column]})
+    z = rows[FAILURE_FEATURE_KEY].reshape(len(rows[ACTION]), -1)  # (N,) for a one-dim z
+    return policy, normalize_batch(policy.config, dataset.meta.stats, {FAILURE_FEATURE_KEY: z, ACTION: rows[chunk_column]})
 
 
 @pytest.fixture(scope="module", params=list(FEATURE_SETTINGS))
@@ -55,7 +57,7 @@ def test_recovery_dataset_loads_with_its_stats_and_recipe_record(synthesised, re
     dataset = LeRobotDataset("local/recovery", root=root)
     item = dataset[0]
     assert item[ACTION].shape == (16, 2) and item[FAILURE_ACTION].shape == (16, 2)
-    assert item[FAILURE_FEATURE_KEY].shape == (CCDPPolicy.from_pretrained(checkpoint).config.failure_feature_dim,)
+    assert item[FAILURE_FEATURE_KEY].numel() == CCDPPolicy.from_pretrained(checkpoint).config.failure_feature_dim
     sources = torch.as_tensor(dataset.hf_dataset[PAIR_SOURCE]).flatten()
     assert (sources == 0).any() and (sources == 1).any(), "recoveries both synthesised and drawn from the demos"
     demo_stats = LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root).stats
@@ -88,8 +90,8 @@ def test_every_row_satisfies_eq5(synthesised):
     assert (distance > synthesised[2].delta_z - 1e-4).all()
 
 
-# One real lerobot-train run suffices: the dataset layout is the same for every z.
-@pytest.mark.parametrize("synthesised", ["primitive"], indirect=True)
+# Real lerobot-train runs for a z of several dims and for one of one dim (a scalar column in LeRobot's batches).
+@pytest.mark.parametrize("synthesised", ["primitive", "final_state_1d"], indirect=True)
 def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tmp_path):
     checkpoint, root, _ = synthesised
     out = tmp_path / "recovery_run"
