@@ -25,8 +25,8 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import yaml
 
@@ -34,8 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 NO_LABELS = "no_labels"  # a `primitive_key` naming no dataset column
 
 
-@dataclass(frozen=True)
-class LabelFree:
+class LabelFree(NamedTuple):
     dims: list[int]  # of agent_pos, the pinch point's x, y, z and closure
     delta_z: float
     failure_state_at: str
