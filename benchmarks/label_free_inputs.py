@@ -30,6 +30,8 @@ from typing import NamedTuple
 
 import yaml
 
+from lerobot_ccdp.recipes.recipe_file import read_recipe_section
+
 REPO = Path(__file__).resolve().parents[1]
 NO_LABELS = "no_labels"  # a `primitive_key` naming no dataset column
 
@@ -66,8 +68,8 @@ def write_inputs(out: Path) -> None:
         (configs / "train_base.json").write_text(json.dumps(train, indent=2) + "\n")
 
         recipe = out / "recipes" / f"{slug}.yaml"
-        head, sep, rest = recipe.read_text().partition("recovery:")
-        recovery = yaml.safe_load(sep + rest)["recovery"]
+        recovery = read_recipe_section(recipe, "recovery")
+        head = recipe.read_text().partition("\nrecovery:")[0] + "\n"  # the record section, comments kept
         recovery["failure_feature"] = "final_state"
         recovery.pop("num_primitives", None)
         recovery["delta_z"] = task.delta_z
