@@ -11,6 +11,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 RECOVERY_MODES = ("ccdp", "dp", "dp_star")
 FAILURE_FEATURES = ("final_state", "action", "primitive")
 FAILURE_STATES_AT = ("attempt_end", "demonstrated_end")
+FAILURE_SEGMENTS = ("labels", "releases", "pauses")
 TRAINING_STAGES = ("base", "recovery")
 RECOVERY_HEADS = ("unet", "mlp", "classifier")
 CLASSIFIER_CHUNKS = ("demonstrations", "base_samples")
@@ -108,6 +109,14 @@ class CCDPConfig(PreTrainedConfig):
     # on when a failure is flagged mid-option (a pick that slips 4 cm above the box ends nowhere a pick is
     # demonstrated to end); it needs the outcome table, as `primitive` does.
     failure_state_at: str = "attempt_end"
+    # final_state: where a demonstrated option ends (lerobot_ccdp/demo_segments.py), which gives each demonstrated
+    # chunk its final state. "labels": runs of one `primitive_key` label, the whole episode without that column.
+    # Label-free: "releases" (the gripper command, action dim `gripper_action_dim`, lets go) or "pauses" (the
+    # action holds still, changing less than `pause_tolerance` in normalised units, for `pause_steps` frames).
+    failure_segments: str = "labels"
+    gripper_action_dim: int = -1
+    pause_steps: int = 2
+    pause_tolerance: float = 1e-3
     # action: which steps of the attempt's first chunk form z (empty = all steps).
     failure_action_steps: list[int] = field(default_factory=list)
     # primitive: the dataset column holding the per-frame primitive label, and how many labels exist.
@@ -182,6 +191,10 @@ class CCDPConfig(PreTrainedConfig):
         self._check_choice("recovery_mode", RECOVERY_MODES)
         self._check_choice("failure_feature", FAILURE_FEATURES)
         self._check_choice("failure_state_at", FAILURE_STATES_AT)
+        self._check_choice("failure_segments", FAILURE_SEGMENTS)
+        if self.pause_steps < 1 or self.pause_tolerance < 0:
+            raise ValueError(f"`pause_steps` must be >= 1 and `pause_tolerance` >= 0; got {self.pause_steps} and "
+                             f"{self.pause_tolerance}.")
         self._check_choice("training_stage", TRAINING_STAGES)
         self._check_choice("recovery_head", RECOVERY_HEADS)
         self._check_choice("classifier_chunks", CLASSIFIER_CHUNKS)
@@ -266,6 +279,12 @@ class CCDPConfig(PreTrainedConfig):
                 raise ValueError(
                     f"`failure_state_dims` {bad} do not exist in {self.failure_state_key!r} "
                     f"(shape {tuple(source.shape)})."
+                )
+            action_dim = self.action_feature.shape[-1]
+            if self.failure_segments == "releases" and not -action_dim <= self.gripper_action_dim < action_dim:
+                raise ValueError(
+                    f"`gripper_action_dim` {self.gripper_action_dim} does not exist in the {action_dim}-dim action; "
+                    "set --policy.gripper_action_dim to the gripper command's index."
                 )
         self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(FeatureType.STATE, (self.failure_feature_dim,))
 

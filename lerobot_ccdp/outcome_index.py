@@ -81,19 +81,6 @@ def demo_chunks(episode_index: np.ndarray, actions: np.ndarray, start: int, hori
     return actions[offsets]
 
 
-def segment_final_states(episode_index: np.ndarray, states: np.ndarray, primitives: np.ndarray | None) -> np.ndarray:
-    """The state each frame's attempt ends in: the last frame of its primitive segment within the episode.
-
-    A segment is a maximal run of one primitive label; without labels it is the whole episode. This is the
-    demonstrated counterpart of the state at failure, where a failed attempt ended.
-    """
-    labels = np.zeros(len(states)) if primitives is None else np.asarray(primitives).reshape(len(states))
-    boundary = np.ones(len(states), dtype=bool)
-    boundary[:-1] = (episode_index[1:] != episode_index[:-1]) | (labels[1:] != labels[:-1])
-    ends = np.flatnonzero(boundary)
-    return states[ends[np.searchsorted(ends, np.arange(len(states)))]]
-
-
 def _episode_bounds(episode_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """First and last frame index of the episode each frame belongs to (frames sorted by episode)."""
     change = np.flatnonzero(np.diff(episode_index)) + 1

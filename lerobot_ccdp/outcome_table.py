@@ -7,7 +7,8 @@ from lerobot.utils.constants import ACTION
 from torch import Tensor
 
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.outcome_index import demo_chunks, segment_final_states
+from lerobot_ccdp.demo_segments import segment_ends, segment_final_states
+from lerobot_ccdp.outcome_index import demo_chunks
 from lerobot_ccdp.processor_ccdp import normalize_batch
 
 
@@ -24,7 +25,9 @@ def build_outcome_table(
     })
     episodes, primitives = columns["episode_index"], columns.get(config.primitive_key)
     chunks = demo_chunks(episodes, normalized[ACTION].numpy(), 1 - config.n_obs_steps, config.horizon)
-    finals = segment_final_states(episodes, normalized[config.failure_state_key].numpy(), primitives)
+    ends = segment_ends(config.failure_segments, episodes, normalized[ACTION].numpy(), primitives,
+                        config.gripper_action_dim, config.pause_steps, config.pause_tolerance)
+    finals = segment_final_states(normalized[config.failure_state_key].numpy(), ends)
     finals = finals[:, config.failure_state_dims or slice(None)]
     labels = np.zeros(len(chunks), dtype=np.int64) if primitives is None else primitives.reshape(-1).astype(np.int64)
     if config.failure_feature == "primitive" and labels.max() >= config.num_primitives:

@@ -359,7 +359,9 @@ def z_description(settings: dict[str, Any]) -> str:
         return settings["failure_feature"]
     dims = settings.get("failure_state_dims") or "all"
     at = settings.get("failure_state_at", CCDPConfig.failure_state_at)
-    return f"final_state: {settings['failure_state_key']} dims {dims}, a failure's read at {at}"
+    segments = settings.get("failure_segments", CCDPConfig.failure_segments)
+    ends = "" if segments == "labels" else f", demonstrated options end at {segments}"
+    return f"final_state: {settings['failure_state_key']} dims {dims}, a failure's read at {at}{ends}"
 
 
 def machine() -> str:

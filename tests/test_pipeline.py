@@ -346,8 +346,10 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     assert "failures by classifier guidance (each query), w_z 1; a repeat redrawn up to 2 times" in report
 
 
-def test_the_report_names_where_a_label_free_failure_was_read():
+def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_end():
     settings = {"failure_feature": "final_state", "failure_state_key": "observation.state", "failure_state_dims": [1, 2],
                 "failure_state_at": "demonstrated_end"}
     assert z_description(settings) == "final_state: observation.state dims [1, 2], a failure's read at demonstrated_end"
     assert z_description({"failure_feature": "primitive"}) == "primitive"
+    released = {**settings, "failure_segments": "releases"}
+    assert z_description(released).endswith("demonstrated_end, demonstrated options end at releases")
