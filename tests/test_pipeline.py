@@ -53,8 +53,9 @@ def _shrunk_settings(root: Path, slug: str, n_episodes: int = N_EPISODES) -> tup
     (configs / slug).mkdir(parents=True)
     recipes.mkdir()
     train = {"steps": 10, "batch_size": 8, "save_freq": 10, "log_freq": 5}
-    for name, changes in {"train_base": train, "train_recovery": train,
-                          "eval": {"eval": {"n_episodes": n_episodes, "batch_size": 2}}}.items():
+    # Episodes of 50 steps, not 150: the oracle needs at most 37 here (two attempts); an untrained policy uses all.
+    evaluation = {"env": {"episode_length": 50}, "eval": {"n_episodes": n_episodes, "batch_size": 2}}
+    for name, changes in {"train_base": train, "train_recovery": train, "eval": evaluation}.items():
         _shrink_json(REPO / "configs" / slug / f"{name}.json", configs / slug / f"{name}.json", changes)
     recipe = yaml.safe_load((REPO / "datasets_recipes" / f"{slug}.yaml").read_text())
     recipe["record"]["n_episodes"] = N_DEMOS
