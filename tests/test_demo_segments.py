@@ -1,5 +1,8 @@
 """Where demonstrated options end without labels: at gripper releases or at pauses, never across an episode."""
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -9,6 +12,8 @@ from lerobot.datasets.utils import dataset_to_policy_features
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.demo_segments import segment_ends, segment_final_states
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+
+REPO = Path(__file__).resolve().parents[1]
 
 # Two episodes of a pick and place: move, grasp (gripper 1), carry, release (gripper 0), then move on.
 EPISODES = np.array([0] * 8 + [1] * 5)
@@ -95,3 +100,16 @@ def test_the_policy_gives_each_demonstrated_chunk_the_state_where_its_gripper_le
     low, high = POSITION.min(), POSITION.max()
     expected = 2 * (segment_final_states(POSITION[:, None], segment_ends("releases", EPISODES, ACTIONS)) - low) / (high - low) - 1
     torch.testing.assert_close(policy.outcomes.final_states, torch.tensor(expected, dtype=torch.float32))
+
+
+def test_bench_segments_scores_the_frames_whose_label_free_end_misses_their_labelled_one():
+    spec = importlib.util.spec_from_file_location("bench_segments", REPO / "benchmarks" / "bench_segments.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    labels = np.array([0, 0, 0, 0, 0, 1, 1, 1] + [2] * 5)  # labelled ends 4, 7, 12; releases end 4, 7, 10, 12
+    columns = {"episode_index": EPISODES, "observation.state": np.stack([POSITION, np.zeros(13)], axis=1),
+               "action": ACTIONS, "primitive": labels}
+    share, per_episode = bench.agreement(columns, "releases", tolerance=0.02)
+    assert (share, per_episode) == (pytest.approx(10 / 13), 2.0)  # frames 8-10 end at 1, their label's end at 2
+    # Without labels, frames 0-4 end with their episode at 5, where their labelled option ends at 3.
+    assert bench.agreement(columns, "labels", tolerance=0.02) == (pytest.approx(8 / 13), 1.0)
