@@ -324,6 +324,7 @@ def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):
         TaskFiles.locate(TASK, tmp_path, tmp_path, tmp_path / "out", "pixels_agent_pos")
 
 
+@pytest.mark.slow  # about 80 s; the classifier head trains and samples in CI through tests/test_preferences.py
 def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     """A base config naming `recovery_head: classifier` makes the recovery stage learn from the demonstrations:
     no synthesis stage runs, the checkpoint holds a trained classifier, lerobot-eval runs CCDP with the sampling
