@@ -280,12 +280,12 @@ class CCDPConfig(PreTrainedConfig):
                     f"`failure_state_dims` {bad} do not exist in {self.failure_state_key!r} "
                     f"(shape {tuple(source.shape)})."
                 )
-            action_dim = self.action_feature.shape[-1]
-            if self.failure_segments == "releases" and not -action_dim <= self.gripper_action_dim < action_dim:
-                raise ValueError(
-                    f"`gripper_action_dim` {self.gripper_action_dim} does not exist in the {action_dim}-dim action; "
-                    "set --policy.gripper_action_dim to the gripper command's index."
-                )
+        action_dim = self.action_feature.shape[-1]
+        if self.failure_segments == "releases" and not -action_dim <= self.gripper_action_dim < action_dim:
+            raise ValueError(
+                f"`gripper_action_dim` {self.gripper_action_dim} does not exist in the {action_dim}-dim action; "
+                "set --policy.gripper_action_dim to the gripper command's index."
+            )
         self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(FeatureType.STATE, (self.failure_feature_dim,))
 
     def _validate_images(self) -> None:

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from policy_factory import make_policy
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.utils import dataset_to_policy_features
 
@@ -75,6 +76,8 @@ def test_unknown_rules_and_impossible_settings_are_refused_with_the_fix():
         CCDPConfig(pause_steps=0)
     with pytest.raises(ValueError, match="segment rule"):
         segment_ends("gripper", EPISODES, ACTIONS)
+    with pytest.raises(ValueError, match="--policy.gripper_action_dim"):
+        make_policy(action_dim=2, failure_segments="releases", gripper_action_dim=2)
 
 
 def test_the_policy_gives_each_demonstrated_chunk_the_state_where_its_gripper_let_go(tmp_path):
