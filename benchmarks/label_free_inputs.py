@@ -5,6 +5,8 @@
         --tasks DoorOpening-v0 ObjectManipulation-v0 ButtonSearch-v0 \
         --configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
         --out outputs/label_free --publish docs/benchmark_label_free_report.md
+    (then the same for --tasks ObjectPacking-v0 --out outputs/label_free_packing
+     --publish docs/benchmark_label_free_packing_report.md, as `make benchmark-label-free` runs them)
 
 Copies `configs/` and `datasets_recipes/` under `--out` and switches the tasks below from `primitive` z to
 `final_state` z: chosen dims of the pinch point where an option ends. Nothing else changes (steps, weights,
@@ -15,9 +17,11 @@ sampler, seeds, DP*'s candidates). The edits, per task:
 - the recipe's `recovery:` section: the same z, and the task's `delta_z` (eq. (5)'s threshold, below the squared
   distance between two options' ends and above the spread of one option's);
 - `methods.json`: the task's `failure_state_at` for DP* and CCDP, the two methods that read z.
-The dims, thresholds and readings were chosen on the development seeds (docs/benchmarks.md, "Label-free z").
-Packing and the Bartender are not listed: their episodes hold several decisions, and without labels an episode's
-end is not the end of the decision that failed.
+- packing's `train_base.json` also `failure_segments: releases`: its episodes hold two decisions (one per object),
+  and without labels an episode's end is not the end of the decision that failed; a release of the gripper is.
+The dims, thresholds, readings and segments were chosen on the development seeds (docs/benchmarks.md, "Label-free
+z" and "Where an option ends without labels"). The Bartender is not listed yet: its options end at `pauses`, whose
+policy is not measured on the development seeds.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ class LabelFree(NamedTuple):
     dims: list[int]  # of agent_pos, the pinch point's x, y, z and closure
     delta_z: float
     failure_state_at: str
+    segments: str = "labels"  # where a demonstrated option ends; "labels" without labels: the episode's end
 
 
 TASKS = {
@@ -50,6 +55,9 @@ TASKS = {
     "object_manipulation": LabelFree([1, 2], 0.1, "demonstrated_end"),
     # Adjacent buttons lie 0.27 apart in squared normalised x, y.
     "button_search": LabelFree([0, 1], 0.1, "demonstrated_end"),
+    # Two objects, each into one of three crates: an option ends where the gripper lets its object go (over the
+    # crate), not at the episode's end. The nearest crates lie 0.8 apart in squared normalised x, y.
+    "object_packing": LabelFree([0, 1], 0.1, "demonstrated_end", "releases"),
 }
 
 
@@ -65,6 +73,8 @@ def write_inputs(out: Path) -> None:
         policy.update(failure_feature="final_state", primitive_key=NO_LABELS)
         policy.pop("num_primitives", None)
         policy["failure_state_dims"] = task.dims
+        if task.segments != "labels":
+            policy["failure_segments"] = task.segments
         (configs / "train_base.json").write_text(json.dumps(train, indent=2) + "\n")
 
         recipe = out / "recipes" / f"{slug}.yaml"

@@ -90,6 +90,7 @@ def test_label_free_inputs_define_z_alike_in_the_recipe_and_the_policy_and_chang
         assert wanted["failure_feature"] == "final_state"
         assert {k: policy.get(k, CCDPConfig.failure_state_key) for k in wanted} == wanted  # the key: its default
         assert "num_primitives" not in policy
+        assert policy.get("failure_segments", CCDPConfig.failure_segments) == label_free[slug].segments
         for method in ("dp_star", "ccdp"):
             assert files.method_settings(method)["failure_state_at"] in FAILURE_STATES_AT
         assert files.train_recovery.read_bytes() == shipped.train_recovery.read_bytes()
