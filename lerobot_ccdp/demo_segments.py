@@ -10,6 +10,8 @@ A segment never crosses an episode's end, and every episode's last frame ends on
 
 import numpy as np
 
+from lerobot_ccdp.outcome_index import episode_bounds
+
 SEGMENT_RULES = ("labels", "releases", "pauses")
 
 
@@ -44,9 +46,7 @@ def segment_ends(
     if rule == "releases":
         gripper = actions[:, gripper_dim]
         closed_side = gripper > (gripper.min() + gripper.max()) / 2
-        first = np.concatenate([[0], np.flatnonzero(~same_episode) + 1])
-        start_side = closed_side[first][np.searchsorted(first, np.arange(n), side="right") - 1]
-        away = closed_side != start_side
+        away = closed_side != closed_side[episode_bounds(episode_index)[0]]  # off the side its episode began on
         ends[:-1] |= away[:-1] & ~away[1:] & same_episode
         return ends
     still = np.zeros(n, dtype=bool)

@@ -75,13 +75,13 @@ def demo_chunks(episode_index: np.ndarray, actions: np.ndarray, start: int, hori
     the same chunks the policy was trained on.
     """
     n = len(actions)
-    first, last = _episode_bounds(episode_index)
+    first, last = episode_bounds(episode_index)
     offsets = np.arange(n)[:, None] + start + np.arange(horizon)[None, :]
     offsets = np.clip(offsets, first[:, None], last[:, None])
     return actions[offsets]
 
 
-def _episode_bounds(episode_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def episode_bounds(episode_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """First and last frame index of the episode each frame belongs to (frames sorted by episode)."""
     change = np.flatnonzero(np.diff(episode_index)) + 1
     starts = np.concatenate([[0], change])
