@@ -11,7 +11,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 RECOVERY_MODES = ("ccdp", "dp", "dp_star")
 FAILURE_FEATURES = ("final_state", "action", "primitive")
 FAILURE_STATES_AT = ("attempt_end", "demonstrated_end")
-FAILURE_SEGMENTS = ("labels", "releases", "pauses")
+FAILURE_SEGMENTS = ("labels", "releases", "drops", "pauses")
 TRAINING_STAGES = ("base", "recovery")
 RECOVERY_HEADS = ("unet", "mlp", "classifier")
 CLASSIFIER_CHUNKS = ("demonstrations", "base_samples")
@@ -111,8 +111,9 @@ class CCDPConfig(PreTrainedConfig):
     failure_state_at: str = "attempt_end"
     # final_state: where a demonstrated option ends (lerobot_ccdp/demo_segments.py), which gives each demonstrated
     # chunk its final state. "labels": runs of one `primitive_key` label, the whole episode without that column.
-    # Label-free: "releases" (the gripper command, action dim `gripper_action_dim`, lets go) or "pauses" (the
-    # action holds still, changing less than `pause_tolerance` in normalised units, for `pause_steps` frames).
+    # Label-free: "releases" (the gripper command, action dim `gripper_action_dim`, lets go), "drops" (a release and
+    # the still frames after it, while the hand opens) or "pauses" (the action holds still, changing less than
+    # `pause_tolerance` in normalised units, for `pause_steps` frames).
     failure_segments: str = "labels"
     gripper_action_dim: int = -1
     pause_steps: int = 2
@@ -281,7 +282,7 @@ class CCDPConfig(PreTrainedConfig):
                     f"(shape {tuple(source.shape)})."
                 )
         action_dim = self.action_feature.shape[-1]
-        if self.failure_segments == "releases" and not -action_dim <= self.gripper_action_dim < action_dim:
+        if self.failure_segments in ("releases", "drops") and not -action_dim <= self.gripper_action_dim < action_dim:
             raise ValueError(
                 f"`gripper_action_dim` {self.gripper_action_dim} does not exist in the {action_dim}-dim action; "
                 "set --policy.gripper_action_dim to the gripper command's index."

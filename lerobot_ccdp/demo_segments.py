@@ -4,6 +4,8 @@ The paper reads z at the end of a primitive (III-B.1). Labels mark primitives di
 of an option is found in the demonstrator's own commands, after the keyframe heuristic of James & Davison (2022,
 Q-attention: a keyframe where the gripper changes state or the arm stops):
 - `releases`: an option ends where the gripper lets go (pick and place: which crate the object went into);
+- `drops`: the same, but the option keeps the opening command and the frames after it while the arm holds still
+  (the fingers opening, the object falling), as a demonstrator's labels do;
 - `pauses`: an option ends where the commanded action holds still (a pour over a cup, a press of a button).
 A segment never crosses an episode's end, and every episode's last frame ends one.
 """
@@ -12,7 +14,7 @@ import numpy as np
 
 from lerobot_ccdp.outcome_index import episode_bounds
 
-SEGMENT_RULES = ("labels", "releases", "pauses")
+SEGMENT_RULES = ("labels", "releases", "drops", "pauses")
 
 
 def segment_ends(
@@ -28,9 +30,10 @@ def segment_ends(
 
     `labels`: runs of one label (the whole episode without labels). `releases`: the last frame before the gripper
     command (`actions[:, gripper_dim]`) crosses the middle of its demonstrated range back to the side it held at
-    its episode's first frame, i.e. each release of a hand that starts open. `pauses`: the last frame of each run
-    of at least `pause_steps` frames whose action moved less than `pause_tolerance` (largest change of any dim)
-    since the frame before.
+    its episode's first frame, i.e. each release of a hand that starts open. `drops`: each release's end moved on to
+    the opening frame and the still frames right after it. `pauses`: the last frame of each run of at least
+    `pause_steps` frames whose action moved less than `pause_tolerance` (largest change of any dim) since the frame
+    before.
     """
     if rule not in SEGMENT_RULES:
         raise ValueError(f"Unknown segment rule {rule!r}; choose one of {list(SEGMENT_RULES)}.")
@@ -43,14 +46,21 @@ def segment_ends(
             labels = np.asarray(labels).reshape(n)
             ends[:-1] |= labels[1:] != labels[:-1]
         return ends
-    if rule == "releases":
+    still = np.zeros(n, dtype=bool)
+    still[1:] = same_episode & (np.abs(np.diff(actions, axis=0)).max(axis=1) < pause_tolerance)
+    if rule in ("releases", "drops"):
         gripper = actions[:, gripper_dim]
         closed_side = gripper > (gripper.min() + gripper.max()) / 2
         away = closed_side != closed_side[episode_bounds(episode_index)[0]]  # off the side its episode began on
-        ends[:-1] |= away[:-1] & ~away[1:] & same_episode
+        releases = np.flatnonzero(away[:-1] & ~away[1:] & same_episode)
+        if rule == "drops":
+            releases = releases + 1  # the opening command, in the same episode
+            for i, t in enumerate(releases):
+                while t + 1 < n and still[t + 1]:
+                    t += 1
+                releases[i] = t
+        ends[releases] = True
         return ends
-    still = np.zeros(n, dtype=bool)
-    still[1:] = same_episode & (np.abs(np.diff(actions, axis=0)).max(axis=1) < pause_tolerance)
     run = np.zeros(n, dtype=np.int64)  # length of the still run ending at each frame
     for t in np.flatnonzero(still):
         run[t] = run[t - 1] + 1

@@ -31,6 +31,16 @@ def test_releases_end_an_option_at_the_last_frame_the_gripper_holds():
     assert ends_of("releases") == [4, 7, 10, 12]
 
 
+def test_drops_keep_the_opening_command_and_the_still_frames_after_it_in_the_option():
+    # Frames 5 and 11 open the hand where it stands; the arm moves on at frames 6 and 12.
+    assert ends_of("drops") == [5, 7, 11, 12]
+    # A demonstrator who holds still for two frames after opening (frames 6, 7): the option ends at frame 7.
+    held = ACTIONS.copy()
+    held[6, 0] = held[7, 0] = 3
+    assert np.flatnonzero(segment_ends("drops", EPISODES, held)).tolist() == [7, 11, 12]
+    assert np.flatnonzero(segment_ends("releases", EPISODES, held)).tolist() == [4, 7, 10, 12]
+
+
 def test_release_is_a_return_to_the_side_the_gripper_started_on():
     # A hand that starts closed (holding a bottle) and opens once has not released anything yet when it opens.
     assert ends_of("releases", gripper_dim=1) == ends_of("releases")
