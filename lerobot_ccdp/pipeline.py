@@ -334,7 +334,7 @@ def method_forms(runs: list[TaskRun]) -> str:
         recipe = RecoveryRecipe.load(r.files.recipe)
         dp_star = {"dp_star_candidates": c["dp_star_candidates"],
                    "dp_star_rounds": c.get("dp_star_rounds", CCDPConfig.dp_star_rounds),  # older checkpoints
-                   **r.files.method_settings("dp_star")}
+                   "delta_z": c["delta_z"], **r.files.method_settings("dp_star")}
         ccdp = {**c, **r.files.method_settings("ccdp")}  # the checkpoint's settings, as CCDP's flags changed them
         if ccdp.get("recovery_head") == "classifier":
             form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance "
@@ -349,7 +349,7 @@ def method_forms(runs: list[TaskRun]) -> str:
             f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {z_description(ccdp)} | {form} | "
             f"{c['noise_scheduler_type']} {c['num_inference_steps']} steps | {synthesis} | {steps} | "
             f"{dp_star['dp_star_candidates']} candidates, "
-            f"{dp_star['dp_star_rounds']} round(s), delta_z {c['delta_z']:g} |")
+            f"{dp_star['dp_star_rounds']} round(s), delta_z {dp_star['delta_z']:g} |")
     return "\n".join(lines)
 
 

@@ -67,7 +67,10 @@ def _shrunk_settings(root: Path, slug: str, n_episodes: int = N_EPISODES) -> tup
 
 @pytest.fixture(scope="module")
 def settings(tmp_path_factory) -> tuple[Path, Path]:
-    return _shrunk_settings(tmp_path_factory.mktemp("settings"), SLUG)
+    configs, recipes = _shrunk_settings(tmp_path_factory.mktemp("settings"), SLUG)
+    # DP*'s own repeat threshold, which the report must name rather than the checkpoint's
+    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32, "delta_z": 0.3}}))
+    return configs, recipes
 
 
 def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str, methods: list[str] = METHODS) -> str:
@@ -129,6 +132,7 @@ def test_report_table_chart_and_timings(pipeline_run):
     assert report.split("## Targets")[0] in stdout  # the table is printed too
     form = report.split("## What ran")[1].split("## Targets")[0]  # the form of the method that ran, and the seeds
     assert f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 3 against eps_z_null" in form
+    assert "| 32 candidates, 4 round(s), delta_z 0.3 |" in form
     lost = report.split("## Lost episodes")[1].split("## Time per stage")[0]  # each method's lost episodes, by cause
     for method in METHODS:
         episodes = Episodes.from_eval_info(out / SLUG / "eval" / method / "eval_info.json")
