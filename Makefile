@@ -51,8 +51,8 @@ benchmark-pixels: install
 		--out outputs/benchmark_pixels --publish docs/benchmark_pixels_report.md
 
 # The same comparison without labels (z = where an option ends, `final_state`): the Panda tasks whose episodes hold
-# one decision, then packing, whose options end where the gripper lets go; benchmarks/label_free_inputs.py writes
-# the settings it changes.
+# one decision, then packing, whose options end where the gripper lets go, then the Bartender, whose options end
+# where the arm holds still to pour; benchmarks/label_free_inputs.py writes the settings it changes.
 benchmark-label-free: install
 	$(PY) benchmarks/label_free_inputs.py --out outputs/label_free_inputs
 	$(PY) -m lerobot_ccdp.pipeline --tasks DoorOpening-v0 ObjectManipulation-v0 ButtonSearch-v0 \
@@ -61,3 +61,6 @@ benchmark-label-free: install
 	$(PY) -m lerobot_ccdp.pipeline --tasks ObjectPacking-v0 \
 		--configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
 		--out outputs/label_free_packing --publish docs/benchmark_label_free_packing_report.md
+	$(PY) -m lerobot_ccdp.pipeline --tasks Bartender-v0 \
+		--configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
+		--out outputs/label_free_bartender --publish docs/benchmark_label_free_bartender_report.md

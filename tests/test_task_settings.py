@@ -92,5 +92,8 @@ def test_label_free_inputs_define_z_alike_in_the_recipe_and_the_policy_and_chang
         assert "num_primitives" not in policy
         assert policy.get("failure_segments", CCDPConfig.failure_segments) == label_free[slug].segments
         for method in ("dp_star", "ccdp"):
-            assert files.method_settings(method)["failure_state_at"] in FAILURE_STATES_AT
+            settings = files.method_settings(method)
+            assert settings["failure_state_at"] in FAILURE_STATES_AT
+            delta_z = label_free[slug].eval_delta_z
+            assert settings.get("delta_z", CCDPConfig.delta_z) == (CCDPConfig.delta_z if delta_z is None else delta_z)
         assert files.train_recovery.read_bytes() == shipped.train_recovery.read_bytes()
