@@ -53,12 +53,9 @@ def segment_ends(
         closed_side = gripper > (gripper.min() + gripper.max()) / 2
         away = closed_side != closed_side[episode_bounds(episode_index)[0]]  # off the side its episode began on
         releases = np.flatnonzero(away[:-1] & ~away[1:] & same_episode)
-        if rule == "drops":
-            releases = releases + 1  # the opening command, in the same episode
-            for i, t in enumerate(releases):
-                while t + 1 < n and still[t + 1]:
-                    t += 1
-                releases[i] = t
+        if rule == "drops":  # from the opening command (same episode) to the frame before the next non-still one
+            moves = np.flatnonzero(~np.append(still, False))
+            releases = moves[np.searchsorted(moves, releases + 2)] - 1
         ends[releases] = True
         return ends
     run = np.zeros(n, dtype=np.int64)  # length of the still run ending at each frame
