@@ -51,7 +51,7 @@ benchmark-pixels: install
 		--out outputs/benchmark_pixels --publish docs/benchmark_pixels_report.md
 
 # The same comparison without labels (z = where an option ends, `final_state`): the Panda tasks whose episodes hold
-# one decision, then packing, whose options end where the gripper lets go, then the Bartender, whose options end
+# one decision, then packing, whose options end once the gripper has let go, then the Bartender, whose options end
 # where the arm holds still to pour; benchmarks/label_free_inputs.py writes the settings it changes.
 benchmark-label-free: install
 	$(PY) benchmarks/label_free_inputs.py --out outputs/label_free_inputs
