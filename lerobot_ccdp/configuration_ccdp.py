@@ -90,6 +90,11 @@ class CCDPConfig(PreTrainedConfig):
     # What each failure term of eq. (4) is measured against: "eps_a" (the paper) or "eps_z_null" (the recovery
     # head with z dropped, trained on the same recovery data as eps_z; see compose_eps).
     z_reference: str = "eps_z_null"
+    # Share of the reverse steps, counted from the noisiest, whose estimate includes the failures (eq. 4's failure
+    # terms, or the classifier's guidance). The noisy steps choose the option; in the remaining low-noise steps the
+    # base alone refines the chunk within it, so the recovery model's error does not move where the chunk ends.
+    # 1.0, the default, is the paper: failures at every step.
+    failure_step_share: float = 1.0
     # History h_t^H: the H states and actions before the current observation window.
     history_length: int = 2
     # Condition dropout while training the base network (independent per condition): dropping both
@@ -220,6 +225,9 @@ class CCDPConfig(PreTrainedConfig):
         if min(counts) < 1 or self.history_length < 0 or self.ccdp_redraws < 0:
             raise ValueError("`max_failures`, `dp_star_candidates`, `dp_star_rounds`, `failure_set_train_size` and "
                              "`classifier_resample_every` must be >= 1, `history_length` and `ccdp_redraws` >= 0.")
+        if not 0.0 < self.failure_step_share <= 1.0:
+            raise ValueError(f"`failure_step_share` must be in (0, 1] (1: failures at every reverse step); got "
+                             f"{self.failure_step_share}. For no failures at all use --policy.recovery_mode=dp.")
         if self.horizon % 2 ** len(self.down_dims) != 0:
             raise ValueError(
                 f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = {2 ** len(self.down_dims)}."

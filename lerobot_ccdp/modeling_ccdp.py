@@ -15,7 +15,8 @@ from torch import Tensor
 
 from lerobot_ccdp.base_sample_pool import POOL_BATCHES, BaseSamplePool
 from lerobot_ccdp.checkpoint_files import checkpoint_loading
-from lerobot_ccdp.composition import CompositionWeights, compose_eps, guide_away_from_failures, log_no_repeat
+from lerobot_ccdp.composition import (CompositionWeights, compose_eps, failure_steps, guide_away_from_failures,
+                                      log_no_repeat)
 from lerobot_ccdp.configuration_ccdp import (
     FAILURE_FEATURE_KEY,
     FAILURE_FLAG_KEY,
@@ -397,7 +398,8 @@ class CCDPPolicy(PreTrainedPolicy):
     ) -> Tensor:
         """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given):
         one base call and at most one recovery call per step, whatever the number of failures. With the classifier
-        head, the failures enter by guidance instead (`guide_away_from_failures`)."""
+        head, the failures enter by guidance instead (`guide_away_from_failures`). Only the first
+        `failure_step_share` of the steps add the failures (`composition.failure_steps`)."""
         weights = weights or self.weights
         r, n = sample.shape[0], z.shape[1]
         guided = n > 0 and self.config.recovery_head == "classifier"
@@ -410,12 +412,15 @@ class CCDPPolicy(PreTrainedPolicy):
         keep_h = torch.cat([keep[t][1] for t in terms])
         z_rows, keep_z = self._recovery_conditions(z, bool(weights.w_z) and weights.z_reference == "eps_z_null")
         self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
-        for t in self.noise_scheduler.timesteps:
+        with_failures = failure_steps(len(self.noise_scheduler.timesteps), self.config.failure_step_share)
+        for i, t in enumerate(self.noise_scheduler.timesteps):
             step = torch.full((r * k,), int(t), dtype=torch.long, device=sample.device)
             eps = self.base(sample.repeat(k, 1, 1), step, state_rows, keep_s, history_rows, keep_h)
             by_term = dict(zip(terms, eps.split(r), strict=True))
-            if guided:
+            refining = i >= with_failures  # low noise: the base alone refines the chunk within its option
+            if refining or guided:
                 composed = compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"))
+            if guided and not refining:
                 failed = z_mask.any(dim=1)
                 if failed.any():
                     gradient = torch.zeros_like(sample)
@@ -423,7 +428,7 @@ class CCDPPolicy(PreTrainedPolicy):
                                                                 state[failed], z[failed], z_mask[failed])
                     alpha_bar = self.noise_scheduler.alphas_cumprod[int(t)].to(sample.device)
                     composed = guide_away_from_failures(composed, gradient, alpha_bar, weights.w_z)
-            else:
+            elif not refining:
                 eps_z, eps_z_null = self._recovery_terms(sample, step[0], z_rows, keep_z, n) if n else (None, None)
                 composed = compose_eps(
                     weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null

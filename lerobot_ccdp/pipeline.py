@@ -40,6 +40,7 @@ from lerobot_ccdp.comparison import (
     lost_table,
     markdown_table,
 )
+from lerobot_ccdp.composition import failure_steps
 from lerobot_ccdp.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.tasks import is_lite
@@ -343,6 +344,10 @@ def method_forms(runs: list[TaskRun]) -> str:
         else:
             form = f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}, w_z {ccdp['w_z']:g} against {ccdp['z_reference']}"
             synthesis = f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}"
+        share = ccdp.get("failure_step_share", CCDPConfig.failure_step_share)
+        if share < 1:
+            steps_with = failure_steps(c["num_inference_steps"], share)
+            form += f"; failures in the first {steps_with} of {c['num_inference_steps']} reverse steps"
         if ccdp.get("ccdp_redraws", 0):
             form += f"; a repeat redrawn up to {ccdp['ccdp_redraws']} times"
         lines.append(

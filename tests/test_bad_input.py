@@ -31,6 +31,8 @@ from lerobot_ccdp.recipes.record import record_dataset
         ({"classifier_chunks": "rollouts"}, "classifier_chunks"),
         ({"classifier_query": "pairs"}, "classifier_query"),
         ({"ccdp_redraws": -1}, "ccdp_redraws"),
+        ({"failure_step_share": 0.0}, "recovery_mode=dp"),
+        ({"failure_step_share": 1.5}, "failure_step_share"),
         ({"classifier_resample_every": 0}, "classifier_resample_every"),
     ],
 )

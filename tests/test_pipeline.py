@@ -68,8 +68,10 @@ def _shrunk_settings(root: Path, slug: str, n_episodes: int = N_EPISODES) -> tup
 @pytest.fixture(scope="module")
 def settings(tmp_path_factory) -> tuple[Path, Path]:
     configs, recipes = _shrunk_settings(tmp_path_factory.mktemp("settings"), SLUG)
-    # DP*'s own repeat threshold, which the report must name rather than the checkpoint's
-    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32, "delta_z": 0.3}}))
+    # DP*'s own repeat threshold, which the report must name rather than the checkpoint's, and a CCDP sampling
+    # setting that lerobot-eval must accept as a flag
+    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32, "delta_z": 0.3},
+                                                             "ccdp": {"failure_step_share": 0.8}}))
     return configs, recipes
 
 
@@ -131,8 +133,10 @@ def test_report_table_chart_and_timings(pipeline_run):
         assert label in report, label
     assert report.split("## Targets")[0] in stdout  # the table is printed too
     form = report.split("## What ran")[1].split("## Targets")[0]  # the form of the method that ran, and the seeds
-    assert f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 3 against eps_z_null" in form
+    assert (f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 3 against eps_z_null; "
+            "failures in the first 8 of 10 reverse steps |") in form
     assert "| 32 candidates, 4 round(s), delta_z 0.3 |" in form
+    assert "--policy.failure_step_share=0.8" in stdout
     lost = report.split("## Lost episodes")[1].split("## Time per stage")[0]  # each method's lost episodes, by cause
     for method in METHODS:
         episodes = Episodes.from_eval_info(out / SLUG / "eval" / method / "eval_info.json")
@@ -200,7 +204,7 @@ def test_a_method_setting_reruns_only_that_method_with_its_flags(settings, pipel
     out, _ = pipeline_run
     configs, recipes = settings
     methods = configs / SLUG / "methods.json"
-    methods.write_text(json.dumps({"dp": {"dp_star_rounds": 2}}))
+    methods.write_text(json.dumps({**json.loads(methods.read_text()), "dp": {"dp_star_rounds": 2}}))
     try:
         stdout = _run_pipeline(configs, recipes, out)
     finally:

@@ -199,6 +199,41 @@ def test_ccdp_redraws_drop_repeats_and_keep_the_remaining_shares():
     assert (shares[3][1:] / shares[3][1:].sum() - remaining).abs().max() < 0.05
 
 
+class OffsetRecovery(MixtureRecovery):
+    """MixtureRecovery whose eps_z(z) errs: its modes sit `offset` away from the demonstrated ones (eps_z_null is
+    exact), as a recovery head trained on fewer, synthesised rows errs where the base does not."""
+
+    def __init__(self, scheduler, modes, offset: float):
+        super().__init__(scheduler, modes)
+        self.offset = offset
+
+    def forward(self, noisy, timestep, z, keep_z):
+        weights = torch.where(keep_z.bool(), recovery_shares(z), self.null_shares)
+        exact = mixture_eps(self.scheduler, noisy, timestep, self.modes, weights)
+        off = mixture_eps(self.scheduler, noisy, timestep, self.modes + self.offset, weights)
+        return torch.where(keep_z.bool().view(-1, 1, 1), off, exact)
+
+
+def test_failure_step_share_keeps_the_option_choice_and_lands_on_the_base_modes():
+    """failure_step_share: with the failures in the first 8 of 10 reverse steps only, the failed mode stays
+    avoided and the other modes keep the shares they get with failures at every step, while the chunks end on the
+    base's modes instead of carrying the recovery estimate's error into the chunk."""
+    rows, found = 1024, {}
+    for share in (1.0, 0.8):
+        policy, modes = mixture_policy(failure_step_share=share)
+        policy.recovery = OffsetRecovery(policy.noise_scheduler, modes, 0.1)
+        torch.manual_seed(1)
+        with torch.inference_mode():
+            shares = mode_shares(policy, modes, [0], rows)
+            chunks = policy._memory.attempt_chunk[:, : policy.config.n_action_steps]
+        off_mode = ((chunks[:, None] - modes[None, :, : chunks.shape[1]]) ** 2).mean(dim=(2, 3)).amin(dim=1).sqrt()
+        found[share] = (shares, off_mode.mean().item())
+    print("failure_step_share: (mode shares after mode 0 failed, RMS distance to the nearest mode)", found)
+    (every_step, off_every), (early, off_early) = found[1.0], found[0.8]
+    assert early[0] < 0.02 and (early - every_step).abs().max() < 0.03
+    assert off_every > 0.08 and off_early < 0.04
+
+
 @pytest.mark.parametrize("w_z", [1.0, 3.0])
 @pytest.mark.parametrize("z_reference", ["eps_a", "eps_z_null"])
 def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_preference(z_reference, w_z):
