@@ -112,9 +112,9 @@ def failure_steps(n_steps: int, share: float) -> int:
     """How many of the `n_steps` reverse steps, from the noisiest, add the failures (`failure_step_share`).
 
     The noisy steps decide which option a chunk heads to; the last steps refine it. A recovery estimate is
-    less exact than the base's (trained on fewer, synthesised rows), and in those last steps its error only
-    moves the chunk within the option: where a pour or a press must land within centimetres, that is a miss.
-    At least one step keeps the failures, so a share above 0 never turns CCDP into plain diffusion.
+    less exact than the base's (trained on fewer, synthesised rows), and in those last steps its error can only
+    move the chunk within the option, away from where the base would put it. At least one step keeps the
+    failures, so a share above 0 never turns CCDP into plain diffusion.
     """
     return max(1, round(share * n_steps))
 
