@@ -2,6 +2,7 @@
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
         [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp|classifier] [--classifier-query each|set]
+        [--failure-step-share 1.0]
         [--out outputs/bench_policy.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
@@ -114,9 +115,10 @@ def interleaved_medians(calls: dict[str, callable], repeats: int, warmup: int) -
 
 
 def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates: int, recovery_head: str,
-                     classifier_query: str) -> dict:
+                     classifier_query: str, failure_step_share: float) -> dict:
     torch.manual_seed(0)
-    make = functools.partial(make_ccdp, recovery_head=recovery_head, classifier_query=classifier_query)
+    make = functools.partial(make_ccdp, recovery_head=recovery_head, classifier_query=classifier_query,
+                             failure_step_share=failure_step_share)
     obs = {STATE: torch.randn(1, 2), ENV: torch.randn(1, env_dim)}
 
     diffusion = make_diffusion(env_dim).eval()
@@ -329,6 +331,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--recovery-head", choices=["unet", "mlp", "classifier"], default="unet", help="recovery head")
     parser.add_argument("--classifier-query", choices=CLASSIFIER_QUERIES, default="each",
                         help="how the classifier head is asked about the failures (recovery head classifier)")
+    parser.add_argument("--failure-step-share", type=float, default=1.0,
+                        help="CCDP's failure_step_share: the share of reverse steps that add the failures")
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")
     parser.add_argument("--cli-log-freq", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")
@@ -343,7 +347,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     print("(a) planning latency ...", flush=True)
     results["latency"] = planning_latency(args.env_dim, args.repeats, args.warmup, args.dp_star_candidates,
-                                          args.recovery_head, args.classifier_query)
+                                          args.recovery_head, args.classifier_query, args.failure_step_share)
     print("(b) training step ...", flush=True)
     results["train_step"] = training_step_time(args.env_dim, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:
