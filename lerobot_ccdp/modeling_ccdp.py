@@ -420,15 +420,14 @@ class CCDPPolicy(PreTrainedPolicy):
             refining = i >= with_failures  # low noise: the base alone refines the chunk within its option
             if refining or guided:
                 composed = compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"))
-            if guided and not refining:
                 failed = z_mask.any(dim=1)
-                if failed.any():
+                if guided and not refining and failed.any():
                     gradient = torch.zeros_like(sample)
                     gradient[failed] = self._no_repeat_gradient(sample[failed], step[: int(failed.sum())],
                                                                 state[failed], z[failed], z_mask[failed])
                     alpha_bar = self.noise_scheduler.alphas_cumprod[int(t)].to(sample.device)
                     composed = guide_away_from_failures(composed, gradient, alpha_bar, weights.w_z)
-            elif not refining:
+            else:
                 eps_z, eps_z_null = self._recovery_terms(sample, step[0], z_rows, keep_z, n) if n else (None, None)
                 composed = compose_eps(
                     weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null
