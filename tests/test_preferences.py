@@ -5,8 +5,8 @@ The reduced form of `benchmarks/bench_preferences.py`: the same members, measure
 (`in_memory_training.py`) instead of through lerobot-train so that CI can afford it. Member 0 carries `primitive`
 labels; member 1 has none and uses `final_state` z. Issue 17's failed-share target (<= 0.03) is asserted for CCDP
 asked about each failure with up to three redraws of a repeat; its preference-error target (<= 0.08) is not, as
-these short trainings leave even the exact classifier's guidance above it: the scores are printed
-(`pytest -s -k preferences`), and docs/benchmarks.md has the family's figures and what was tried.
+these short trainings leave some members and counts above it, even under the exact classifier's guidance: the scores
+are printed (`pytest -s -k preferences`), and docs/benchmarks.md has the family's figures and what was tried.
 """
 
 from pathlib import Path
@@ -21,11 +21,11 @@ from lerobot_ccdp.reaching2d import ReachingTask
 from lerobot_ccdp.reaching_preferences import Method, measure
 
 EPISODES = 100
-BASE_STEPS = 500
-HEAD_STEPS = 1000  # bench_preferences.py: 1000 and 3000
+BASE_STEPS = 300
+HEAD_STEPS = 600  # bench_preferences.py: 1000 and 3000
 ROWS = 512
 # Issue 17 asks 0.03 on the family's mean, which is not met yet (docs/benchmarks.md); this bounds each member and
-# count, where these checkpoints measured 0.000 to 0.035 (2026-11-25, 500 and 1000 steps).
+# count, where these checkpoints measured 0.004 to 0.023 (2026-11-27; 0.002 to 0.035 at 500 and 1000 steps).
 FAILED_SHARE = 0.10
 EXACT_FAILED_SHARE = 0.05
 REDRAWN_FAILED_SHARE = 0.03  # issue 17's target, with classifier_query=each and ccdp_redraws=3
@@ -70,9 +70,9 @@ def test_classifier_guidance_avoids_failed_goals_where_dp_repeats_them(measured)
             assert dp_failed > 0.2, report  # without memory the base keeps drawing its favourite goals
             assert ccdp_failed <= min(FAILED_SHARE, dp_failed / 4), report
             # Asked about each failure and redrawing the rare repeat (up to 3 times), issue 17's failed-share target
-            # holds on each member and count (measured 0.000 to 0.004 here, 2026-11-26).
+            # holds on each member and count (measured 0.000 to 0.020 here, 2026-11-27).
             assert scores[(seed, "CCDP each +3", count)][0] <= REDRAWN_FAILED_SHARE, report
             # The same learnt base guided by the exact classifier of the demonstrated start chunks: the guidance, the
-            # sampler and the gradient under inference mode leave almost nothing of the failed goals (measured 0.002
-            # to 0.008 on these checkpoints, 2026-11-25).
+            # sampler and the gradient under inference mode leave almost nothing of the failed goals (measured 0.000
+            # to 0.004 on these checkpoints, 2026-11-27).
             assert scores[(seed, "CCDP exact", count)][0] <= EXACT_FAILED_SHARE, report
