@@ -123,8 +123,10 @@ class CCDPConfig(PreTrainedConfig):
     gripper_action_dim: int = -1
     pause_steps: int = 2
     pause_tolerance: float = 1e-3
-    # action: which steps of the attempt's first chunk form z (empty = all steps).
+    # action: which steps of the attempt's first chunk, and which action dims at each, form z (empty = all). Dims
+    # that spread within an option (the box: where along it the hand goes) would hide which option it was.
     failure_action_steps: list[int] = field(default_factory=list)
+    failure_action_dims: list[int] = field(default_factory=list)
     # primitive: the dataset column holding the per-frame primitive label, and how many labels exist.
     primitive_key: str = "primitive"
     num_primitives: int = 0
@@ -290,6 +292,9 @@ class CCDPConfig(PreTrainedConfig):
                     f"(shape {tuple(source.shape)})."
                 )
         action_dim = self.action_feature.shape[-1]
+        bad = [d for d in self.failure_action_dims if not 0 <= d < action_dim]
+        if self.failure_feature == "action" and bad:
+            raise ValueError(f"`failure_action_dims` {bad} do not exist in the {action_dim}-dim action.")
         if self.failure_segments in ("releases", "drops") and not -action_dim <= self.gripper_action_dim < action_dim:
             raise ValueError(
                 f"`gripper_action_dim` {self.gripper_action_dim} does not exist in the {action_dim}-dim action; "
@@ -335,7 +340,7 @@ class CCDPConfig(PreTrainedConfig):
         if self.failure_feature == "final_state":
             return len(self.failure_state_dims) or self.input_features[self.failure_state_key].shape[0]
         if self.failure_feature == "action":
-            return (len(self.failure_action_steps) or self.horizon) * self.action_dim
+            return (len(self.failure_action_steps) or self.horizon) * (len(self.failure_action_dims) or self.action_dim)
         return self.num_primitives
 
     @property

@@ -1,7 +1,7 @@
 """Failure key features z (paper III-B.1), computed the same way by the policy and the recovery recipe.
 
 z always lives in the normalised space of its source: `final_state` takes dims of the normalised
-observation, `action` steps of the normalised chunk, `primitive` a one-hot label. A recovery dataset
+observation, `action` steps (and dims) of the normalised chunk, `primitive` a one-hot label. A recovery dataset
 stores z in raw units under FAILURE_FEATURE_KEY with the stats from `failure_feature_stats`, so LeRobot's
 normaliser maps stored z onto exactly the values the policy computes at run time.
 """
@@ -46,7 +46,8 @@ class FailureFeature:
         """
         if self.kind == "action":
             steps = self.config.failure_action_steps or list(range(chunk.shape[1]))
-            return chunk[:, steps].flatten(start_dim=1)
+            dims = self.config.failure_action_dims or list(range(chunk.shape[2]))
+            return chunk[:, steps][:, :, dims].flatten(start_dim=1)
         nearest = outcomes.nearest(chunk)
         if self.kind == "final_state":
             return outcomes.final_states[nearest]
@@ -96,4 +97,5 @@ def failure_feature_stats(config: CCDPConfig, source_stats: dict[str, dict]) -> 
         return {k: np.asarray(v)[dims] for k, v in stats.items() if k in ("mean", "std", "min", "max")}
     stats = source_stats["action"]
     repeats = len(config.failure_action_steps) or config.horizon
-    return {k: np.tile(np.asarray(v), repeats) for k, v in stats.items() if k in ("mean", "std", "min", "max")}
+    dims = config.failure_action_dims or list(range(len(np.asarray(stats["mean"]))))
+    return {k: np.tile(np.asarray(v)[dims], repeats) for k, v in stats.items() if k in ("mean", "std", "min", "max")}

@@ -359,7 +359,11 @@ def method_forms(runs: list[TaskRun]) -> str:
 
 
 def z_description(settings: dict[str, Any]) -> str:
-    """What z was: the feature, and for `final_state` which dims and where a failure's z was read."""
+    """What z was: the feature, for `action` which steps and dims, and for `final_state` which dims and where a
+    failure's z was read."""
+    if settings["failure_feature"] == "action":
+        steps, dims = settings.get("failure_action_steps") or "all", settings.get("failure_action_dims") or "all"
+        return f"action: steps {steps} of the attempt's first chunk, dims {dims}"
     if settings["failure_feature"] != "final_state":
         return settings["failure_feature"]
     dims = settings.get("failure_state_dims") or "all"

@@ -46,6 +46,11 @@ def test_failure_state_dims_the_dataset_lacks_are_rejected():
         make_policy(failure_feature="final_state", failure_state_dims=[0, 5])
 
 
+def test_failure_action_dims_the_action_lacks_are_rejected():
+    with pytest.raises(ValueError, match=r"failure_action_dims.*\[2\].*2-dim action"):
+        make_policy(failure_feature="action", failure_action_dims=[1, 2])
+
+
 def test_missing_state_feature_is_rejected_at_construction():
     config = CCDPConfig(
         input_features={"observation.environment_state": PolicyFeature(FeatureType.ENV, (3,))},

@@ -19,11 +19,12 @@ STATS = {
 
 
 @pytest.mark.parametrize("mode", ["MIN_MAX", "MEAN_STD"])
-@pytest.mark.parametrize("kind", ["final_state", "action"])
-def test_stored_z_normalises_onto_runtime_z(kind, mode):
+@pytest.mark.parametrize("kind,action_dims", [("final_state", []), ("action", []), ("action", [1])])
+def test_stored_z_normalises_onto_runtime_z(kind, action_dims, mode):
     from lerobot.configs.types import NormalizationMode
 
-    policy = make_policy(state_dim=3, failure_feature=kind, failure_state_dims=[2, 0], failure_action_steps=[0, 7])
+    policy = make_policy(state_dim=3, failure_feature=kind, failure_state_dims=[2, 0], failure_action_steps=[0, 7],
+                         failure_action_dims=action_dims)
     for key in ("STATE", "ACTION"):
         policy.config.normalization_mapping[key] = NormalizationMode[mode]
     stats = {**STATS, "observation.failure_feature": failure_feature_stats(policy.config, STATS)}
@@ -33,7 +34,7 @@ def test_stored_z_normalises_onto_runtime_z(kind, mode):
     if kind == "final_state":
         raw_z = state[:, [2, 0]]
     else:
-        raw_z = chunk[:, [0, 7]].flatten(start_dim=1)
+        raw_z = chunk[:, [0, 7]][:, :, action_dims or [0, 1]].flatten(start_dim=1)
     out = pre({"observation.state": state, "action": chunk, "observation.failure_feature": raw_z})
     runtime_z = (
         policy.feature.from_frame(out["observation.state"])

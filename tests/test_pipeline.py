@@ -361,5 +361,7 @@ def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_
                 "failure_state_at": "demonstrated_end"}
     assert z_description(settings) == "final_state: observation.state dims [1, 2], a failure's read at demonstrated_end"
     assert z_description({"failure_feature": "primitive"}) == "primitive"
+    action = {"failure_feature": "action", "failure_action_steps": [23], "failure_action_dims": [1, 2]}
+    assert z_description(action) == "action: steps [23] of the attempt's first chunk, dims [1, 2]"
     released = {**settings, "failure_segments": "releases"}
     assert z_description(released).endswith("demonstrated_end, demonstrated options end at releases")

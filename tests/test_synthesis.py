@@ -25,7 +25,7 @@ FEATURE_SETTINGS = {
     "final_state": {"failure_feature": "final_state", "failure_state_dims": [0, 1]},
     # A z of one dim is a column of shape (1,), which LeRobotDataset loads as a scalar per row.
     "final_state_1d": {"failure_feature": "final_state", "failure_state_dims": [1]},
-    "action": {"failure_feature": "action", "failure_action_steps": [7, 15]},
+    "action": {"failure_feature": "action", "failure_action_steps": [7, 15], "failure_action_dims": [1]},
 }
 # Small and loose enough that an untrained base (near-random chunks) still yields pairs quickly.
 SMALL = {"n_states": 16, "chunks_per_state": 6, "batch_states": 8, "pairs_per_failure": 2, "demo_frames": 200,

@@ -80,6 +80,7 @@ class RecoveryRecipe:
     failure_state_key: str = OBS_STATE  # final_state z: the observation that forms z
     failure_state_dims: list[int] = field(default_factory=list)  # final_state z: which of its dims; []: all
     failure_action_steps: list[int] = field(default_factory=list)  # action z: which steps of the chunk; []: all
+    failure_action_dims: list[int] = field(default_factory=list)  # action z: which action dims at each step; []: all
     primitive_key: str = "primitive"  # primitive z: the dataset column of the option label
     num_primitives: int = 0  # primitive z: the number of options (z is one-hot)
     n_states: int = 512  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
@@ -124,7 +125,7 @@ class RecoveryRecipe:
         names = ["failure_feature"]
         names += {
             "final_state": ["failure_state_key", "failure_state_dims"],
-            "action": ["failure_action_steps"],
+            "action": ["failure_action_steps", "failure_action_dims"],
             "primitive": ["primitive_key", "num_primitives"],
         }[self.failure_feature]
         return {name: getattr(self, name) for name in names}
