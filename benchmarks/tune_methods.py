@@ -11,8 +11,10 @@ through lerobot-eval with the task's eval config and the method's other settings
 development seeds (`--seed`, default 1000: episode i uses seed + i; the configs' test seeds start at 2000), without
 rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
 why episodes were lost, evaluation time; success and repeats also as paired differences against the grid's first
-setting) and picks one setting for the tasks given: the highest mean success, then the fewest repeats, then the
-first in the grid's order (list the cheapest value first). With `--write` it stores the pick under the method's
+setting) and picks one setting for the tasks given, their episodes pooled: the grid's first setting (list the
+default or the cheapest value first) unless another beats it, paired, with a 95% interval clear of 0, on success
+(the highest mean success of those that do) or, where none does, on repeats without a success interval wholly below
+0 (the fewest mean repeats). A tie keeps the first setting. With `--write` it stores the pick under the method's
 key of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
 lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
 
@@ -41,6 +43,7 @@ from lerobot_ccdp.pipeline import BIN, CHECKPOINT, METHODS, TASK_GROUPS, TaskFil
 
 REPO = Path(__file__).resolve().parents[1]
 Setting = tuple[tuple[str, Any], ...]  # ((field, value), ...) in the grid's order
+Row = tuple[str, Setting]  # (checkpoint name, setting): one row of the table
 
 
 def parse_grid(items: list[str]) -> list[Setting]:
@@ -69,7 +72,7 @@ def label(setting: Setting) -> str:
 OWN = "recovery"  # the name of the run's own recovery checkpoint, `<out>/<task>/recovery`
 
 
-def row_label(row: tuple[str, Setting]) -> str:
+def row_label(row: Row) -> str:
     """A table row's name: the setting, after the checkpoint's name where it is not the run's own."""
     name, setting = row
     return label(setting) if name == OWN else f"{name}: {label(setting)}"
@@ -101,6 +104,23 @@ def evaluate(files: TaskFiles, method: str, checkpoint: Path, name: str, setting
     seconds = time.perf_counter() - start
     (out / "seconds.txt").write_text(f"{seconds:.1f}\n")
     return seconds
+
+
+def pick(rows: list[Row], pooled: dict[Row, Episodes]) -> tuple[Row, str]:
+    """The setting to keep and why: the first row unless a paired 95% interval says another is better (success
+    first, then repeats per attempt after a failure without a clear loss of success). A tie is not a win."""
+    first = rows[0]
+    success = {r: paired_difference(pooled[r], pooled[first], success_rate) for r in rows[1:]}
+    repeats = {r: paired_difference(pooled[r], pooled[first], repeats_per_opportunity) for r in rows[1:]}
+    better = [r for r in rows[1:] if success[r].low > 0]
+    if better:
+        row = max(better, key=lambda r: (success[r].value, -repeats[r].value))
+        return row, f"success {success[row]} over {row_label(first)}"
+    fewer = [r for r in rows[1:] if repeats[r].high < 0 and success[r].high >= 0]
+    if fewer:
+        row = min(fewer, key=lambda r: (repeats[r].value, -success[r].value))
+        return row, f"repeats {repeats[row]} against {row_label(first)}, success {success[row]}"
+    return first, "the grid's first setting: no other is better by a paired interval clear of 0"
 
 
 def measured(files: TaskFiles, method: str, name: str, setting: Setting, seed: int) -> tuple[Episodes, float]:
@@ -146,7 +166,7 @@ def main(argv: list[str] | None = None) -> None:
             raise SystemExit(f"--seed {args.seed} overlaps {task}'s test seeds {test}-{test + n - 1}; "
                              "tune on development seeds.")
 
-    rows, scores = [], {row: [] for row in rows_of}
+    rows, scores, by_task = [], {row: [] for row in rows_of}, {row: [] for row in rows_of}
     for task in args.tasks:
         episodes = {}
         for row in rows_of:
@@ -154,6 +174,7 @@ def main(argv: list[str] | None = None) -> None:
             if not args.report_only:
                 evaluate(files[task], args.method, paths[task][name], name, setting, args.seed)
             episodes[row], seconds = measured(files[task], args.method, name, setting, args.seed)
+            by_task[row].append(episodes[row])
             metrics = MethodMetrics.of(episodes[row])
             scores[row].append((metrics.success.value, metrics.repeats_per_opportunity.value))
             first = episodes[rows_of[0]]
@@ -171,8 +192,8 @@ def main(argv: list[str] | None = None) -> None:
     means = {r: np.nanmean(np.array(v, dtype=float), axis=0) for r, v in scores.items()}  # (success, repeats)
     for row, (success, repeats) in means.items():
         print(f"{row_label(row)}: mean success {success:.3f}, mean repeats {repeats:.3f}")
-    name, pick = min(rows_of, key=lambda r: (-means[r][0], means[r][1], rows_of.index(r)))
-    print(f"pick for {args.method}: {row_label((name, pick))} (seeds {args.seed}-{last})")
+    (name, chosen), why = pick(rows_of, {row: Episodes.concatenate(parts) for row, parts in by_task.items()})
+    print(f"pick for {args.method}: {row_label((name, chosen))} (seeds {args.seed}-{last}; {why})")
     if args.write and name != OWN:
         raise SystemExit(f"Not written: the pick is the checkpoint {name!r}, not the run's own. A recovery head is "
                          "part of the task's configs (`recovery_head` in train_base.json), not of methods.json.")
@@ -180,7 +201,7 @@ def main(argv: list[str] | None = None) -> None:
         for f in files.values():
             path = f.eval.with_name("methods.json")
             current = json.loads(path.read_text()) if path.is_file() else {}
-            current[args.method] = {**current.get(args.method, {}), **dict(pick)}
+            current[args.method] = {**current.get(args.method, {}), **dict(chosen)}
             path.write_text(json.dumps(current, indent=2) + "\n")
             print(f"wrote {path}")
 

@@ -73,6 +73,11 @@ class Episodes:
             failures=np.asarray(metrics.get("failures", [np.nan] * len(metrics["successes"])), dtype=float),
         )
 
+    @classmethod
+    def concatenate(cls, parts: list[Episodes]) -> Episodes:
+        """Several runs' episodes as one run (several tasks' development seeds, pooled for one choice)."""
+        return cls(**{name: np.concatenate([vars(part)[name] for part in parts]) for name in vars(parts[0])})
+
     def subset(self, mask: np.ndarray) -> Episodes:
         """The episodes where `mask` is true, in order (for paired comparisons on a common subset)."""
         return Episodes(**{name: value[mask] for name, value in vars(self).items()})
