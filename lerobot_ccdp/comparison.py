@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_ccdp.envs.tasks import task_family
-from lerobot_ccdp.episodes import Episodes, Estimate, LostEpisodes
+from lerobot_ccdp.episodes import Episodes, Estimate, LostEpisodes, solved_before_any_failure
 from lerobot_ccdp.paired import cluster_bootstrap, repeats_per_attempt, repeats_per_opportunity
 
 METHOD_LABELS = {"dp": "DP", "dp_star": "DP*", "ccdp": "CCDP", "oracle": "no-repeat oracle"}
@@ -113,14 +113,17 @@ def markdown_table(results: Results) -> str:
 
 
 LOST_HEADER = "lost: with a repeat / without any failure / after distinct failures only"
+SOLVED_HEADER = "solved before any failure; solved / episodes with a failure"
 
 
 def lost_table(episodes: dict[str, dict[str, Episodes]]) -> str:
-    """Per task and method, how many episodes were lost and why (`LostEpisodes`)."""
-    lines = [f"| task | method | {LOST_HEADER} |", "|---|---|---|"]
+    """Per task and method, how many episodes were lost and why (`LostEpisodes`), and how many were solved before
+    any failure, where recovery plays no part (`solved_before_any_failure`)."""
+    lines = [f"| task | method | {LOST_HEADER} | {SOLVED_HEADER} |", "|---|---|---|---|"]
     for task, methods in episodes.items():
         for method, runs in methods.items():
-            lines.append(f"| {task} | {METHOD_LABELS[method]} | {LostEpisodes.of(runs)} |")
+            lines.append(f"| {task} | {METHOD_LABELS[method]} | {LostEpisodes.of(runs)} | "
+                         f"{solved_before_any_failure(runs)} |")
     return "\n".join(lines)
 
 

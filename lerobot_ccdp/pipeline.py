@@ -395,7 +395,9 @@ def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], 
         target_checks(episodes),
         "## Lost episodes",
         "Whether recovery or execution costs success: a lost episode repeated a failed option, or never had an "
-        "attempt fail (the policy did not complete one before the time limit), or failed distinct options only.",
+        "attempt fail (the policy did not complete one before the time limit), or failed distinct options only. "
+        "Before an episode's first failure DP, DP* and CCDP sample the same base policy: their episodes solved "
+        "without a failure differ by sampling luck alone, and recovery shows among the episodes with one.",
         lost_table(episodes),
         "## Time per stage (s)",
         time_breakdown(runs),

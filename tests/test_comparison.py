@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from lerobot_ccdp.comparison import Episodes, MethodMetrics, bootstrap_mean, markdown_table, wilson
-from lerobot_ccdp.episodes import Estimate, LostEpisodes
+from lerobot_ccdp.comparison import Episodes, MethodMetrics, bootstrap_mean, lost_table, markdown_table, wilson
+from lerobot_ccdp.episodes import Estimate, LostEpisodes, solved_before_any_failure
 from lerobot_ccdp.paired import cluster_bootstrap, paired_difference, repeats_per_attempt, success_rate, verdict
 from lerobot_ccdp.targets import target_checks
 
@@ -120,3 +120,14 @@ def test_targets_table_judges_from_paired_intervals():
     swapped = target_checks({"ObjectPacking-lite-v0": {"dp": good, "ccdp": poor}})
     assert "success > DP | CCDP - DP -0.75 [" in swapped and "| missed |" in swapped
     assert "| ObjectPacking-lite-v0 | CCDP | 40 | 0.25 [" in markdown_table({"ObjectPacking-lite-v0": {"ccdp": MethodMetrics.of(poor)}})
+
+
+def test_solved_before_any_failure_splits_wins_by_whether_recovery_played_a_part():
+    # Solved: two without a failure, one after a failure; lost: one after a failure, one without any.
+    runs = _episodes([True, True, True, False, False], [1, 1, 2, 3, 0], [0, 0, 0, 1, 0], [True] * 3 + [False] * 2,
+                     failures=[0, 0, 1, 2, 0])
+    assert solved_before_any_failure(runs) == "2; 1 / 2"
+    table = lost_table({"Task-v0": {"ccdp": runs}})
+    assert table.splitlines()[-1] == "| Task-v0 | CCDP | 2: 1 / 1 / 0 | 2; 1 / 2 |"
+    older = _episodes([True, False], [1, 2], [0, 1], [True, False], failures=[np.nan, np.nan])
+    assert solved_before_any_failure(older) == "n/a"
