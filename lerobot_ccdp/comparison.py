@@ -11,7 +11,8 @@ Metrics, from each episode's final env info:
   attempts use an episode-level (cluster) bootstrap, as attempts of one episode are not independent;
 - preference adherence: successful episodes whose every choice was the demonstrated preference (Wilson);
 - why the other episodes were lost (`LostEpisodes`): a repeated failure, no failed attempt at all, or distinct
-  failures only.
+  failures only; and how many were solved before any failure, where recovery plays no part
+  (`solved_before_any_failure`).
 
 Comparisons between methods are paired by seed: `lerobot_ccdp.targets`.
 """
