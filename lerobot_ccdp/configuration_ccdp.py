@@ -147,6 +147,12 @@ class CCDPConfig(PreTrainedConfig):
     # the kept chunks follow CCDP's distribution restricted to the options that did not fail, at the cost of one more
     # denoising pass for the few rows that repeated (`dp_star.reject_repeats` with one candidate per round).
     ccdp_redraws: int = 0
+    # Where a plan's noise comes from. False, LeRobot's diffusion behaviour: torch's global generator. True: each
+    # batch row of each rollout has its own generator, seeded from torch's seed (lerobot-eval's --seed), the rollout's
+    # index and the row (`noise_streams`), for a plan's first sample (DP*'s first candidate, CCDP's first draw). DP,
+    # DP* and CCDP evaluated with the same --seed then draw the same noise for the same episode, so they act alike
+    # until its first failure (common random numbers); `make benchmark` evaluates every method so.
+    row_noise_streams: bool = False
     # Demonstrated chunks kept to look up the outcome (final state, primitive) of a sampled chunk.
     outcome_index_size: int = 20000
     # Recovery head: "unet" (eps_z, LeRobot's diffusion UNet conditioned on z, trained on a synthesised recovery

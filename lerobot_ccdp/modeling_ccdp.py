@@ -29,6 +29,7 @@ from lerobot_ccdp.failure_features import FailureFeature
 from lerobot_ccdp.failure_signal import FailureSignalFile
 from lerobot_ccdp.image_encoder import ImageEncoder
 from lerobot_ccdp.model_card import make_model_card
+from lerobot_ccdp.noise_streams import draw_noise, first_candidates, row_generators
 from lerobot_ccdp.observations import (
     observation_frames,
     refuse_non_finite_stats,
@@ -84,6 +85,8 @@ class CCDPPolicy(PreTrainedPolicy):
         self._heard_failure_source = self.failure_signal is not None
         self._warned_deaf = False
         self._sample_pool: BaseSamplePool | None = None  # classifier_chunks=base_samples, while training
+        self._rollouts = 0  # rollouts begun since the policy was made: with row_noise_streams, part of each row's seed
+        self._streams: list[torch.Generator] | None = None
         self._set_trainable()
         self.reset()
 
@@ -319,6 +322,8 @@ class CCDPPolicy(PreTrainedPolicy):
             cfg = self.config
             self._memory = RolloutMemory(cfg, frame.shape[0], frame.device)
             self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, cfg.max_failures, frame.device)
+            self._streams = row_generators(self._rollouts, frame.shape[0]) if cfg.row_noise_streams else None
+            self._rollouts += 1
         flag = batch.get(FAILURE_FLAG_KEY)
         if flag is not None:
             self._heard_failure_source = True
@@ -367,17 +372,18 @@ class CCDPPolicy(PreTrainedPolicy):
                                "sampling as plain DP. Train the recovery stage to use failures.")
                 self._warned_untrained = True
             mode = "dp"
+        streams = None if self._streams is None else [self._streams[i] for i in rows.nonzero().flatten().tolist()]
         if mode == "dp_star" and z_mask.any():  # DP*: the base's candidates, failures ignored, repeats rejected
             return self._sample_without_repeats(state, history, z, z_mask, cfg.dp_star_candidates,
-                                                cfg.dp_star_rounds, guided=False)
+                                                cfg.dp_star_rounds, guided=False, streams=streams)
         if mode != "ccdp":
             z, z_mask = z[:, :0], z_mask[:, :0]
         shape = (state.shape[0], cfg.horizon, cfg.action_dim)
-        sample = noise[rows] if noise is not None else torch.randn(shape, device=state.device)
+        sample = noise[rows] if noise is not None else draw_noise(shape, streams, state.device)
         if mode == "ccdp" and cfg.ccdp_redraws and z_mask.any():  # a plan that still repeats is drawn again
             return self._sample_without_repeats(state, history, z, z_mask, 1, 1 + cfg.ccdp_redraws, guided=True,
-                                                first_noise=sample)
-        return self._denoise(sample, state, history, z, z_mask)
+                                                first_noise=sample, streams=streams)
+        return self._denoise(sample, state, history, z, z_mask, generators=streams)
 
     @torch.no_grad()
     def sample_exploratory(self, state: Tensor, w_s: float, noise: Tensor | None = None) -> Tensor:
@@ -394,12 +400,13 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def _denoise(
         self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor,
-        weights: CompositionWeights | None = None,
+        weights: CompositionWeights | None = None, generators: list[torch.Generator] | None = None,
     ) -> Tensor:
         """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given):
         one base call and at most one recovery call per step, whatever the number of failures. With the classifier
         head, the failures enter by guidance instead (`guide_away_from_failures`). Only the first
-        `failure_step_share` of the steps add the failures (`composition.failure_steps`)."""
+        `failure_step_share` of the steps add the failures (`composition.failure_steps`). The reverse steps' noise
+        comes from `generators` (one per row, `noise_streams`) when given, else from torch's global generator."""
         weights = weights or self.weights
         r, n = sample.shape[0], z.shape[1]
         guided = n > 0 and self.config.recovery_head == "classifier"
@@ -432,7 +439,7 @@ class CCDPPolicy(PreTrainedPolicy):
                 composed = compose_eps(
                     weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null
                 )
-            sample = self.noise_scheduler.step(composed, t, sample).prev_sample
+            sample = self.noise_scheduler.step(composed, t, sample, generator=generators).prev_sample
         return sample
 
     @staticmethod
@@ -484,25 +491,30 @@ class CCDPPolicy(PreTrainedPolicy):
         return gradient
 
     def _sample_without_repeats(self, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor, candidates: int,
-                                rounds: int, guided: bool, first_noise: Tensor | None = None) -> Tensor:
+                                rounds: int, guided: bool, first_noise: Tensor | None = None,
+                                streams: list[torch.Generator] | None = None) -> Tensor:
         """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round draws
         `candidates` chunks per pending row, from CCDP's guided composition (`guided`: `ccdp_redraws`, one candidate,
         the first round from the caller's `first_noise`) or from the base composition with failures ignored (DP*),
-        and labels them with the outcome of the nearest demonstrated chunk."""
+        and labels them with the outcome of the nearest demonstrated chunk. With row `streams`, each row's first
+        candidate of the first round draws from its row's stream, later draws from torch's global generator."""
         cfg, noises = self.config, iter([] if first_noise is None else [first_noise])
+        firsts = iter([first_candidates(streams, candidates)])
         failures = slice(None) if guided else slice(0)
 
         def draw(rows: Tensor) -> tuple[Tensor, Tensor]:
             r = rows.shape[0]
+            generators = next(firsts, None)
             noise = next(noises, None)
             if noise is None:
-                noise = torch.randn(r * candidates, cfg.horizon, cfg.action_dim, device=state.device)
+                noise = draw_noise((r * candidates, cfg.horizon, cfg.action_dim), generators, state.device)
             chunks = self._denoise(
                 noise,
                 state[rows].repeat_interleave(candidates, dim=0),
                 history[rows].repeat_interleave(candidates, dim=0),
                 z[rows][:, failures].repeat_interleave(candidates, dim=0),
                 z_mask[rows][:, failures].repeat_interleave(candidates, dim=0),
+                generators=generators,
             )
             z_candidates = self.feature.from_chunk(chunks, self.outcomes).view(r, candidates, -1)
             distance = nearest_failure_distance(z_candidates, z[rows], z_mask[rows])

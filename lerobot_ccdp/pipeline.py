@@ -55,6 +55,10 @@ METHODS = ("dp", "dp_star", "ccdp")
 # side by side. DP* runs with `--env.render_mode=null`: on the Panda each frame costs about 40 ms and LeRobot
 # renders 10 envs at every step of the first batch, so its videos alone cost minutes of the benchmark's 2 hours.
 VIDEO_METHODS = ("dp", "ccdp")
+# Every method is evaluated on common random numbers: each episode's plans draw from the same per-row noise streams
+# (`lerobot_ccdp.noise_streams`), so DP, DP* and CCDP act alike until an episode's first failure and the paired
+# differences measure recovery, not the luck of the plans before it.
+COMMON_NOISE = "--policy.row_noise_streams=true"
 # Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric versions.
 TASK_GROUPS = {
     "all": [t for t in TASKS if not is_lite(t)],
@@ -140,10 +144,12 @@ class TaskFiles:
         return [f"--policy.{key}={value}" for key, value in settings.items()]
 
     def eval_command(self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str]) -> list[str]:
-        """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`."""
+        """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`, on common
+        random numbers (`COMMON_NOISE`)."""
         videos = [] if method in VIDEO_METHODS else ["--env.render_mode=null"]
         return ["lerobot-eval", f"--config_path={self.eval}", f"--policy.path={checkpoint}",
-                f"--policy.recovery_mode={method}", *flags, *videos, f"--seed={seed}", f"--output_dir={out}"]
+                f"--policy.recovery_mode={method}", COMMON_NOISE, *flags, *videos, f"--seed={seed}",
+                f"--output_dir={out}"]
 
     @property
     def demos(self) -> Path:
@@ -386,7 +392,8 @@ def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], 
         f"Command: `{command}`  \nMachine: {machine()}",
         markdown_table(results),
         "## What ran",
-        "Seeds: episode i of every method and of the oracle uses seed `first + i`. The CCDP row of the composition "
+        "Seeds: episode i of every method and of the oracle uses seed `first + i`, and every method draws episode "
+        "i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). The CCDP row of the composition "
         "is eq. (4) as `lerobot_ccdp/composition.py` computes it with the evaluated checkpoint's weights "
         "(`docs/method.md`).",
         method_forms(runs),
@@ -396,8 +403,9 @@ def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], 
         "## Lost episodes",
         "Whether recovery or execution costs success: a lost episode repeated a failed option, or never had an "
         "attempt fail (the policy did not complete one before the time limit), or failed distinct options only. "
-        "Before an episode's first failure DP, DP* and CCDP sample the same base policy: their episodes solved "
-        "without a failure differ by sampling luck alone, and recovery shows among the episodes with one.",
+        "Before an episode's first failure DP, DP* and CCDP sample the same base policy from the same noise, so "
+        "their episodes solved without a failure match up to floating-point differences of batched network calls, "
+        "and recovery shows among the episodes with one.",
         lost_table(episodes),
         "## Time per stage (s)",
         time_breakdown(runs),

@@ -21,6 +21,7 @@ from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.pipeline import (
     CHECKPOINT,
+    COMMON_NOISE,
     VIDEO_METHODS,
     TaskFiles,
     latest_progress,
@@ -213,16 +214,13 @@ def test_a_method_setting_reruns_only_that_method_with_its_flags(settings, pipel
     assert "eval_ccdp: done already" in stdout
 
 
-def test_method_settings_name_known_methods(settings, tmp_path):
-    configs, recipes = settings
+def test_method_settings_name_known_methods(tmp_path):
+    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG)  # the module's settings hold a methods.json
     files = TaskFiles.locate(TASK, configs, recipes, tmp_path)
     assert files.method_flags("dp_star") == []  # no methods.json: the checkpoint's settings
     (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32}, "DP": {}}))
-    try:
-        with pytest.raises(ValueError, match=r"unknown method\(s\) \['DP'\]"):
-            files.method_flags("dp_star")
-    finally:
-        (configs / SLUG / "methods.json").unlink()
+    with pytest.raises(ValueError, match=r"unknown method\(s\) \['DP'\]"):
+        files.method_flags("dp_star")
 
 
 def test_only_the_watched_methods_render_videos(settings, tmp_path):
@@ -231,6 +229,7 @@ def test_only_the_watched_methods_render_videos(settings, tmp_path):
     for method in ("dp", "dp_star", "ccdp"):
         command = files.eval_command(Path("checkpoint"), method, 0, tmp_path / method, [])
         assert ("--env.render_mode=null" in command) == (method not in VIDEO_METHODS), method
+        assert COMMON_NOISE in command  # every method on the same noise streams
         assert command[-2:] == ["--seed=0", f"--output_dir={tmp_path / method}"]
 
 
