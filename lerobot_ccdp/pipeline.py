@@ -393,9 +393,9 @@ def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], 
         markdown_table(results),
         "## What ran",
         "Seeds: episode i of every method and of the oracle uses seed `first + i`, and every method draws episode "
-        "i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). The CCDP row of the composition "
-        "is eq. (4) as `lerobot_ccdp/composition.py` computes it with the evaluated checkpoint's weights "
-        "(`docs/method.md`).",
+        "i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). The CCDP row of "
+        "the composition is eq. (4) as `lerobot_ccdp/composition.py` computes it with the evaluated checkpoint's "
+        "weights (`docs/method.md`).",
         method_forms(runs),
         "## Targets",
         "Judged from paired 95% intervals (same seeds for every method): `docs/evaluation.md`.",
