@@ -498,14 +498,12 @@ class CCDPPolicy(PreTrainedPolicy):
         the first round from the caller's `first_noise`) or from the base composition with failures ignored (DP*),
         and labels them with the outcome of the nearest demonstrated chunk. With row `streams`, each row's first
         candidate of the first round draws from its row's stream, later draws from torch's global generator."""
-        cfg, noises = self.config, iter([] if first_noise is None else [first_noise])
-        firsts = iter([first_candidates(streams, candidates)])
-        failures = slice(None) if guided else slice(0)
+        cfg, failures = self.config, slice(None) if guided else slice(0)
+        first_round = iter([(first_noise, first_candidates(streams, candidates))])
 
         def draw(rows: Tensor) -> tuple[Tensor, Tensor]:
             r = rows.shape[0]
-            generators = next(firsts, None)
-            noise = next(noises, None)
+            noise, generators = next(first_round, (None, None))
             if noise is None:
                 noise = draw_noise((r * candidates, cfg.horizon, cfg.action_dim), generators, state.device)
             chunks = self._denoise(
