@@ -21,6 +21,8 @@ lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabu
 `--checkpoint NAME=PATH` adds another recovery checkpoint of the same base (a different recovery head, trained with
 lerobot-train from `<out>/<task>/base`), evaluated with every grid setting on the same seeds, so the heads compare
 paired; `--write` refuses a pick on such a checkpoint, as the head is chosen in the task's train_base.json.
+`--heads NAME ...` evaluates only the heads named (`recovery` is the run's own), where another head's grid needs
+settings the run's own head has no use for; the differences are then against the first named head's first setting.
 """
 
 from __future__ import annotations
@@ -76,6 +78,17 @@ def row_label(row: Row) -> str:
     """A table row's name: the setting, after the checkpoint's name where it is not the run's own."""
     name, setting = row
     return label(setting) if name == OWN else f"{name}: {label(setting)}"
+
+
+def table_rows(grid: list[Setting], checkpoints: dict[str, str], heads: list[str] | None) -> list[Row]:
+    """The rows to evaluate: every grid setting on each head of `heads` (default: the run's own, then every
+    `--checkpoint`), in that order, so the first row is the reference of every paired difference."""
+    known = [OWN, *checkpoints]
+    unknown = sorted(set(heads or []) - set(known))
+    if unknown:
+        raise SystemExit(f"--heads names {unknown}, which are not heads of this run: choose from {known} "
+                         "(add a head with --checkpoint NAME=PATH).")
+    return [(name, setting) for name in (heads or known) for setting in grid]
 
 
 def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, seed: int) -> Path:
@@ -142,6 +155,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
                         help="also evaluate this recovery checkpoint (another head trained from the run's base; "
                              "`{slug}` in PATH is the task's folder name), crossed with the grid")
+    parser.add_argument("--heads", nargs="+", default=None, metavar="NAME",
+                        help=f"evaluate only these heads ({OWN!r} is the run's own; default: every head)")
     parser.add_argument("--seed", type=int, default=1000, help="first development seed")
     parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
     parser.add_argument("--report-only", action="store_true",
@@ -151,9 +166,10 @@ def main(argv: list[str] | None = None) -> None:
     checkpoints = dict(item.split("=", 1) for item in args.checkpoint if "=" in item)
     if len(checkpoints) != len(args.checkpoint) or OWN in checkpoints:
         raise SystemExit(f"--checkpoint takes NAME=PATH with a NAME other than {OWN!r}, got {args.checkpoint}")
-    rows_of = [(name, setting) for name in [OWN, *checkpoints] for setting in parse_grid(args.grid)]
+    rows_of = table_rows(parse_grid(args.grid), checkpoints, args.heads)
+    heads = list(dict.fromkeys(name for name, _ in rows_of))
     files = {t: TaskFiles.locate(t, REPO / "configs", REPO / "datasets_recipes", args.out) for t in args.tasks}
-    paths = {t: {name: checkpoint_path(f, checkpoints, name) for name in [OWN, *checkpoints]} for t, f in files.items()}
+    paths = {t: {name: checkpoint_path(f, checkpoints, name) for name in heads} for t, f in files.items()}
     missing = [str(path) for by_name in paths.values() for path in by_name.values() if not path.is_dir()]
     if missing:
         raise SystemExit(f"No recovery checkpoint at {missing}; run `make benchmark` or "

@@ -5,6 +5,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from lerobot_ccdp.episodes import Episodes
 
@@ -49,3 +50,18 @@ def test_pooling_tasks_concatenates_their_episodes_in_order():
     a, b = episodes(10, repeats=1), episodes(90)
     both = Episodes.concatenate([a, b])
     assert len(both) == 2 * N and both.success.sum() == 100 and both.repeated_failures[:N].sum() == 1
+
+
+def test_heads_choose_which_checkpoints_are_evaluated_and_the_first_is_the_reference():
+    grid = tune.parse_grid(["w_z=1,3"])
+    checkpoints = {"classifier": "outputs/classifier/{slug}"}
+    every = tune.table_rows(grid, checkpoints, None)
+    assert [name for name, _ in every] == ["recovery", "recovery", "classifier", "classifier"]
+    only = tune.table_rows(grid, checkpoints, ["classifier"])
+    assert only == [("classifier", (("w_z", 1),)), ("classifier", (("w_z", 3),))]
+    assert tune.table_rows(grid, checkpoints, ["classifier", "recovery"])[0][0] == "classifier"
+
+
+def test_heads_refuses_a_head_without_a_checkpoint():
+    with pytest.raises(SystemExit, match="mlp.*--checkpoint NAME=PATH"):
+        tune.table_rows(tune.parse_grid(["w_z=1"]), {"classifier": "x"}, ["mlp"])
