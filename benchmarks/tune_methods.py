@@ -88,7 +88,7 @@ def table_rows(grid: list[Setting], checkpoints: dict[str, str], heads: list[str
     if unknown:
         raise SystemExit(f"--heads names {unknown}, which are not heads of this run: choose from {known} "
                          "(add a head with --checkpoint NAME=PATH).")
-    return [(name, setting) for name in (heads or known) for setting in grid]
+    return [(name, setting) for name in dict.fromkeys(heads or known) for setting in grid]  # a head named twice runs once
 
 
 def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, seed: int) -> Path:
