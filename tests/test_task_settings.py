@@ -96,4 +96,6 @@ def test_label_free_inputs_define_z_alike_in_the_recipe_and_the_policy_and_chang
             assert settings["failure_state_at"] in FAILURE_STATES_AT
             delta_z = label_free[slug].eval_delta_z
             assert settings.get("delta_z", CCDPConfig.delta_z) == (CCDPConfig.delta_z if delta_z is None else delta_z)
+        w_z = shipped.method_settings("ccdp").get("w_z") if label_free[slug].w_z is None else label_free[slug].w_z
+        assert files.method_settings("ccdp").get("w_z") == w_z  # the label-free runs' own weight where it differs
         assert files.train_recovery.read_bytes() == shipped.train_recovery.read_bytes()
