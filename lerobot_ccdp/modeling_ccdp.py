@@ -31,6 +31,7 @@ from lerobot_ccdp.image_encoder import ImageEncoder
 from lerobot_ccdp.model_card import make_model_card
 from lerobot_ccdp.noise_streams import draw_noise, first_candidates, row_generators
 from lerobot_ccdp.observations import (
+    ConstantInputs,
     observation_frames,
     refuse_non_finite_stats,
     refuse_unknown_cameras,
@@ -62,6 +63,7 @@ class CCDPPolicy(PreTrainedPolicy):
         self.images = ImageEncoder(config) if config.image_features else None
         self.recovery = make_recovery_denoiser(config)
         self.outcomes = OutcomeIndex()
+        self.constant_inputs = ConstantInputs(config)
         # Whether eps_z has been trained; a base-only checkpoint composes nothing for failures.
         self.register_buffer("recovery_trained", torch.zeros((), dtype=torch.bool))
         self.noise_scheduler = _make_noise_scheduler(
@@ -78,6 +80,7 @@ class CCDPPolicy(PreTrainedPolicy):
         self.weights = CompositionWeights(config.w_s, config.w_h, config.w_z, config.z_reference)
         if dataset_stats is not None and config.training_stage == "base":
             refuse_non_finite_stats(config, dataset_stats)
+            self.constant_inputs.fill(config, dataset_stats)
         if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
         self.failure_signal = FailureSignalFile(config.failure_signal_file) if config.failure_signal_file else None
@@ -524,4 +527,4 @@ class CCDPPolicy(PreTrainedPolicy):
 
     def frames(self, batch: dict[str, Tensor]) -> Tensor:
         """Observation frames (B, [T,] frame_dim) as the networks see them (`observations.observation_frames`)."""
-        return observation_frames(self.config, self.images, batch)
+        return observation_frames(self.config, self.images, batch, self.constant_inputs)

@@ -1,20 +1,88 @@
 """How a batch becomes the frames the networks see (robot state, environment state, encoded cameras), and the
 checks that turn a wrong input into an error naming the key and the fix rather than a NaN or a silent skip."""
 
+import logging
+
 import torch
+from lerobot.configs.types import NormalizationMode
 from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
-from torch import Tensor
+from torch import Tensor, nn
 
 from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
 from lerobot_ccdp.image_encoder import ImageEncoder
 
 
-def observation_frames(config: CCDPConfig, images: ImageEncoder | None, batch: dict[str, Tensor]) -> Tensor:
+logger = logging.getLogger(__name__)
+
+# The normalised value of a dimension that held one value throughout the training data, by normalisation mode: LeRobot
+# divides by a spread of 0 replaced with its eps, so x == min gives -1 and x == mean gives 0.
+_CONSTANT_VALUE = {NormalizationMode.MIN_MAX: -1.0, NormalizationMode.QUANTILES: -1.0,
+                   NormalizationMode.QUANTILE10: -1.0, NormalizationMode.MEAN_STD: 0.0}
+_SPREAD = {NormalizationMode.MIN_MAX: ("min", "max"), NormalizationMode.QUANTILES: ("q01", "q99"),
+           NormalizationMode.QUANTILE10: ("q10", "q90")}
+
+
+def vector_keys(config: CCDPConfig) -> list[str]:
+    """The vector inputs of a frame, in frame order."""
+    return [OBS_STATE] + ([OBS_ENV_STATE] if config.env_state_feature else [])
+
+
+class ConstantInputs(nn.Module):
+    """Vector input dimensions that held one value throughout the training data, kept at that value at run time.
+
+    LeRobot's normaliser divides by the dimension's spread, replaced by 1e-8 where it is 0. A dimension constant in
+    the demonstrations (the Bartender's `cup3_filled`: the demonstrator fills cup 3 last, so no frame shows it full)
+    becomes 2e8 the first time it changes at run time, and every chunk planned from that frame is garbage. The
+    dimension told the networks nothing in training, so it is held at the value it always had. The mask is a
+    buffer: a checkpoint carries it, and checkpoints saved before it existed load with nothing held.
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        dim = sum(config.input_features[key].shape[0] for key in vector_keys(config))
+        self.register_buffer("held", torch.zeros(dim, dtype=torch.bool))
+        self.register_buffer("value", torch.zeros(dim))
+        self._names = [f"{key}[{i}]" for key in vector_keys(config) for i in range(config.input_features[key].shape[0])]
+        self._warned = False
+
+    def fill(self, config: CCDPConfig, stats: dict) -> None:
+        """Mark the dimensions whose training spread is 0 under their normalisation mode."""
+        held, value = [], []
+        for key in vector_keys(config):
+            mode = config.normalization_mapping.get(config.input_features[key].type.value, NormalizationMode.IDENTITY)
+            size, column = config.input_features[key].shape[0], stats.get(key, {})
+            low, high = _SPREAD.get(mode, ("std", "std"))
+            if mode in _CONSTANT_VALUE and low in column and high in column:
+                low_v = torch.as_tensor(column[low], dtype=torch.float64).reshape(size)
+                high_v = torch.as_tensor(column[high], dtype=torch.float64).reshape(size)
+                held.append(high_v == 0 if mode == NormalizationMode.MEAN_STD else high_v == low_v)
+            else:
+                held.append(torch.zeros(size, dtype=torch.bool))
+            value.append(torch.full((size,), _CONSTANT_VALUE.get(mode, 0.0)))
+        self.held.copy_(torch.cat(held))
+        self.value.copy_(torch.cat(value))
+
+    def forward(self, vector: Tensor) -> Tensor:
+        """`vector` (..., dim) with the held dimensions at their training value; the first change is logged once."""
+        if not bool(self.held.any()):
+            return vector
+        moved = ((vector - self.value).abs() > 1e-3) & self.held
+        if not self._warned and bool(moved.any()):
+            self._warned = True
+            names = [name for name, m in zip(self._names, moved.reshape(-1, moved.shape[-1]).any(dim=0)) if m]
+            logger.warning("Input(s) %s never varied in the training data and now do: the policy holds them at their "
+                           "training value, as it cannot have learned what they mean. Record demonstrations that "
+                           "show them varying to let the policy use them.", names)
+        return torch.where(self.held, self.value.to(vector.dtype), vector)
+
+
+def observation_frames(config: CCDPConfig, images: ImageEncoder | None, batch: dict[str, Tensor],
+                       constant: ConstantInputs | None = None) -> Tensor:
     """Observation frames (B, [T,] frame_dim): robot state, environment state, then the encoded cameras.
-    `batch` holds normalised inputs, one frame (B, ...) or a window (B, T, ...) each."""
-    keys = [OBS_STATE] + ([OBS_ENV_STATE] if config.env_state_feature else [])
+    `batch` holds normalised inputs, one frame (B, ...) or a window (B, T, ...) each; `constant` holds the vector
+    dimensions that never varied in training at their training value."""
     parts = []
-    for key in keys:
+    for key in vector_keys(config):
         value = _input(config, batch, key)
         expected = config.input_features[key].shape[0]
         if value.shape[-1] != expected:
@@ -23,6 +91,8 @@ def observation_frames(config: CCDPConfig, images: ImageEncoder | None, batch: d
             raise ValueError(f"{key!r} contains NaN or inf; fix the dataset or env observation before calling the "
                              "policy (a non-finite input would make that row's actions NaN).")
         parts.append(value)
+    if constant is not None:
+        parts = [constant(torch.cat(parts, dim=-1))]
     if images is not None:
         parts.append(images([_camera(config, batch, key, parts[0].shape[:-1]) for key in images.keys]))
     return torch.cat(parts, dim=-1)
