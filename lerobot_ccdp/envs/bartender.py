@@ -102,8 +102,15 @@ class BartenderEnv(CCDPTaskEnv):
         kind = OutcomeKind.SUCCESS if self._filled.sum() == N_FILLS else OutcomeKind.STAGE_DONE
         return Outcome(kind, cup, preferred=preferred)
 
+    def _begin_attempt(self) -> None:
+        super()._begin_attempt()
+        # After a fill the attempt starts with the bottle still over that cup, its pour over.
+        self._pour_at_start = (self._pouring_into, self._pour_steps)
+
     def _on_failure(self, option: int) -> None:
-        self._pouring_into, self._pour_steps = -1, 0
+        """Back at the attempt's start, the pour state too: a bottle restored over the cup it just filled must
+        leave that cup before it can pour again, as it had to before the failed attempt."""
+        self._pouring_into, self._pour_steps = self._pour_at_start
         self._follow_bottle()
 
     def plan(self, option: int) -> list[Waypoint]:

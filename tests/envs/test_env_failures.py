@@ -112,3 +112,18 @@ def test_expert_labels_are_options_and_follow_the_hidden_parameter():
     for hidden in (0, 1):
         episode = run_episode(env, Expert(env), seed=0, hidden_param=hidden)
         assert set(episode.options) == {hidden}
+
+
+@pytest.mark.parametrize("task", ["Bartender-lite-v0", "Bartender-v0"])
+def test_a_bottle_restored_over_the_cup_it_filled_does_not_pour_again(task):
+    """After cup 0 is filled, a failed pour at cup 1 restores the arm over cup 0: holding still there is no pour
+    (it would be a failure at a filled cup that the policy never attempted)."""
+    env = make(task)
+    agent = FixedOptions(env, [0, 1])
+    _, history, info = _run_until_failure(env, agent, 0b0101)
+    assert info["option"] == 1 and info["attempts"] == 2  # cup 0 filled, then cup 1 refused
+    hold = np.array([*history[-1]["agent_pos"][:3], 1.0], dtype=np.float32)
+    for _ in range(10):
+        obs, _, terminated, _, info = env.step(hold)
+        assert obs["failure"][0] == 0.0 and not terminated
+    assert info["failures"] == 1 and info["attempts"] == 2
