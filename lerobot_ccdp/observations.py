@@ -14,12 +14,10 @@ from lerobot_ccdp.image_encoder import ImageEncoder
 
 logger = logging.getLogger(__name__)
 
-# The normalised value of a dimension that held one value throughout the training data, by normalisation mode: LeRobot
-# divides by a spread of 0 replaced with its eps, so x == min gives -1 and x == mean gives 0.
-_CONSTANT_VALUE = {NormalizationMode.MIN_MAX: -1.0, NormalizationMode.QUANTILES: -1.0,
-                   NormalizationMode.QUANTILE10: -1.0, NormalizationMode.MEAN_STD: 0.0}
-_SPREAD = {NormalizationMode.MIN_MAX: ("min", "max"), NormalizationMode.QUANTILES: ("q01", "q99"),
-           NormalizationMode.QUANTILE10: ("q10", "q90")}
+# Per normalisation mode: the stats whose difference is the spread LeRobot divides by (replaced by its eps where 0),
+# and the normalised value of every frame of a dimension whose spread is 0 (x == min gives -1, x == mean gives 0).
+_ZERO_SPREAD = {NormalizationMode.MIN_MAX: (("max", "min"), -1.0), NormalizationMode.QUANTILES: (("q99", "q01"), -1.0),
+                NormalizationMode.QUANTILE10: (("q90", "q10"), -1.0), NormalizationMode.MEAN_STD: (("std",), 0.0)}
 
 
 def vector_keys(config: CCDPConfig) -> list[str]:
@@ -51,14 +49,13 @@ class ConstantInputs(nn.Module):
         for key in vector_keys(config):
             mode = config.normalization_mapping.get(config.input_features[key].type.value, NormalizationMode.IDENTITY)
             size, column = config.input_features[key].shape[0], stats.get(key, {})
-            low, high = _SPREAD.get(mode, ("std", "std"))
-            if mode in _CONSTANT_VALUE and low in column and high in column:
-                low_v = torch.as_tensor(column[low], dtype=torch.float64).reshape(size)
-                high_v = torch.as_tensor(column[high], dtype=torch.float64).reshape(size)
-                held.append(high_v == 0 if mode == NormalizationMode.MEAN_STD else high_v == low_v)
-            else:
+            names, normalised = _ZERO_SPREAD.get(mode, ((), 0.0))
+            if names and all(name in column for name in names):
+                high, *low = (torch.as_tensor(column[name], dtype=torch.float64).reshape(size) for name in names)
+                held.append(high - sum(low) == 0)
+            else:  # IDENTITY, or stats without the mode's entries: nothing is divided by a spread
                 held.append(torch.zeros(size, dtype=torch.bool))
-            value.append(torch.full((size,), _CONSTANT_VALUE.get(mode, 0.0)))
+            value.append(torch.full((size,), normalised))
         self.held.copy_(torch.cat(held))
         self.value.copy_(torch.cat(value))
 
@@ -66,13 +63,14 @@ class ConstantInputs(nn.Module):
         """`vector` (..., dim) with the held dimensions at their training value; the first change is logged once."""
         if not bool(self.held.any()):
             return vector
-        moved = ((vector - self.value).abs() > 1e-3) & self.held
-        if not self._warned and bool(moved.any()):
-            self._warned = True
-            names = [name for name, m in zip(self._names, moved.reshape(-1, moved.shape[-1]).any(dim=0)) if m]
-            logger.warning("Input(s) %s never varied in the training data and now do: the policy holds them at their "
-                           "training value, as it cannot have learned what they mean. Record demonstrations that "
-                           "show them varying to let the policy use them.", names)
+        if not self._warned:
+            moved = (((vector - self.value).abs() > 1e-3) & self.held).reshape(-1, vector.shape[-1]).any(dim=0)
+            if bool(moved.any()):
+                self._warned = True
+                names = [name for name, m in zip(self._names, moved) if m]
+                logger.warning("Input(s) %s never varied in the training data and now do: the policy holds them at "
+                               "their training value, as it cannot have learned what they mean. Record demonstrations "
+                               "that show them varying to let the policy use them.", names)
         return torch.where(self.held, self.value.to(vector.dtype), vector)
 
 
