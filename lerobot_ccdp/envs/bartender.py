@@ -21,6 +21,11 @@ class BartenderEnv(CCDPTaskEnv):
 
     hidden_param: bitmask of available cups (bit i for cup i; each available with probability 0.65, at least
     two available). The demonstrator fills the nearest available empty cup from where it stands, twice.
+
+    right_start: probability that an episode starts on the right of the cups (`right_home`) instead of `home`.
+    From `home` the nearest cup is cup 0 and cup 3 is never filled first, so demonstrations recorded only from
+    there never show cup 3 full; a policy that fills it first then sees an input it never saw. Recipes set it
+    for recording; evaluation keeps 0 (and then draws nothing more from the episode's seed).
     """
 
     name = "Bartender"
@@ -31,7 +36,19 @@ class BartenderEnv(CCDPTaskEnv):
     )
     default_episode_steps = 250
     home = (-0.32, -0.05, 0.15, 1.0)  # the gripper holds the bottle
+    right_home = (0.37, -0.05, 0.15, 1.0)  # as far right of cup 3 as `home` is left of cup 0, inside the workspace
     pour_z = 0.07  # end-effector height while pouring (below POUR_HEIGHT)
+
+    def __init__(self, *args, right_start: float = 0.0, **kwargs):
+        if not 0.0 <= right_start <= 1.0:
+            raise ValueError(f"right_start is a probability in [0, 1], got {right_start}")
+        super().__init__(*args, **kwargs)
+        self.right_start = right_start
+
+    def _start_pose(self) -> tuple[float, float, float, float]:
+        if self.right_start > 0.0 and self.np_random.random() < self.right_start:
+            return self.right_home
+        return self.home
 
     def _task_bodies_xml(self) -> str:
         glass, drink = "0.8 0.85 0.9 0.5", "0.9 0.6 0.1 1"

@@ -203,6 +203,10 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
                 return option
         raise RuntimeError(f"{self.name}: no feasible option in stage (hidden_param={self.hidden_param})")
 
+    def _start_pose(self) -> tuple[float, float, float, float]:
+        """Where an episode starts, before `init_noise`: `home` (a task may vary it for its demonstrations)."""
+        return self.home
+
     def hidden_label(self) -> float:
         return float(self.hidden_param)
 
@@ -212,7 +216,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         """Reset; `options={"hidden_param": code}` forces the hidden parameter (tests, balanced recording)."""
         super().reset(seed=seed)
         mujoco.mj_resetData(self.model, self.data)
-        start = np.asarray(self.home, dtype=np.float64).copy()
+        start = np.asarray(self._start_pose(), dtype=np.float64).copy()
         start[:3] += self.np_random.uniform(-self.init_noise, self.init_noise, size=3)
         self.robot.place(start)
         self._reset_task()

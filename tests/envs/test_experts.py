@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from gymnasium.utils import seeding
 
 from lerobot_ccdp.envs import TASKS
 from lerobot_ccdp.envs.scripted import Expert, NoRepeatOracle, run_episode
@@ -39,3 +40,33 @@ def test_expert_and_oracle_succeed_for_every_hidden_parameter(task):
         assert oracle.success, f"hidden_param {hidden}: {oracle.info}"
         assert oracle.info["repeated_failures"] == 0
         assert oracle.info["failures"] < env.unwrapped.n_options
+
+
+@pytest.mark.parametrize("task", ["Bartender-lite-v0", "Bartender-v0"])
+def test_bartender_demos_from_the_right_fill_cup_3_first_and_succeed(task):
+    """`right_start` is how the recipe's demos show cup 3 full: from `home` the expert never fills it first."""
+    env = make(task, right_start=1.0)
+    for hidden in env.unwrapped.hidden_values():
+        episode = run_episode(env, Expert(env), seed=3, hidden_param=hidden)
+        assert episode.success, f"hidden_param {hidden}: {episode.info}"
+        available = [cup for cup in range(4) if hidden >> cup & 1]
+        assert episode.options[0] == max(available)  # the nearest available cup from the right
+        assert episode.observations[0]["agent_pos"][0] > 0  # started right of the table's centre
+    from_home = make(task)
+    firsts = {run_episode(from_home, Expert(from_home), seed=3, hidden_param=h).options[0] for h in from_home.unwrapped.hidden_values()}
+    assert 3 not in firsts
+
+
+def test_bartender_right_start_draws_nothing_when_off_and_rejects_a_bad_probability():
+    """Evaluation keeps `right_start` 0: each seed's start must be the one it gave before the option existed, the
+    seed's first draws being the start noise (a draw for the side would shift it)."""
+    default, half = make("Bartender-lite-v0"), make("Bartender-lite-v0", right_start=0.5)
+    home, noise = np.array(default.unwrapped.home[:3]), default.unwrapped.init_noise
+    sides = []
+    for seed in range(12):
+        expected = home + seeding.np_random(seed)[0].uniform(-noise, noise, size=3)
+        np.testing.assert_allclose(default.reset(seed=seed)[0]["agent_pos"][:3], expected, atol=1e-6)
+        sides.append(half.reset(seed=seed)[0]["agent_pos"][0] > 0)
+    assert 0 < sum(sides) < 12  # both starts occur at 0.5
+    with pytest.raises(ValueError, match="right_start is a probability"):
+        make("Bartender-lite-v0", right_start=1.5)
