@@ -36,7 +36,8 @@ class BartenderEnv(CCDPTaskEnv):
     )
     default_episode_steps = 250
     home = (-0.32, -0.05, 0.15, 1.0)  # the gripper holds the bottle
-    right_home = (0.37, -0.05, 0.15, 1.0)  # as far right of cup 3 as `home` is left of cup 0, inside the workspace
+    right_home = (0.37, -0.05, 0.15, 1.0)  # 0.08 right of cup 3 (`home` is 0.10 left of cup 0; 0.39 would put the
+    # start noise at the workspace's 0.4 edge)
     pour_z = 0.07  # end-effector height while pouring (below POUR_HEIGHT)
 
     def __init__(self, *args, right_start: float = 0.0, **kwargs):
