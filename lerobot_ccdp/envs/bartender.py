@@ -14,6 +14,7 @@ POUR_HEIGHT = 0.1  # hold the bottle below this height over a cup ...
 POUR_STEPS = 3  # ... for this many steps to pour
 P_AVAILABLE = 0.65
 EMPTY_Z, FULL_Z = -0.05, 0.018
+RIGHT_CUP = 3  # the cup nearest `right_home`
 
 
 class BartenderEnv(CCDPTaskEnv):
@@ -22,10 +23,13 @@ class BartenderEnv(CCDPTaskEnv):
     hidden_param: bitmask of available cups (bit i for cup i; each available with probability 0.65, at least
     two available). The demonstrator fills the nearest available empty cup from where it stands, twice.
 
-    right_start: probability that an episode starts on the right of the cups (`right_home`) instead of `home`.
-    From `home` the nearest cup is cup 0 and cup 3 is never filled first, so demonstrations recorded only from
-    there never show cup 3 full; a policy that fills it first then sees an input it never saw. Recipes set it
-    for recording; evaluation keeps 0 (and then draws nothing more from the episode's seed).
+    right_start: probability that an episode whose cup 3 is available starts on the right of the cups
+    (`right_home`) instead of `home`. From `home` the nearest cup is cup 0 and cup 3 is never filled first, so
+    demonstrations recorded only from there never show cup 3 full; a policy that fills it first then sees an input
+    it never saw. From the right the expert then fills cup 3 first, so no demonstration crosses the cups with every
+    cup empty in the other direction (with those, a base learnt to stop between two cups). Recipes set it for
+    recording, where the start then tells cup 3's availability; evaluation keeps 0 (and then draws nothing more
+    from the episode's seed).
     """
 
     name = "Bartender"
@@ -45,11 +49,19 @@ class BartenderEnv(CCDPTaskEnv):
             raise ValueError(f"right_start is a probability in [0, 1], got {right_start}")
         super().__init__(*args, **kwargs)
         self.right_start = right_start
+        self._drew_right = False
 
     def _start_pose(self) -> tuple[float, float, float, float]:
-        if self.right_start > 0.0 and self.np_random.random() < self.right_start:
-            return self.right_home
-        return self.home
+        self._drew_right = self.right_start > 0.0 and self.np_random.random() < self.right_start
+        return self.right_home if self._drew_right else self.home
+
+    def _apply_hidden(self) -> None:
+        """A right start drawn for an episode whose cup 3 is unavailable moves to `home` (same start noise)."""
+        if self._drew_right and not self.hidden_param >> RIGHT_CUP & 1:
+            start = np.asarray(self.home, dtype=np.float64).copy()
+            start[:3] += self._start_noise
+            self.robot.place(start)
+            self._grasp_bottle()
 
     def _task_bodies_xml(self) -> str:
         glass, drink = "0.8 0.85 0.9 0.5", "0.9 0.6 0.1 1"
@@ -78,6 +90,10 @@ class BartenderEnv(CCDPTaskEnv):
         self._filled = np.zeros(len(CUPS_XY), dtype=bool)
         self._pouring_into, self._pour_steps = -1, 0
         self._show_drinks()
+        self._grasp_bottle()
+
+    def _grasp_bottle(self) -> None:
+        """The bottle (a mocap body here) goes where the gripper is."""
         self._follow_bottle()
 
     def _show_drinks(self) -> None:

@@ -217,10 +217,12 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         super().reset(seed=seed)
         mujoco.mj_resetData(self.model, self.data)
         start = np.asarray(self._start_pose(), dtype=np.float64).copy()
-        start[:3] += self.np_random.uniform(-self.init_noise, self.init_noise, size=3)
+        self._start_noise = self.np_random.uniform(-self.init_noise, self.init_noise, size=3)
+        start[:3] += self._start_noise
         self.robot.place(start)
         self._reset_task()
-        # Drawn last, so the layout (and the first observation) never depends on it.
+        # Drawn last, so the layout (and the first observation) never depends on it (beyond what a task's
+        # `_apply_hidden` does with it: only the Bartender's recording option `right_start`).
         forced = (options or {}).get("hidden_param")
         if forced is None:
             self.hidden_param = self._sample_hidden()

@@ -44,14 +44,16 @@ def test_expert_and_oracle_succeed_for_every_hidden_parameter(task):
 
 @pytest.mark.parametrize("task", ["Bartender-lite-v0", "Bartender-v0"])
 def test_bartender_demos_from_the_right_fill_cup_3_first_and_succeed(task):
-    """`right_start` is how the recipe's demos show cup 3 full: from `home` the expert never fills it first."""
+    """`right_start` is how the recipe's demos show cup 3 full: from `home` the expert never fills it first. Only
+    an episode whose cup 3 is available starts right, so no demo crosses the empty cups leftwards."""
     env = make(task, right_start=1.0)
     for hidden in env.unwrapped.hidden_values():
         episode = run_episode(env, Expert(env), seed=3, hidden_param=hidden)
         assert episode.success, f"hidden_param {hidden}: {episode.info}"
         available = [cup for cup in range(4) if hidden >> cup & 1]
-        assert episode.options[0] == max(available)  # the nearest available cup from the right
-        assert episode.observations[0]["agent_pos"][0] > 0  # started right of the table's centre
+        started_right = episode.observations[0]["agent_pos"][0] > 0  # right of the table's centre
+        assert started_right == (3 in available), f"hidden_param {hidden}"
+        assert episode.options[0] == (3 if started_right else min(available))  # the nearest available cup
     from_home = make(task)
     hidden_values = from_home.unwrapped.hidden_values()
     firsts = {run_episode(from_home, Expert(from_home), seed=3, hidden_param=h).options[0] for h in hidden_values}
@@ -60,14 +62,22 @@ def test_bartender_demos_from_the_right_fill_cup_3_first_and_succeed(task):
 
 def test_bartender_right_start_draws_nothing_when_off_and_rejects_a_bad_probability():
     """Evaluation keeps `right_start` 0: each seed's start must be the one it gave before the option existed, the
-    seed's first draws being the start noise (a draw for the side would shift it)."""
+    seed's first draws being the start noise (a draw for the side would shift it). A right start drawn for an
+    episode whose cup 3 is unavailable starts at home with the same noise."""
     default, half = make("Bartender-lite-v0"), make("Bartender-lite-v0", right_start=0.5)
     home, noise = np.array(default.unwrapped.home[:3]), default.unwrapped.init_noise
-    sides = []
-    for seed in range(12):
+    right = np.array(half.unwrapped.right_home[:3])
+    drawn = []
+    for seed in range(24):
         expected = home + seeding.np_random(seed)[0].uniform(-noise, noise, size=3)
         np.testing.assert_allclose(default.reset(seed=seed)[0]["agent_pos"][:3], expected, atol=1e-6)
-        sides.append(half.reset(seed=seed)[0]["agent_pos"][0] > 0)
-    assert 0 < sum(sides) < 12  # both starts occur at 0.5
+        rng = seeding.np_random(seed)[0]
+        drew_right = rng.random() < 0.5
+        offset = rng.uniform(-noise, noise, size=3)
+        start = half.reset(seed=seed)[0]["agent_pos"][:3]
+        cup3 = bool(half.unwrapped.hidden_param >> 3 & 1)
+        np.testing.assert_allclose(start, (right if drew_right and cup3 else home) + offset, atol=1e-6)
+        drawn.append((drew_right, cup3))
+    assert {(True, True), (True, False), (False, True)} <= set(drawn)  # every case met at 0.5
     with pytest.raises(ValueError, match="right_start is a probability"):
         make("Bartender-lite-v0", right_start=1.5)
