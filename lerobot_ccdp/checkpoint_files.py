@@ -10,18 +10,25 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
+import logging
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from huggingface_hub import hf_hub_download
 from huggingface_hub.errors import HFValidationError
 from huggingface_hub.utils import validate_repo_id
+from lerobot.configs.parser import get_cli_overrides
 from lerobot.processor import ProcessorStep, ProcessorStepRegistry
 from lerobot.utils.constants import (
     POLICY_POSTPROCESSOR_DEFAULT_NAME,
     POLICY_PREPROCESSOR_DEFAULT_NAME,
 )
 from safetensors import SafetensorError, safe_open
+
+from lerobot_ccdp.configuration_ccdp import CCDPConfig
+
+logger = logging.getLogger(__name__)
 
 CONFIG_FILE = "config.json"
 PROCESSOR_FILES = (f"{POLICY_PREPROCESSOR_DEFAULT_NAME}.json", f"{POLICY_POSTPROCESSOR_DEFAULT_NAME}.json")
@@ -143,3 +150,56 @@ def _check_safetensors(file: Path) -> None:
 def _damaged(file: Path, what: str) -> ValueError:
     return ValueError(f"Checkpoint file {file} is damaged ({what}). Re-train the checkpoint, or copy or download "
                       "it again.")
+
+
+HUB_DOWNLOAD_KEYS = ("force_download", "resume_download", "proxies", "token", "cache_dir", "local_files_only",
+                     "revision")
+
+
+def saved_config(path: str | Path, **hub: Any) -> dict:
+    """The checkpoint's config.json as saved, before any command-line override: from the local folder, or the Hub
+    file LeRobot has just downloaded for the same checkpoint (cached)."""
+    folder = Path(path)
+    if folder.is_dir():
+        return _read_json(folder / CONFIG_FILE)
+    return _read_json(Path(hf_hub_download(repo_id=str(path), filename=CONFIG_FILE, **hub)))
+
+
+def refuse_other_checkpoint(config: Any, saved: dict, path: str | Path) -> None:
+    """Refuse a checkpoint of another policy type, or one whose action size differs from the dataset's or env's
+    (LeRobot sets the output features from them), naming both layouts instead of a state-dict size mismatch."""
+    if not isinstance(config, CCDPConfig):
+        raise ValueError(f"{path} is a {saved.get('type')!r} checkpoint, not a ccdp one. Load it with its own policy "
+                         f"class (--policy.type={saved.get('type')}), or pass a checkpoint trained with "
+                         "--policy.type=ccdp.")
+    saved_action = _layout(saved.get("output_features", {})).get("action")
+    given = config.output_features.get("action")
+    if saved_action is None or given is None or saved_action[-1:] == tuple(given.shape)[-1:]:
+        return
+    raise ValueError(
+        f"{path} was trained for another task or robot: it takes inputs {_layout(saved.get('input_features', {}))} "
+        f"and acts with action {saved_action}, but the dataset or env given has action {tuple(given.shape)} (inputs "
+        f"{_layout({k: {'shape': v.shape} for k, v in config.input_features.items()})}). Use a checkpoint trained "
+        "on this task, or the dataset or env it was trained on."
+    )
+
+
+def _layout(features: dict) -> dict[str, tuple]:
+    return {key: tuple(value.get("shape", ())) for key, value in features.items() if isinstance(value, dict)}
+
+
+def ignore_saved_signal_file(config: Any, saved: dict) -> None:
+    """A checkpoint never chooses the file the policy watches for failures (`failure_signal_file`): that comes from
+    the command line (`--policy.failure_signal_file`) or the caller's config. A value that only the checkpoint's
+    config.json holds is dropped, with a warning; checkpoints this package saves hold none."""
+    named = saved.get("failure_signal_file")
+    if named is None or config.failure_signal_file != named or _named_on_command_line(named):
+        return
+    logger.warning("The checkpoint's config names failure_signal_file=%r; a checkpoint cannot choose a file for the "
+                   "policy to watch, so it is ignored. Pass --policy.failure_signal_file to use one.", named)
+    config.failure_signal_file = None
+
+
+def _named_on_command_line(value: str) -> bool:
+    overrides = get_cli_overrides("policy") or []
+    return f"--failure_signal_file={value}" in overrides

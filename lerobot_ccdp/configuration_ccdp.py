@@ -1,6 +1,8 @@
 """Configuration of the CCDP policy: LeRobot's diffusion settings plus the composition of eq. (4)."""
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, fields
+from pathlib import Path
 
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
@@ -130,8 +132,9 @@ class CCDPConfig(PreTrainedConfig):
     # primitive: the dataset column holding the per-frame primitive label, and how many labels exist.
     primitive_key: str = "primitive"
     num_primitives: int = 0
-    # A file whose appearance reports a failure of every row (then deleted), for LeRobot loops such as
-    # lerobot-record that pass the policy no failure signal (lerobot_ccdp/failure_signal.py).
+    # A file whose appearance or touch reports a failure of every row, for LeRobot loops such as lerobot-record
+    # that pass the policy no failure signal (lerobot_ccdp/failure_signal.py). A run-time setting of the machine
+    # the policy acts on: never saved in a checkpoint, and a loaded checkpoint's value is ignored.
     failure_signal_file: str | None = None
     # Most failures remembered per batch row; the oldest is forgotten beyond it.
     max_failures: int = 8
@@ -191,6 +194,7 @@ class CCDPConfig(PreTrainedConfig):
 
     def __post_init__(self):
         super().__post_init__()
+        self._check_numbers()
         if self.prediction_type != "epsilon":
             raise ValueError(
                 f"CCDP composes noise estimates (eq. 4), so `prediction_type` must be 'epsilon'; got "
@@ -245,6 +249,35 @@ class CCDPConfig(PreTrainedConfig):
                 f"`n_action_steps` ({self.n_action_steps}) must be <= horizon - n_obs_steps + 1 "
                 f"({self.horizon - self.n_obs_steps + 1})."
             )
+
+    def _save_pretrained(self, save_directory: Path) -> None:
+        """Save without `failure_signal_file`: a path on this machine is no part of the model, and a checkpoint
+        someone else loads must not choose a file for their policy to watch."""
+        signal, self.failure_signal_file = self.failure_signal_file, None
+        try:
+            super()._save_pretrained(save_directory)
+        finally:
+            self.failure_signal_file = signal
+
+    def _check_numbers(self) -> None:
+        """Every number finite, and the sizes of a chunk positive: NaN passes every `<` check (a NaN weight gave NaN
+        actions that lerobot-eval scored as failed episodes, a NaN delta_z a DP* that never rejects), and
+        n_action_steps 0 trains, then fails at the first action."""
+        for f in fields(self):
+            value = getattr(self, f.name)
+            values = value if isinstance(value, (list, tuple)) else [value]
+            if any(isinstance(v, float) and not math.isfinite(v) for v in values):
+                raise ValueError(f"`{f.name}` must be a finite number; got {value}. Set --policy.{f.name} to a "
+                                 "number (its default is in `lerobot-train --policy.type=ccdp --help`).")
+        sizes = {"n_obs_steps": self.n_obs_steps, "horizon": self.horizon, "n_action_steps": self.n_action_steps,
+                 "num_train_timesteps": self.num_train_timesteps}
+        if self.num_inference_steps is not None:
+            sizes["num_inference_steps"] = self.num_inference_steps
+        small = {name: value for name, value in sizes.items() if value < 1}
+        if small:
+            raise ValueError(f"{', '.join(f'`{k}`' for k in small)} must be >= 1; got {small}.")
+        if self.delta_z < 0:
+            raise ValueError(f"`delta_z` is a squared distance and must be >= 0; got {self.delta_z}.")
 
     def _check_vision(self) -> None:
         """The checks LeRobot's DiffusionConfig makes of the same fields, and its crop derivation."""

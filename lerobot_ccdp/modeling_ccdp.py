@@ -7,6 +7,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from huggingface_hub import ModelCard
 from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
+from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import (
     ACTION,
@@ -14,7 +15,13 @@ from lerobot.utils.constants import (
 from torch import Tensor
 
 from lerobot_ccdp.base_sample_pool import POOL_BATCHES, BaseSamplePool
-from lerobot_ccdp.checkpoint_files import checkpoint_loading
+from lerobot_ccdp.checkpoint_files import (
+    HUB_DOWNLOAD_KEYS,
+    checkpoint_loading,
+    ignore_saved_signal_file,
+    refuse_other_checkpoint,
+    saved_config,
+)
 from lerobot_ccdp.composition import (CompositionWeights, compose_eps, failure_steps, guide_away_from_failures,
                                       log_no_repeat)
 from lerobot_ccdp.configuration_ccdp import (
@@ -33,12 +40,14 @@ from lerobot_ccdp.noise_streams import draw_noise, first_candidates, row_generat
 from lerobot_ccdp.observations import (
     ConstantInputs,
     observation_frames,
+    refuse_non_finite_batch,
     refuse_non_finite_stats,
     refuse_unknown_cameras,
 )
 from lerobot_ccdp.outcome_index import OutcomeIndex
 from lerobot_ccdp.outcome_table import build_outcome_table
 from lerobot_ccdp.rollout_memory import RolloutMemory
+from lerobot_ccdp.training_checks import refuse_fresh_training
 
 logger = logging.getLogger(__name__)
 
@@ -58,6 +67,8 @@ class CCDPPolicy(PreTrainedPolicy):
     def __init__(self, config: CCDPConfig, dataset_meta=None, dataset_stats=None, **kwargs):
         super().__init__(config)
         config.validate_features()
+        if dataset_meta is not None:  # a fresh policy for a dataset: lerobot-train without --policy.path
+            refuse_fresh_training(config, dataset_meta)
         self.config = config
         self.base = BaseDenoiser(config)
         self.images = ImageEncoder(config) if config.image_features else None
@@ -102,7 +113,12 @@ class CCDPPolicy(PreTrainedPolicy):
         for key in ("dataset_meta", "dataset_stats"):
             kwargs.pop(key, None)
         with checkpoint_loading(pretrained_name_or_path):
-            return super().from_pretrained(pretrained_name_or_path, **kwargs)
+            hub = {key: kwargs[key] for key in HUB_DOWNLOAD_KEYS if key in kwargs}
+            config = kwargs.pop("config", None) or PreTrainedConfig.from_pretrained(pretrained_name_or_path, **hub)
+            saved = saved_config(pretrained_name_or_path, **hub)
+            refuse_other_checkpoint(config, saved, pretrained_name_or_path)
+            ignore_saved_signal_file(config, saved)
+            return super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
 
     def generate_model_card(
         self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
@@ -124,12 +140,18 @@ class CCDPPolicy(PreTrainedPolicy):
         return [p for p in self.parameters() if p.requires_grad]
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """Loss of the stage the config names: the base denoiser on demos, or eps_z on a recovery dataset."""
+        """Loss of the stage the config names: the base denoiser on demos, or eps_z on a recovery dataset.
+        A non-finite loss stops training (LeRobot would train on to a NaN checkpoint and exit 0)."""
         if self.config.training_stage == "base":
-            return self._base_loss(batch)
-        if self.config.recovery_head == "classifier":
-            return self._failure_set_loss(batch)
-        return self._recovery_loss(batch)
+            loss, info = self._base_loss(batch)
+        elif self.config.recovery_head == "classifier":
+            loss, info = self._failure_set_loss(batch)
+        else:
+            loss, info = self._recovery_loss(batch)
+        if not bool(torch.isfinite(loss)):
+            refuse_non_finite_batch(batch, f"The {self.config.training_stage} loss is {loss.item()} although the "
+                                    "batch is finite: lower --policy.optimizer_lr, or resume from an earlier checkpoint.")
+        return loss, info
 
     def _base_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config
@@ -273,6 +295,8 @@ class CCDPPolicy(PreTrainedPolicy):
         if self._memory is None:
             raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
         mask = self._failed_rows(rows)
+        if not mask.any():
+            return  # an empty list of rows: nothing failed
         dim = self.config.failure_feature_dim
         if z is not None and (z.shape[-1:] != (dim,) or z.numel() != int(mask.sum()) * dim):
             raise ValueError(
@@ -280,6 +304,9 @@ class CCDPPolicy(PreTrainedPolicy):
                 f"({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out to use the "
                 "attempt's own failure feature."
             )
+        if z is not None and not bool(torch.isfinite(z).all()):
+            raise ValueError(f"report_failure(z=...) holds NaN or inf ({z.tolist()}): a failure feature must be finite. "
+                             "Check the detector that computed it, or leave z out to use the attempt's own.")
         self._record_failures(mask, z)
 
     def _warn_if_deaf(self) -> None:
@@ -298,9 +325,14 @@ class CCDPPolicy(PreTrainedPolicy):
         """Bool mask (B,) of the failed rows, refusing rows outside the batch the policy is acting on."""
         b = self._memory.batch_size
         mask = torch.zeros(b, dtype=torch.bool, device=self._memory.frames.device)
+        index = None if rows is None else torch.as_tensor(rows, device=mask.device)
+        if index is not None and index.numel() == 0:
+            return mask
         try:
-            mask[slice(None) if rows is None else torch.as_tensor(rows, device=mask.device)] = True
-        except IndexError as error:
+            if index is not None and index.dtype != torch.bool and bool((index < 0).any()):
+                raise IndexError("negative row")  # -1 would name the last row: almost surely a bug in the loop
+            mask[slice(None) if index is None else index] = True
+        except (IndexError, RuntimeError) as error:
             raise ValueError(
                 f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a bool mask of "
                 "that length). Pass the failed rows' indices, or None for every row."

@@ -117,6 +117,18 @@ def refuse_non_finite_stats(config: CCDPConfig, stats: dict) -> None:
                                  f"{key!r}. Remove or re-record those frames, then recompute its stats.")
 
 
+def refuse_non_finite_batch(batch: dict[str, Tensor], otherwise: str) -> None:
+    """Raise for a batch that made a non-finite loss or frame: a ValueError naming its NaN or inf keys, else
+    FloatingPointError(`otherwise`). The policy must neither train on them (LeRobot trains on to a NaN checkpoint
+    and exits 0) nor act on them (NaN actions sent to the robot)."""
+    bad = sorted(key for key, value in batch.items()
+                 if isinstance(value, Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all()))
+    if not bad:
+        raise FloatingPointError(otherwise)
+    raise ValueError(f"The batch holds NaN or inf in {bad}. In a dataset, remove or re-record those frames and "
+                     "recompute its stats; on a robot or env, check the sensor or observation that produced them.")
+
+
 def _input(config: CCDPConfig, batch: dict[str, Tensor], key: str) -> Tensor:
     if key not in batch:
         cameras = _camera_keys(batch)

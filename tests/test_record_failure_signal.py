@@ -8,6 +8,7 @@ as a robot owner's script or key handler would.
 """
 
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -84,9 +85,10 @@ def _episode(robot: SimReacher, events: dict, policy, pre, post, dataset) -> Non
 
 def test_a_failure_signal_file_reaches_ccdp_inside_lerobot_record(checkpoint, tmp_path):
     signal = tmp_path / "ccdp_failed"
-    signal.touch()  # left over from an earlier run: not a failure of this one
+    signal.write_text("left over from an earlier run: not a failure of this one\n")
+    os.utime(signal, ns=(0, 0))  # so that the robot's touch below changes its time on any file system
     policy, pre, post, dataset = _record_setup(checkpoint, tmp_path, f"--failure_signal_file={signal}")
-    assert policy.config.failure_signal_file == str(signal) and not signal.exists()
+    assert policy.config.failure_signal_file == str(signal)
 
     events = {"exit_early": False, "rerecord_episode": False, "stop_recording": False}
     robot = SimReacher(events, steps=12, signal=signal, fail_at=5)
@@ -94,7 +96,7 @@ def test_a_failure_signal_file_reaches_ccdp_inside_lerobot_record(checkpoint, tm
 
     assert robot.sent == 12
     assert policy.failure_count().tolist() == [1], "the failure signal did not reach the policy"
-    assert not signal.exists(), "one signal is one failure: the policy consumes the file"
+    assert signal.read_text().startswith("left over"), "the policy never deletes or writes the user's file"
     assert dataset.episode_buffer["size"] == 12  # lerobot-record wrote the frames as usual
 
     # The next episode (record_loop resets the policy) starts with no failures.

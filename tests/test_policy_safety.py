@@ -1,0 +1,216 @@
+"""Adversarial inputs to the policy, as a careful user and a hostile checkpoint author would try them.
+
+A checkpoint never makes the policy delete or watch a file; every non-finite setting, input, z and batch is refused
+where it enters; a training that cannot work is refused before its first step; a config error is the last line
+of a LeRobot command's output (issue "Nothing a user types destroys data"). The NaN observation and the bad
+row index were refused before; every other test here failed before that issue's change.
+"""
+
+import json
+import logging
+import os
+import subprocess
+
+import pytest
+import torch
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+from lerobot.policies.factory import make_policy as lerobot_make_policy
+
+from conftest import BIN, REACHING_REPO_ID, train_args
+from policy_factory import make_policy, untrained_checkpoint
+from lerobot_ccdp.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+
+STATE = {"observation.state": torch.zeros(1, 2)}
+
+
+@pytest.fixture(scope="module")
+def base_checkpoint(reaching_root, tmp_path_factory):
+    return untrained_checkpoint(reaching_root, tmp_path_factory.mktemp("base") / "pretrained_model",
+                                failure_feature="primitive", num_primitives=4)
+
+
+def _crafted(checkpoint, tmp_path, **fields):
+    """A copy of `checkpoint` whose config.json says `fields`, as a hostile author would publish it."""
+    crafted = tmp_path / "crafted"
+    crafted.mkdir()
+    for file in checkpoint.iterdir():
+        (crafted / file.name).write_bytes(file.read_bytes())
+    config = json.loads((crafted / "config.json").read_text())
+    (crafted / "config.json").write_text(json.dumps({**config, **fields}))
+    return crafted
+
+
+def _load_as_lerobot_does(checkpoint, reaching_root, *cli_overrides):
+    """lerobot-eval / lerobot-record: the config with the command line's overrides, then LeRobot's make_policy."""
+    config = PreTrainedConfig.from_pretrained(checkpoint, cli_overrides=list(cli_overrides))
+    config.pretrained_path = checkpoint
+    return lerobot_make_policy(config, ds_meta=LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root))
+
+
+# ----- a checkpoint cannot name a file ----------------------------------------------------------------------------
+
+
+def test_a_checkpoint_naming_a_signal_file_neither_deletes_nor_watches_it(base_checkpoint, reaching_root, tmp_path,
+                                                                        caplog):
+    victim = tmp_path / "thesis.tex"
+    victim.write_text("years of work")
+    crafted = _crafted(base_checkpoint, tmp_path, failure_signal_file=str(victim))
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.checkpoint_files"):
+        for policy in (CCDPPolicy.from_pretrained(crafted), _load_as_lerobot_does(crafted, reaching_root)):
+            assert policy.failure_signal is None and policy.config.failure_signal_file is None
+    assert victim.read_text() == "years of work"
+    assert any("cannot choose a file" in r.getMessage() for r in caplog.records)
+
+
+def test_the_signal_file_comes_from_the_command_line_and_is_never_saved(base_checkpoint, reaching_root, tmp_path):
+    signal = tmp_path / "ccdp_failed"
+    policy = _load_as_lerobot_does(base_checkpoint, reaching_root, f"--failure_signal_file={signal}")
+    assert policy.failure_signal is not None and policy.failure_signal.path == signal
+    policy.save_pretrained(tmp_path / "saved")
+    assert json.loads((tmp_path / "saved" / "config.json").read_text())["failure_signal_file"] is None
+    assert policy.config.failure_signal_file == str(signal)  # saving leaves the running policy's setting alone
+
+
+# ----- the signal file: read, never deleted ------------------------------------------------------------------------
+
+
+def test_an_existing_signal_file_with_content_is_kept_and_is_no_failure(tmp_path):
+    signal = tmp_path / "notes.txt"
+    signal.write_text("my notes")
+    os.utime(signal, ns=(0, 0))
+    policy = make_policy(failure_signal_file=str(signal))
+    policy.select_action(STATE)
+    policy.select_action(STATE)
+    assert policy.failure_count().tolist() == [0] and signal.read_text() == "my notes"
+    signal.touch()  # a detector's touch is one failure; the file stays
+    policy.select_action(STATE)
+    assert policy.failure_count().tolist() == [1] and signal.read_text() == "my notes"
+    os.utime(signal, ns=(1, 1))  # and each touch after it another
+    policy.select_action(STATE)
+    assert policy.failure_count().tolist() == [2]
+
+
+def test_a_signal_path_that_is_a_folder_is_refused_at_load(tmp_path):
+    with pytest.raises(ValueError, match="plain file"):
+        make_policy(failure_signal_file=str(tmp_path))
+
+
+def test_a_signal_file_that_becomes_a_folder_mid_episode_warns_once_and_acts_on(tmp_path, caplog):
+    signal = tmp_path / "ccdp_failed"
+    policy = make_policy(failure_signal_file=str(signal))
+    policy.select_action(STATE)
+    signal.mkdir()
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.failure_signal"):
+        for _ in range(3):
+            assert policy.select_action(STATE).shape == (1, 2)
+    assert len([r for r in caplog.records if "cannot be read" in r.getMessage()]) == 1
+    assert policy.failure_count().tolist() == [0]
+
+
+# ----- non-finite numbers ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["w_s", "w_z", "w_h", "delta_z", "optimizer_lr", "pause_tolerance", "crop_ratio"])
+@pytest.mark.parametrize("value", [float("nan"), float("inf")])
+def test_a_non_finite_setting_is_refused_naming_it(name, value):
+    with pytest.raises(ValueError, match=f"`{name}` must be a finite number"):
+        CCDPConfig(**{name: value})
+
+
+@pytest.mark.parametrize("name", ["n_action_steps", "n_obs_steps", "horizon", "num_inference_steps"])
+def test_a_chunk_size_of_zero_is_refused(name):
+    with pytest.raises(ValueError, match=f"`{name}`.*>= 1"):
+        CCDPConfig(**{name: 0})
+
+
+def test_a_negative_delta_z_is_refused():
+    with pytest.raises(ValueError, match="delta_z"):
+        CCDPConfig(delta_z=-0.1)
+
+
+def test_a_non_finite_observation_is_refused_before_acting():
+    policy = make_policy()
+    with pytest.raises(ValueError, match="'observation.state' contains NaN or inf"):
+        policy.select_action({"observation.state": torch.tensor([[float("nan"), 0.0]])})
+
+
+def test_a_non_finite_batch_stops_training_naming_the_key():
+    policy = make_policy().train()
+    batch = {"observation.state": torch.zeros(4, 3, 2), "action": torch.zeros(4, 18, 2)}
+    batch["action"][2, 5, 1] = float("inf")
+    with pytest.raises(ValueError, match=r"NaN or inf in \['action'\]"):
+        policy.forward(batch)
+
+
+def test_report_failure_refuses_a_non_finite_z():
+    policy = make_policy()
+    policy.select_action(STATE)
+    with pytest.raises(ValueError, match="NaN or inf"):
+        policy.report_failure(rows=[0], z=torch.full((1, policy.config.failure_feature_dim), float("nan")))
+    assert policy.failure_count().tolist() == [0]
+
+
+def test_report_failure_refuses_negative_rows_and_takes_an_empty_list_as_no_failure():
+    policy = make_policy()
+    policy.select_action({"observation.state": torch.zeros(3, 2)})
+    with pytest.raises(ValueError, match=r"indices 0\.\.2"):
+        policy.report_failure(rows=[-1])
+    policy.report_failure(rows=[])
+    assert policy.failure_count().tolist() == [0, 0, 0]
+
+
+# ----- trainings that cannot work, refused before the first step ---------------------------------------------------
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True,
+                          env={**os.environ, "HF_HUB_OFFLINE": "1"})
+
+
+def test_lerobot_train_refuses_a_dataset_shorter_than_a_chunk(reaching_root, tmp_path):
+    """Its 32-frame episodes leave no window for a 48-step chunk: lerobot-train used to wait for a batch forever."""
+    result = _run(*train_args(reaching_root, tmp_path / "out", 10, "--policy.horizon=48",
+                              "--policy.n_action_steps=1"))
+    assert result.returncode != 0
+    assert "no frame to train on" in result.stderr.strip().splitlines()[-1]
+
+
+def test_lerobot_train_refuses_the_recovery_stage_without_a_base(reaching_root, tmp_path):
+    result = _run(*train_args(reaching_root, tmp_path / "out", 10, "--policy.training_stage=recovery"))
+    assert result.returncode != 0
+    assert "--policy.path=<base run>" in result.stderr.strip().splitlines()[-1]
+    assert not (tmp_path / "out" / "checkpoints").exists()
+
+
+@pytest.mark.parametrize("flag,message", [("--policy.w_z=nan", "`w_z` must be a finite number"),
+                                          ("--policy.n_action_steps=0", "`n_action_steps` must be >= 1")])
+def test_a_config_error_is_the_last_line_of_lerobot_train(reaching_root, tmp_path, flag, message):
+    result = _run(*train_args(reaching_root, tmp_path / "out", 10, flag))
+    assert result.returncode != 0
+    assert result.stderr.strip().splitlines()[-1].startswith(f"ValueError: {message}")
+
+
+# ----- a checkpoint of another kind ---------------------------------------------------------------------------------
+
+
+def test_a_checkpoint_of_another_action_size_names_both_layouts(base_checkpoint):
+    config = PreTrainedConfig.from_pretrained(base_checkpoint)
+    config.output_features = {"action": PolicyFeature(FeatureType.ACTION, (7,))}  # what make_policy sets from an env
+    with pytest.raises(ValueError, match=r"action \(2,\).*action \(7,\)"):
+        CCDPPolicy.from_pretrained(base_checkpoint, config=config)
+
+
+def test_a_diffusion_checkpoint_is_refused_by_name(tmp_path):
+    config = DiffusionConfig(
+        input_features={"observation.state": PolicyFeature(FeatureType.STATE, (2,)),
+                        "observation.environment_state": PolicyFeature(FeatureType.ENV, (2,))},
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))}, device="cpu",
+        down_dims=(8, 16), horizon=16)
+    DiffusionPolicy(config).save_pretrained(tmp_path / "diffusion")
+    with pytest.raises(ValueError, match="'diffusion' checkpoint, not a ccdp one"):
+        CCDPPolicy.from_pretrained(tmp_path / "diffusion")
