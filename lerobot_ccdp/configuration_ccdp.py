@@ -19,6 +19,12 @@ RECOVERY_HEADS = ("unet", "mlp", "classifier")
 CLASSIFIER_CHUNKS = ("demonstrations", "base_samples")
 CLASSIFIER_QUERIES = ("set", "each")
 Z_REFERENCES = ("eps_a", "eps_z_null")
+# Counts and sizes that must be >= 1, and those that must be >= 0 (`_check_numbers`).
+POSITIVE_FIELDS = ("n_obs_steps", "horizon", "n_action_steps", "num_train_timesteps", "num_inference_steps",
+                   "kernel_size", "diffusion_step_embed_dim", "spatial_softmax_num_keypoints",
+                   "max_failures", "dp_star_candidates", "dp_star_rounds", "failure_set_train_size",
+                   "classifier_resample_every", "outcome_index_size", "recovery_hidden_dim", "recovery_num_blocks")
+NON_NEGATIVE_FIELDS = ("delta_z", "history_length", "ccdp_redraws", "scheduler_warmup_steps")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
 # Observation key an env uses to flag a failed attempt (DESIGN section 5).
@@ -232,11 +238,6 @@ class CCDPConfig(PreTrainedConfig):
         bad_steps = [s for s in self.failure_action_steps if not 0 <= s < self.horizon]
         if bad_steps:
             raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon}).")
-        counts = (self.max_failures, self.dp_star_candidates, self.dp_star_rounds, self.failure_set_train_size,
-                  self.classifier_resample_every)
-        if min(counts) < 1 or self.history_length < 0 or self.ccdp_redraws < 0:
-            raise ValueError("`max_failures`, `dp_star_candidates`, `dp_star_rounds`, `failure_set_train_size` and "
-                             "`classifier_resample_every` must be >= 1, `history_length` and `ccdp_redraws` >= 0.")
         if not 0.0 < self.failure_step_share <= 1.0:
             raise ValueError(f"`failure_step_share` must be in (0, 1] (1: failures at every reverse step); got "
                              f"{self.failure_step_share}. For no failures at all use --policy.recovery_mode=dp.")
@@ -269,15 +270,16 @@ class CCDPConfig(PreTrainedConfig):
             if any(isinstance(v, float) and not math.isfinite(v) for v in values):
                 raise ValueError(f"`{f.name}` must be a finite number; got {value}. Set --policy.{f.name} to a "
                                  "number (its default is in `lerobot-train --policy.type=ccdp --help`).")
-        sizes = {"n_obs_steps": self.n_obs_steps, "horizon": self.horizon, "n_action_steps": self.n_action_steps,
-                 "num_train_timesteps": self.num_train_timesteps}
-        if self.num_inference_steps is not None:
-            sizes["num_inference_steps"] = self.num_inference_steps
-        small = {name: value for name, value in sizes.items() if value < 1}
+        at_least = {name: 1 for name in POSITIVE_FIELDS} | {name: 0 for name in NON_NEGATIVE_FIELDS}
+        small = {name: getattr(self, name) for name, low in at_least.items()
+                 if getattr(self, name) is not None and getattr(self, name) < low}
+        small |= {"down_dims": self.down_dims} if not self.down_dims or min(self.down_dims) < 1 else {}
         if small:
-            raise ValueError(f"{', '.join(f'`{k}`' for k in small)} must be >= 1; got {small}.")
-        if self.delta_z < 0:
-            raise ValueError(f"`delta_z` is a squared distance and must be >= 0; got {self.delta_z}.")
+            raise ValueError(f"{', '.join(f'`{k}`' for k in small)} must be >= 1 (`delta_z`, `history_length`, "
+                             f"`ccdp_redraws` and `scheduler_warmup_steps` >= 0, `down_dims` non-empty); got {small}.")
+        if self.num_inference_steps is not None and self.num_inference_steps > self.num_train_timesteps:
+            raise ValueError(f"`num_inference_steps` ({self.num_inference_steps}) cannot exceed `num_train_timesteps` "
+                             f"({self.num_train_timesteps}): the reverse diffusion visits training timesteps.")
 
     def _check_vision(self) -> None:
         """The checks LeRobot's DiffusionConfig makes of the same fields, and its crop derivation."""

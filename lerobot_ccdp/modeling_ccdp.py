@@ -298,6 +298,7 @@ class CCDPPolicy(PreTrainedPolicy):
         if not mask.any():
             return  # an empty list of rows: nothing failed
         dim = self.config.failure_feature_dim
+        z = None if z is None else torch.as_tensor(z, dtype=torch.float32, device=mask.device)
         if z is not None and (z.shape[-1:] != (dim,) or z.numel() != int(mask.sum()) * dim):
             raise ValueError(
                 f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed row, "

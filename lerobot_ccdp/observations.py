@@ -83,6 +83,11 @@ def observation_frames(config: CCDPConfig, images: ImageEncoder | None, batch: d
     for key in vector_keys(config):
         value = _input(config, batch, key)
         expected = config.input_features[key].shape[0]
+        if value.ndim < 2:
+            raise ValueError(f"{key!r} has shape {tuple(value.shape)}; the policy takes a batch (B, {expected}), as "
+                             "LeRobot's preprocessor makes it. Add the batch dimension: value.unsqueeze(0).")
+        if not value.is_floating_point():
+            value = value.float()  # a robot's integer encoder counts, normalised by no preprocessor
         if value.shape[-1] != expected:
             raise ValueError(f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}.")
         if not torch.isfinite(value).all():

@@ -128,9 +128,30 @@ def test_a_chunk_size_of_zero_is_refused(name):
         CCDPConfig(**{name: 0})
 
 
-def test_a_negative_delta_z_is_refused():
-    with pytest.raises(ValueError, match="delta_z"):
-        CCDPConfig(delta_z=-0.1)
+@pytest.mark.parametrize("overrides,message", [
+    ({"delta_z": -0.1}, "`delta_z`"),
+    ({"down_dims": ()}, "`down_dims`"),
+    ({"kernel_size": 0}, "`kernel_size`"),
+    ({"outcome_index_size": 0}, "`outcome_index_size`"),
+    ({"scheduler_warmup_steps": -5}, "`scheduler_warmup_steps`"),
+    ({"num_train_timesteps": 5, "num_inference_steps": 10}, "cannot exceed `num_train_timesteps`"),
+])
+def test_a_size_that_would_fail_later_is_refused_at_once(overrides, message):
+    """Each of these built a policy that failed at construction, at the first sample or after training."""
+    with pytest.raises(ValueError, match=message):
+        CCDPConfig(**overrides)
+
+
+def test_an_observation_without_its_batch_dimension_is_refused_with_the_fix():
+    with pytest.raises(ValueError, match=r"unsqueeze\(0\)"):
+        make_policy().select_action({"observation.state": torch.zeros(2)})
+
+
+def test_integer_observations_and_a_list_z_are_taken_as_numbers():
+    policy = make_policy()
+    assert policy.select_action({"observation.state": torch.zeros(1, 2, dtype=torch.long)}).shape == (1, 2)
+    policy.report_failure(rows=[0], z=[0.0] * policy.config.failure_feature_dim)
+    assert policy.failure_count().tolist() == [1]
 
 
 def test_a_non_finite_observation_is_refused_before_acting():
