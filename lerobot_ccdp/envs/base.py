@@ -83,6 +83,15 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         unknown = sorted(set(cameras) - set(CAMERAS))
         if unknown or not cameras:
             raise ValueError(f"cameras must name one or more of {list(CAMERAS)}, got {list(cameras)}")
+        sizes = {"max_failures": 1 if max_failures is None else max_failures, "render_width": render_width,
+                 "render_height": render_height, "observation_width": observation_width,
+                 "observation_height": observation_height}
+        small = {name: value for name, value in sizes.items() if not value >= 1}
+        noise = {"init_noise": init_noise, "layout_noise": layout_noise}
+        small |= {name: value for name, value in noise.items() if not (np.isfinite(value) and value >= 0)}
+        if small:
+            raise ValueError(f"{small}: the attempt budget and image sizes must be >= 1, the noise levels finite and "
+                             ">= 0. Fix the env setting (--env.<name>, or the recipe's env_kwargs).")
         self.render_mode = render_mode
         self.max_failures = self.n_options if max_failures is None else max_failures
         self.init_noise = init_noise
@@ -242,7 +251,12 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         return self._observation(failure=False), self._info()
 
     def step(self, action):
-        action = np.clip(np.asarray(action, dtype=np.float64), self.action_space.low, self.action_space.high)
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != self.action_space.shape or not np.isfinite(action).all():
+            raise ValueError(f"{type(self).__name__}.step takes a finite action of shape {self.action_space.shape} "
+                             f"(an end-effector target); got {action.tolist()}. A NaN action usually comes from a "
+                             "policy fed NaN observations or settings.")
+        action = np.clip(action, self.action_space.low, self.action_space.high)
         self.robot.step(action)
 
         failure = terminated = False

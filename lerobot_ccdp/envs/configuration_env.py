@@ -61,6 +61,10 @@ class CCDPEnvConfig(EnvConfig):
             raise ValueError(f"--env.obs_type must be one of {list(OBS_TYPES)}, got {self.obs_type!r}")
         if self.episode_length is None:
             self.episode_length = cls.default_episode_steps
+        if self.episode_length < 1:
+            raise ValueError(f"--env.episode_length must be >= 1 (steps before an episode is cut off); got "
+                             f"{self.episode_length}. Leave it out for the task's default, "
+                             f"{cls.default_episode_steps}.")
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,)),
             "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(AGENT_POS_DIM,)),
