@@ -9,8 +9,12 @@ row index were refused before; every other test here failed before that issue's 
 import json
 import logging
 import os
+import shutil
 import subprocess
 
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 import torch
 from lerobot.configs.policies import PreTrainedConfig
@@ -199,6 +203,22 @@ def test_lerobot_train_refuses_a_dataset_shorter_than_a_chunk(reaching_root, tmp
                               "--policy.n_action_steps=1"))
     assert result.returncode != 0
     assert "no frame to train on" in result.stderr.strip().splitlines()[-1]
+
+
+def test_lerobot_train_stops_on_nan_actions_its_stats_do_not_show(reaching_root, tmp_path):
+    """stats.json computed before the data went bad: LeRobot would train on to a NaN checkpoint and exit 0."""
+    root = tmp_path / "damaged"
+    shutil.copytree(reaching_root, root)
+    for file in (root / "data").rglob("*.parquet"):
+        table = pq.read_table(file)
+        actions = np.stack(table.column("action").to_numpy(zero_copy_only=False)).astype(np.float32)
+        actions[::2] = np.nan  # every other frame: the first batch holds some
+        column = pa.FixedSizeListArray.from_arrays(pa.array(actions.ravel()), actions.shape[1])
+        pq.write_table(table.set_column(table.schema.get_field_index("action"), "action", column), file)
+    result = _run(*train_args(root, tmp_path / "out", 5))
+    assert result.returncode != 0
+    assert "ValueError: The batch holds NaN or inf in ['action']" in result.stderr
+    assert not (tmp_path / "out" / "checkpoints").exists()
 
 
 def test_lerobot_train_refuses_the_recovery_stage_without_a_base(reaching_root, tmp_path):
