@@ -9,7 +9,8 @@ Settings live in files a user can run by hand: `configs/<task>/{train_base,train
 `datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from `configs/<task>_pixels/`
 and `datasets_recipes/<task>_pixels.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
 checkpoints, eval_info.json, logs). A stage whose output exists is skipped, so an interrupted run resumes;
-`--fresh` starts over.
+`--fresh` starts over. The pipeline writes only into a folder it created or adopted, marked by a file
+`.lerobot_ccdp_pipeline.json` in it, and deletes nothing else (`claim`).
 """
 
 from __future__ import annotations
@@ -72,10 +73,69 @@ CHECKPOINT = Path("checkpoints/last/pretrained_model")
 STEP_TIMES = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
 # A tqdm bar's state: description, percentage, count and timing, without the bar itself.
 PROGRESS = re.compile(r"([A-Za-z][\w ()=.-]*:\s+\d+%)\|[^|]*\|\s*(\d+/\d+ \[[^\]]*\])")
+# The file that marks an output folder as this pipeline's, recording the folder's real path.
+MARKER = ".lerobot_ccdp_pipeline.json"
 
 
 class PipelineError(RuntimeError):
     """A stage's command failed; the message names the command and ends with its log."""
+
+
+class OutputNotOwned(RuntimeError):
+    """--out holds files this pipeline did not create: it neither writes into nor deletes them."""
+
+
+def canonical(path: str | Path) -> Path:
+    """One spelling per folder, for the lock and the stage stamps (which hash command lines): the real path,
+    symlinks and `..` resolved, relative to the working directory when inside it, as `make` spells its
+    folders (so the stamps of outputs made before paths were resolved still match)."""
+    real = Path(path).expanduser().resolve()
+    return real.relative_to(Path.cwd()) if real.is_relative_to(Path.cwd()) else real
+
+
+def marked_path(folder: Path) -> str | None:
+    """The path recorded in `folder`'s marker, if it has a readable one."""
+    try:
+        return str(json.loads((folder / MARKER).read_text())["path"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def check_output(out: Path, fresh: bool, adopt: bool) -> None:
+    """Refuse (OutputNotOwned) an --out this pipeline did not make, before anything is written or deleted.
+
+    It uses a missing or empty folder, or one whose marker records this very folder (a moved or copied one
+    needs --adopt); `fresh` never deletes the working directory, the home folder or a folder holding them."""
+    real = out.resolve()
+    if fresh and any(p.is_relative_to(real) for p in (Path.cwd(), Path.home().resolve())):
+        raise OutputNotOwned(f"--fresh would delete {real}, which is or holds the working directory or the "
+                             "home folder. Nothing was deleted; choose another --out.")
+    if real.exists() and not real.is_dir():
+        raise OutputNotOwned(f"--out {real} is a file, not a folder. Nothing was changed; choose another "
+                             "--out.")
+    if adopt or not real.exists() or marked_path(real) == str(real) or not any(real.iterdir()):
+        return
+    recorded = marked_path(real)
+    reason = (f"its {MARKER} was written for {recorded} (a moved or copied output folder)" if recorded else
+              f"it holds files and no {MARKER} (the mark of a folder this pipeline made)")
+    if fresh:
+        advice = "--fresh deletes only a folder this pipeline made: choose a new --out, or delete it yourself"
+    else:
+        advice = ("Choose a new --out, or, if it is an output folder of an earlier version of this pipeline, "
+                  "rerun with --adopt to mark it as this pipeline's and resume it")
+    raise OutputNotOwned(f"Refusing --out {real}: {reason}. Nothing was deleted or written. {advice}.")
+
+
+def claim(out: Path, fresh: bool, adopt: bool) -> None:
+    """Make `out` this pipeline's folder, emptied with `fresh`, once `check_output` allows it (checked again
+    here, under the lock, so the folder checked is the one changed); stages clear only folders inside it."""
+    check_output(out, fresh, adopt)
+    real = out.resolve()
+    if fresh and real.exists():
+        shutil.rmtree(real)
+    real.mkdir(parents=True, exist_ok=True)
+    marker = {"created_by": "lerobot_ccdp.pipeline", "path": str(real)}
+    (real / MARKER).write_text(json.dumps(marker, indent=2))
 
 
 def task_slug(task: str) -> str:
@@ -223,7 +283,12 @@ class TaskRun:
     def _stage(self, name: str, output: Path, command: list[str], upstream: str | None, clear: Path) -> str:
         """Run `command` unless `output` exists and was made from the same inputs; return the stage's stamp.
 
-        `clear` (the stage's own output folder, stale or half-written) is removed before the command runs."""
+        `clear` (the stage's own output folder, stale or half-written) is removed before the command runs;
+        it must lie inside the task's folder, which lies in the --out this pipeline owns (`claim`)."""
+        task_out = self.files.out.resolve()
+        if clear.resolve() == task_out or not clear.resolve().is_relative_to(task_out):
+            raise PipelineError(f"{self.files.task} {name}: refusing to clear {clear}, which is not inside "
+                                f"the task's output folder {self.files.out}; a stage clears only its own.")
         current = stamp(command, upstream)
         if output.exists() and self.stamps.matches(name, current):
             print(f"[{self.files.task}] {name}: done already ({output})", flush=True)
@@ -433,9 +498,7 @@ def publish_report(report: str, out: Path, target: Path) -> None:
 
 def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[TaskRun], dict[str, dict[str, Episodes]]]:
     """Every task's stages (or, with --report-only, its finished evaluations), in order."""
-    if args.fresh and args.out.exists():
-        shutil.rmtree(args.out)
-    args.out.mkdir(parents=True, exist_ok=True)
+    claim(args.out, args.fresh, args.adopt)
     runs, episodes = [], {}
     for f in files:
         run = TaskRun(f, args.eval_seed)
@@ -453,17 +516,25 @@ def main(argv: list[str] | None = None) -> None:
                              "`lite` (their geometric versions, `<Task>-lite-v0`)")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
                         help="recovery modes to evaluate (the no-repeat oracle always runs)")
-    parser.add_argument("--out", type=Path, default=Path("outputs/pipeline"), help="root of every output")
-    parser.add_argument("--configs", type=Path, default=Path("configs"), help="folder of <task>/*.json configs")
-    parser.add_argument("--recipes", type=Path, default=Path("datasets_recipes"), help="folder of <task>.yaml recipes")
+    parser.add_argument("--out", type=canonical, default="outputs/pipeline",
+                        help=f"root of every output: a new or empty folder, or one this pipeline made "
+                             f"(it holds {MARKER})")
+    parser.add_argument("--configs", type=canonical, default="configs",
+                        help="folder of <task>/*.json configs")
+    parser.add_argument("--recipes", type=canonical, default="datasets_recipes",
+                        help="folder of <task>.yaml recipes")
     parser.add_argument("--obs-type", choices=list(OBS_VARIANTS), default="state",
                         help="policy inputs: state vectors, or rendered cameras plus the robot state")
     parser.add_argument("--no-chart", action="store_true", help="skip the PNG bar chart (needs matplotlib)")
-    parser.add_argument("--fresh", action="store_true", help="delete --out first instead of resuming")
+    parser.add_argument("--fresh", action="store_true",
+                        help="delete --out first instead of resuming (only a folder this pipeline made)")
+    parser.add_argument("--adopt", action="store_true",
+                        help=f"mark an existing --out as this pipeline's ({MARKER}) and resume it: for an "
+                             "output folder made by a version of this pipeline from before the marker")
     parser.add_argument("--eval-seed", type=int, default=None,
                         help="first evaluation seed (episode i gets seed + i); default: the eval config's, the test "
                              "range. Tune settings on another range, e.g. the development seeds 1000-1099")
-    parser.add_argument("--publish", type=Path, default=None,
+    parser.add_argument("--publish", type=canonical, default=None,
                         help="also write the report here (its chart beside it), e.g. docs/benchmark_report.md")
     parser.add_argument("--report-only", action="store_true",
                         help="write the report from the evaluations already in --out, running no stage")
@@ -479,11 +550,14 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")
     if args.train_only and args.report_only:
         parser.error("--train-only runs the training stages and --report-only runs none; pass one of them")
+    if args.fresh and args.adopt:
+        parser.error("--adopt keeps the folder's outputs and --fresh deletes them; pass one of them")
     start = time.perf_counter()
     try:
+        check_output(args.out, args.fresh, args.adopt)  # before the lock file beside --out is made
         with exclusive(args.out):
             runs, episodes = run_tasks(files, args)
-    except (PipelineError, PipelineRunning) as error:
+    except (PipelineError, PipelineRunning, OutputNotOwned) as error:
         sys.exit(str(error))
     if args.train_only:
         print(f"Trained: {', '.join(str(f.out / 'recovery' / CHECKPOINT) for f in files)}")

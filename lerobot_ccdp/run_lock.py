@@ -13,6 +13,7 @@ import os
 import signal
 from collections.abc import Iterator
 from pathlib import Path
+from typing import IO
 
 PR_SET_PDEATHSIG = 1
 
@@ -23,25 +24,40 @@ class PipelineRunning(RuntimeError):
 
 @contextlib.contextmanager
 def exclusive(out: Path) -> Iterator[None]:
-    """Hold the lock of output folder `out` (a file beside it, so --fresh may delete the folder) while running."""
+    """Hold the lock of output folder `out` while running: a file beside it (so --fresh may delete the
+    folder), named after its real path (every spelling of the folder takes one lock), removed when it ends."""
+    out = out.resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
     path = out.parent / f".{out.name}.pipeline.lock"
-    with path.open("a+") as handle:
+    handle = _locked(path, out)
+    try:
+        handle.seek(0)
+        handle.truncate()
+        handle.write(str(os.getpid()))
+        handle.flush()
+        yield
+    finally:
+        path.unlink(missing_ok=True)  # while still locked: no other run holds a lock on this file now
+        handle.close()  # releases the lock
+
+
+def _locked(path: Path, out: Path) -> IO[str]:
+    """`path` opened and locked. A run that ends removes its lock file: one that opened the file before it was
+    removed and locked it after locks a file no longer at `path`, and retries on the file there now."""
+    while True:
+        handle = path.open("a+")
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             handle.seek(0)
             pid = handle.read().strip() or "unknown"
+            handle.close()
             raise PipelineRunning(f"Another pipeline (pid {pid}) is running on {out}: wait for it to finish, or stop "
                                   f"it (kill {pid}) before starting this one.") from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(str(os.getpid()))
-        handle.flush()
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+        with contextlib.suppress(FileNotFoundError):
+            if os.path.samestat(os.fstat(handle.fileno()), os.stat(path)):
+                return handle
+        handle.close()
 
 
 def die_with_parent(parent: int) -> None:
