@@ -213,7 +213,7 @@ def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
     with pytest.raises(FileExistsError, match="out.*already exists"):
         synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, missing_checkpoint, "local/r",
                                     tmp_path / "out", progress=False)
-    with pytest.raises(ValueError, match="only replaces a LeRobot dataset"):
+    with pytest.raises(ValueError, match="only replaces a dataset that lerobot_ccdp wrote"):
         synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, missing_checkpoint, "local/r",
                                     tmp_path / "out", overwrite=True, progress=False)
     with pytest.raises(FileNotFoundError, match=f"No LeRobot dataset at --dataset.root={tmp_path / 'demos'}"):

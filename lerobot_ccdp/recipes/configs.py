@@ -66,7 +66,8 @@ class RecordConfig(RecipeCommandConfig):
 
     record: RecordRecipe  # what to record: the `record:` section of the recipe file
     dataset: LocalDatasetConfig  # where to write the demonstrations
-    overwrite: bool = False  # replace dataset.root if it holds a dataset (once the new one is complete)
+    # replace dataset.root once the new dataset is complete, if it holds one lerobot_ccdp wrote at that path
+    overwrite: bool = False
 
     section: ClassVar[str] = "record"
     command: ClassVar[str] = "lerobot-ccdp-record"
@@ -82,7 +83,8 @@ class SynthesizeConfig(RecipeCommandConfig):
     dataset: LocalDatasetConfig  # the demonstrations the base was trained on
     policy: CheckpointConfig  # the base checkpoint, trained on `dataset`
     output: LocalDatasetConfig  # where to write the recovery dataset
-    overwrite: bool = False  # replace output.root if it holds a dataset (once the new one is complete)
+    # replace output.root once the new dataset is complete, if it holds one lerobot_ccdp wrote at that path
+    overwrite: bool = False
 
     section: ClassVar[str] = "recovery"
     command: ClassVar[str] = "lerobot-ccdp-synthesize"

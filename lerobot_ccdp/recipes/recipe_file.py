@@ -9,6 +9,8 @@ the same way wherever it comes from.
 from __future__ import annotations
 
 import dataclasses
+import inspect
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -56,9 +58,16 @@ class RecordRecipe:
         """The recipe of a `record:` mapping, checked; errors start with `source` (the file) where given."""
         at = f"{source}: " if source else ""
         recipe = _build(cls, values, "record", at)
-        task_class(recipe.task)  # names the known tasks if this one is not
-        if recipe.n_episodes < 1:
-            raise ValueError(f"{at}record.n_episodes must be a positive integer, got {recipe.n_episodes!r}")
+        env_class = task_class(recipe.task)  # names the known tasks if this one is not
+        for name in ("n_episodes", "max_episode_steps"):
+            if (value := getattr(recipe, name)) is not None and value < 1:
+                raise ValueError(f"{at}record.{name} must be a positive integer, got {value!r}")
+        accepted = env_arguments(env_class)
+        unknown = sorted(set(recipe.env_kwargs) - set(accepted))
+        if unknown:
+            raise ValueError(f"{at}record.env_kwargs: {recipe.task} takes no argument(s) "
+                             f"{', '.join(unknown)}; it accepts {', '.join(accepted)} (the step limit is "
+                             "record.max_episode_steps)")
         if recipe.fps != CONTROL_FPS:
             raise ValueError(f"{at}record.fps must be {CONTROL_FPS} (the tasks' control rate), got {recipe.fps}")
         return recipe
@@ -131,8 +140,22 @@ class RecoveryRecipe:
         return {name: getattr(self, name) for name in names}
 
 
+def env_arguments(env_class: type) -> list[str]:
+    """The keyword arguments an env class's constructor takes, following `**kwargs` up to its base classes."""
+    names: list[str] = []
+    for klass in env_class.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = inspect.signature(klass.__init__).parameters.values()
+        names += [p.name for p in parameters if p.name != "self" and p.name not in names
+                  and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        if not any(p.kind is p.VAR_KEYWORD for p in parameters):
+            break
+    return names
+
+
 def _build(cls: type, values: dict[str, Any], section: str, at: str):
-    """Instantiate a recipe dataclass from its section, naming unknown and missing fields and wrong types."""
+    """Instantiate a recipe dataclass from its section, naming unknown, missing, mistyped and non-finite fields."""
     known = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(values) - set(known))
     if unknown:
@@ -146,6 +169,8 @@ def _build(cls: type, values: dict[str, Any], section: str, at: str):
         if not _has_type(value, hints[name]):
             raise ValueError(f"{at}{section}.{name} must be {_type_name(hints[name])}, got {value!r} "
                              f"({type(value).__name__}); write it without quotes or decimals where a number is meant")
+        if (where := _non_finite(value, f"{section}.{name}")) is not None:
+            raise ValueError(f"{at}{where} must be a finite number, not NaN or infinite")
     return cls(**values)
 
 
@@ -167,6 +192,14 @@ def _has_type(value: Any, hint: Any) -> bool:
     if origin is dict:
         return isinstance(value, dict)
     return isinstance(value, hint)
+
+
+def _non_finite(value: Any, name: str) -> str | None:
+    """The dotted name of the first NaN or infinite float in `value` (YAML's .nan, .inf), or None."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else name
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    return next((where for key, item in items if (where := _non_finite(item, f"{name}.{key}"))), None)
 
 
 def _type_name(hint: Any) -> str:

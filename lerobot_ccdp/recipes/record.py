@@ -5,7 +5,7 @@ The dataset holds what the env observes: `observation.state` and `observation.en
 `pixels_agent_pos`, set in the recipe's `env_kwargs`), then `action`, plus two per-frame labels: `primitive` (the option the expert executes in that frame) and `hidden_param` (the
 episode's hidden parameter, for analysis; no policy input reads it). Only successful episodes are kept.
 It is written to a temporary folder next to `--dataset.root` and renamed into place when complete, so an
-interrupted run leaves nothing half-written there.
+interrupted run leaves nothing half-written there; its ownership marker lets `--overwrite` replace it later.
 
     lerobot-ccdp-record --config_path=datasets_recipes/door_opening.yaml \
         --dataset.repo_id=local/door_opening --dataset.root=data/door_opening [--record.n_episodes=20]

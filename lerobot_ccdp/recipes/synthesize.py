@@ -44,7 +44,7 @@ import yaml
 from lerobot.configs import parser
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
-from lerobot.datasets.utils import write_stats
+from lerobot.datasets.utils import dataset_to_policy_features, write_stats
 from lerobot.processor import NormalizerProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from lerobot.utils.utils import is_torch_device_available
@@ -61,7 +61,7 @@ from lerobot_ccdp.processor_ccdp import normalize_batch, unnormalize_batch
 from lerobot_ccdp.recipes.camera_windows import CameraWindows
 from lerobot_ccdp.recipes.configs import SynthesizeConfig, parse_cli
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
-from lerobot_ccdp.recipes.staging import check_replaceable, staged_dataset_root
+from lerobot_ccdp.recipes.staging import check_disjoint, check_output_root, staged_dataset_root
 from lerobot_ccdp.recovery_pairs import pick_pairs, recovery_pair_mask
 
 logger = logging.getLogger(__name__)
@@ -154,6 +154,21 @@ def check_recipe_matches(recipe: RecoveryRecipe, config: CCDPConfig, source: str
         flags = " ".join(f"--policy.{k}={v}" for k, v in wanted.items())
         raise ValueError(f"The recipe {source} and the base checkpoint define z differently ({details}). Train the "
                          f"base with `{flags}`, or edit the recipe's `recovery:` section to match the checkpoint.")
+
+
+def check_features_match(config: CCDPConfig, meta: LeRobotDatasetMetadata) -> None:
+    """The checkpoint must be trained on data of the demos' layout, or sampling fails on a tensor size."""
+    keys = [OBS_STATE, *([OBS_ENV_STATE] if config.env_state_feature else []), *config.image_features, ACTION]
+    expected = {**config.input_features, **config.output_features}
+    found = dataset_to_policy_features(meta.features)
+
+    def layout(features: dict) -> str:
+        return ", ".join(f"{k} {tuple(features[k].shape) if k in features else 'absent'}" for k in keys)
+
+    if layout(expected) != layout(found):
+        raise ValueError(f"The base checkpoint expects {layout(expected)}; dataset {meta.repo_id} has "
+                         f"{layout(found)}. Pass the checkpoint trained on these demos (--policy.path), or "
+                         "the demos it was trained on (--dataset.root).")
 
 
 def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) -> Demos:
@@ -250,7 +265,12 @@ def synthesize_recovery_dataset(
     """Write the recovery dataset of `recipe` at `out_root` (atomically) and return `out_root`. The pool and the
     dataset are built on the CPU; the policy's networks run on `device` (see `synthesis_device`)."""
     started = time.perf_counter()
-    check_replaceable(out_root, overwrite)  # before minutes of loading and sampling, not after
+    # Before minutes of loading and sampling, not after.
+    inputs = {"--dataset.root": demo_root}
+    if Path(policy_path).is_dir():  # a local checkpoint folder, not a Hub repo id
+        inputs["--policy.path"] = policy_path
+    check_disjoint(out_root, inputs)
+    check_output_root(out_root, overwrite)
     check_demo_root(demo_root)
     policy, stats = load_checkpoint(policy_path, device)
     config = policy.config
@@ -259,6 +279,7 @@ def synthesize_recovery_dataset(
         raise ValueError(f"{policy_path} holds no demonstrated outcomes, so z of a sampled chunk is unknown; "
                          "train the base stage from the demo dataset with lerobot-train.")
     meta = LeRobotDatasetMetadata(demo_repo_id, root=demo_root)
+    check_features_match(config, meta)
     demos = load_demos(config, stats, meta)
     generator = torch.Generator().manual_seed(recipe.seed)
     torch.manual_seed(recipe.seed)

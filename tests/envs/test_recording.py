@@ -106,7 +106,7 @@ def test_overwrite_replaces_only_a_dataset(tmp_path, monkeypatch):
     notes = tmp_path / "mydir" / "notes.txt"
     notes.parent.mkdir()
     notes.write_text("keep me")
-    with pytest.raises(ValueError, match=r"only replaces a LeRobot dataset .*nothing was deleted"):
+    with pytest.raises(ValueError, match=r"only replaces a dataset that lerobot_ccdp wrote .*nothing was deleted"):
         record.record_dataset(recipe, "local/x", notes.parent, overwrite=True, progress=False)
     monkeypatch.chdir(notes.parent)
     for root in (Path("."), tmp_path):  # the working directory, and a folder holding it
