@@ -48,6 +48,7 @@ from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
 from lerobot_ccdp.configuration_ccdp import CLASSIFIER_QUERIES, CCDPConfig
 from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.ownership import NotOwned, claim_output_folder
 
 STATE, ENV, ACTION = "observation.state", "observation.environment_state", "action"
 FAILURE_COUNTS = (0, 1, 2, 4, 8)
@@ -338,7 +339,13 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")
     parser.add_argument("--work", type=Path, default=Path("outputs/bench_data"))
     parser.add_argument("--out", type=Path, default=Path("outputs/bench_policy.json"))
+    parser.add_argument("--adopt", action="store_true",
+                        help="take over a --work made by a version of this script from before ownership markers")
     args = parser.parse_args(argv)
+    try:
+        claim_output_folder(args.work, "benchmarks/bench_policy.py", adopt=args.adopt, flag="--work")
+    except NotOwned as error:
+        sys.exit(str(error))
 
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     torch.set_num_threads(args.threads)

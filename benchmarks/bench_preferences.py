@@ -35,6 +35,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_ccdp.comparison import bootstrap_mean
 from lerobot_ccdp.configuration_ccdp import CLASSIFIER_CHUNKS, CLASSIFIER_QUERIES
+from lerobot_ccdp.ownership import NotOwned, claim_output_folder
 from lerobot_ccdp.paired import verdict
 from lerobot_ccdp.reaching2d import ReachingTask
 from lerobot_ccdp.reaching_preferences import Method, measure
@@ -225,8 +226,13 @@ def main() -> None:
     parser.add_argument("--merge", type=Path, nargs="+", default=[],
                         help="with --report-only: also take the members measured under these --out folders (members "
                              "run side by side, each with its own --out) into --out's results")
+    parser.add_argument("--adopt", action="store_true",
+                        help="take over an --out made by a version of this script from before ownership markers")
     args = parser.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        claim_output_folder(args.out, "benchmarks/bench_preferences.py", adopt=args.adopt)
+    except NotOwned as error:
+        sys.exit(str(error))
     results_path = args.out / "results.json"
     results = measured_members(args.out)
     if args.report_only:

@@ -26,6 +26,7 @@ import torch
 import yaml
 
 from lerobot_ccdp.envs.tasks import TASKS
+from lerobot_ccdp.ownership import NotOwned, claim_output_folder
 from lerobot_ccdp.pipeline import TASK_GROUPS, task_slug
 
 REPO = Path(__file__).resolve().parents[1]
@@ -151,9 +152,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--recovery-steps", type=int, default=3000, help="as tests/test_recovery_claim.py")
     parser.add_argument("--w-z", type=float, default=3.0, help="composition weight of the recovery checkpoint, as the task configs")
     parser.add_argument("--work", type=Path, default=REPO / "outputs" / "bench_synthesis")
+    parser.add_argument("--adopt", action="store_true",
+                        help="take over a --work made by a version of this script from before ownership markers")
     args = parser.parse_args(argv)
     bases = dict(item.split("=", 1) for item in args.base)
-    args.work.mkdir(parents=True, exist_ok=True)
+    try:
+        claim_output_folder(args.work, "benchmarks/bench_synthesis.py", adopt=args.adopt, flag="--work")
+    except NotOwned as error:
+        sys.exit(str(error))
     rows = []
     for task in args.tasks:
         rows.append(bench_task(task, args.work, Path(bases[task]) if task in bases else None, args.base_steps,

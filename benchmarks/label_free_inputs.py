@@ -33,11 +33,13 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 from pathlib import Path
 from typing import NamedTuple
 
 import yaml
 
+from lerobot_ccdp.ownership import NotOwned, claim_output_folder
 from lerobot_ccdp.recipes.recipe_file import read_recipe_section
 
 REPO = Path(__file__).resolve().parents[1]
@@ -84,8 +86,9 @@ TASKS = {
 
 
 def write_inputs(out: Path) -> None:
-    """Fresh copies under `out` (an earlier copy is removed, so no stale setting survives)."""
-    shutil.rmtree(out, ignore_errors=True)
+    """Fresh copies under `out` (an earlier copy this script made is removed, so no stale setting survives; a
+    folder it did not make is refused)."""
+    claim_output_folder(out, "benchmarks/label_free_inputs.py", fresh=True)
     shutil.copytree(REPO / "configs", out / "configs")
     shutil.copytree(REPO / "datasets_recipes", out / "recipes")
     for slug, task in TASKS.items():
@@ -122,7 +125,10 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=Path("outputs/label_free_inputs"))
     args = parser.parse_args(argv)
-    write_inputs(args.out)
+    try:
+        write_inputs(args.out)
+    except NotOwned as error:
+        sys.exit(str(error))
     print(f"Wrote label-free settings for {', '.join(TASKS)} under {args.out}")
 
 

@@ -41,7 +41,8 @@ import numpy as np
 from lerobot_ccdp.comparison import LOST_HEADER, MethodMetrics
 from lerobot_ccdp.episodes import Episodes, LostEpisodes
 from lerobot_ccdp.paired import paired_difference, repeats_per_opportunity, success_rate
-from lerobot_ccdp.pipeline import BIN, CHECKPOINT, METHODS, TASK_GROUPS, TaskFiles, expand_tasks
+from lerobot_ccdp.ownership import MARKER, owner
+from lerobot_ccdp.pipeline import BIN, CHECKPOINT, CREATED_BY, METHODS, TASK_GROUPS, TaskFiles, expand_tasks
 
 REPO = Path(__file__).resolve().parents[1]
 Setting = tuple[tuple[str, Any], ...]  # ((field, value), ...) in the grid's order
@@ -163,6 +164,10 @@ def main(argv: list[str] | None = None) -> None:
                         help="tabulate the evaluations of an earlier run of this grid under --out, running none")
     args = parser.parse_args(argv)
     args.tasks = expand_tasks(args.tasks)
+    if owner(args.out.resolve()) != CREATED_BY:  # its evaluations are written, and replaced, inside --out
+        raise SystemExit(f"--out {args.out} is not an output folder of the pipeline (no {MARKER} of it there). Name "
+                         "a `make benchmark` folder; one made before ownership markers is marked, with nothing "
+                         "rerun, by `python -m lerobot_ccdp.pipeline --tasks ... --out <it> --train-only --adopt`.")
     checkpoints = dict(item.split("=", 1) for item in args.checkpoint if "=" in item)
     if len(checkpoints) != len(args.checkpoint) or OWN in checkpoints:
         raise SystemExit(f"--checkpoint takes NAME=PATH with a NAME other than {OWN!r}, got {args.checkpoint}")

@@ -9,8 +9,8 @@ Settings live in files a user can run by hand: `configs/<task>/{train_base,train
 `datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from `configs/<task>_pixels/`
 and `datasets_recipes/<task>_pixels.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
 checkpoints, eval_info.json, logs). A stage whose output exists is skipped, so an interrupted run resumes;
-`--fresh` starts over. The pipeline writes only into a folder it created or adopted, marked by a file
-`.lerobot_ccdp_pipeline.json` in it, and deletes nothing else (`claim`).
+`--fresh` starts over. The pipeline writes only into a folder it created or adopted, marked as its own
+(`lerobot_ccdp.ownership`), and deletes nothing else.
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ from lerobot_ccdp.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.tasks import is_lite
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
+from lerobot_ccdp.ownership import MARKER, NotOwned, check_output_folder, claim_output_folder
 from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
 from lerobot_ccdp.run_lock import PipelineRunning, die_with_parent, exclusive
 from lerobot_ccdp.stage_stamps import StampBook, stamp
@@ -73,16 +74,12 @@ CHECKPOINT = Path("checkpoints/last/pretrained_model")
 STEP_TIMES = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
 # A tqdm bar's state: description, percentage, count and timing, without the bar itself.
 PROGRESS = re.compile(r"([A-Za-z][\w ()=.-]*:\s+\d+%)\|[^|]*\|\s*(\d+/\d+ \[[^\]]*\])")
-# The file that marks an output folder as this pipeline's, recording the folder's real path.
-MARKER = ".lerobot_ccdp_pipeline.json"
+# What the pipeline writes in the marker of its output folder (`lerobot_ccdp.ownership`).
+CREATED_BY = "lerobot_ccdp.pipeline"
 
 
 class PipelineError(RuntimeError):
     """A stage's command failed; the message names the command and ends with its log."""
-
-
-class OutputNotOwned(RuntimeError):
-    """--out holds files this pipeline did not create: it neither writes into nor deletes them."""
 
 
 def canonical(path: str | Path) -> Path:
@@ -91,51 +88,6 @@ def canonical(path: str | Path) -> Path:
     folders (so the stamps of outputs made before paths were resolved still match)."""
     real = Path(path).expanduser().resolve()
     return real.relative_to(Path.cwd()) if real.is_relative_to(Path.cwd()) else real
-
-
-def marked_path(folder: Path) -> str | None:
-    """The path recorded in `folder`'s marker, if it has a readable one."""
-    try:
-        return str(json.loads((folder / MARKER).read_text())["path"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-
-
-def check_output(out: Path, fresh: bool, adopt: bool) -> None:
-    """Refuse (OutputNotOwned) an --out this pipeline did not make, before anything is written or deleted.
-
-    It uses a missing or empty folder, or one whose marker records this very folder (a moved or copied one
-    needs --adopt); `fresh` never deletes the working directory, the home folder or a folder holding them."""
-    real = out.resolve()
-    if fresh and any(p.is_relative_to(real) for p in (Path.cwd(), Path.home().resolve())):
-        raise OutputNotOwned(f"--fresh would delete {real}, which is or holds the working directory or the "
-                             "home folder. Nothing was deleted; choose another --out.")
-    if real.exists() and not real.is_dir():
-        raise OutputNotOwned(f"--out {real} is a file, not a folder. Nothing was changed; choose another "
-                             "--out.")
-    if adopt or not real.exists() or marked_path(real) == str(real) or not any(real.iterdir()):
-        return
-    recorded = marked_path(real)
-    reason = (f"its {MARKER} was written for {recorded} (a moved or copied output folder)" if recorded else
-              f"it holds files and no {MARKER} (the mark of a folder this pipeline made)")
-    if fresh:
-        advice = "--fresh deletes only a folder this pipeline made: choose a new --out, or delete it yourself"
-    else:
-        advice = ("Choose a new --out, or, if it is an output folder of an earlier version of this pipeline, "
-                  "rerun with --adopt to mark it as this pipeline's and resume it")
-    raise OutputNotOwned(f"Refusing --out {real}: {reason}. Nothing was deleted or written. {advice}.")
-
-
-def claim(out: Path, fresh: bool, adopt: bool) -> None:
-    """Make `out` this pipeline's folder, emptied with `fresh`, once `check_output` allows it (checked again
-    here, under the lock, so the folder checked is the one changed); stages clear only folders inside it."""
-    check_output(out, fresh, adopt)
-    real = out.resolve()
-    if fresh and real.exists():
-        shutil.rmtree(real)
-    real.mkdir(parents=True, exist_ok=True)
-    marker = {"created_by": "lerobot_ccdp.pipeline", "path": str(real)}
-    (real / MARKER).write_text(json.dumps(marker, indent=2))
 
 
 def task_slug(task: str) -> str:
@@ -284,7 +236,7 @@ class TaskRun:
         """Run `command` unless `output` exists and was made from the same inputs; return the stage's stamp.
 
         `clear` (the stage's own output folder, stale or half-written) is removed before the command runs;
-        it must lie inside the task's folder, which lies in the --out this pipeline owns (`claim`)."""
+        it must lie inside the task's folder, which lies in the --out this pipeline owns."""
         task_out = self.files.out.resolve()
         if clear.resolve() == task_out or not clear.resolve().is_relative_to(task_out):
             raise PipelineError(f"{self.files.task} {name}: refusing to clear {clear}, which is not inside "
@@ -498,7 +450,7 @@ def publish_report(report: str, out: Path, target: Path) -> None:
 
 def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[TaskRun], dict[str, dict[str, Episodes]]]:
     """Every task's stages (or, with --report-only, its finished evaluations), in order."""
-    claim(args.out, args.fresh, args.adopt)
+    claim_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)
     runs, episodes = [], {}
     for f in files:
         run = TaskRun(f, args.eval_seed)
@@ -554,10 +506,10 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--adopt keeps the folder's outputs and --fresh deletes them; pass one of them")
     start = time.perf_counter()
     try:
-        check_output(args.out, args.fresh, args.adopt)  # before the lock file beside --out is made
+        check_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)  # before the lock file beside it
         with exclusive(args.out):
             runs, episodes = run_tasks(files, args)
-    except (PipelineError, PipelineRunning, OutputNotOwned) as error:
+    except (PipelineError, PipelineRunning, NotOwned) as error:
         sys.exit(str(error))
     if args.train_only:
         print(f"Trained: {', '.join(str(f.out / 'recovery' / CHECKPOINT) for f in files)}")

@@ -17,7 +17,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from conftest import BIN, REACHING_REPO_ID
 from policy_factory import untrained_checkpoint
 from lerobot_ccdp.recipes import record, synthesize
-from lerobot_ccdp.recipes.staging import OWNER_MARKER
+from lerobot_ccdp.ownership import MARKER, identity
 
 TASK = "DoorOpening-lite-v0"
 DEMOS_ID = "local/door"
@@ -103,8 +103,9 @@ def test_overwrite_replaces_only_the_dataset_it_wrote_at_that_same_path(tmp_path
         assert listing(root) == before
     record.main(record_flags(original, "--overwrite=true", n_episodes=2))
     assert LeRobotDataset(DEMOS_ID, root=original).num_episodes == 2
-    marker = json.loads((original / OWNER_MARKER).read_text())
-    assert marker == {"created_by": "lerobot_ccdp", "path": str(original.resolve())}
+    marker = json.loads((original / MARKER).read_text())
+    assert marker == {"created_by": "lerobot_ccdp dataset", "path_sha256": identity(original.resolve())}
+    assert str(tmp_path) not in (original / MARKER).read_text()  # pushed to the Hub with the data: no local path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["copy", "link", "moved", "original"]
 
 

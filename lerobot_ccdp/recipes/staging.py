@@ -1,14 +1,14 @@
 """Atomic dataset writing: build in a hidden folder beside the target, rename into place only when complete.
 
-A dataset written here carries an ownership marker naming the path it was written at; `--overwrite` replaces
-only such a dataset at that same path, so it never deletes what this project did not create there."""
+A dataset written here carries an ownership marker for the path it was written at (`lerobot_ccdp.ownership`);
+`--overwrite` replaces only such a dataset at that same path, so it never deletes what this project did not create
+there."""
 
 from __future__ import annotations
 
 import contextlib
 import errno
 import gc
-import json
 import logging
 import os
 import re
@@ -19,11 +19,13 @@ import traceback
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
+from lerobot_ccdp.ownership import MARKER, mark, owner
+
 logger = logging.getLogger(__name__)
 
 STAGING_SUFFIX = ".partial"
-OWNER_MARKER = ".lerobot_ccdp_owner.json"
-OWNER = "lerobot_ccdp"
+# What a dataset's ownership marker says made it.
+CREATED_BY = "lerobot_ccdp dataset"
 
 # Write failures staged_dataset_root reports by the dataset's name, not the hidden staging file, with a fix.
 _UNWRITABLE = "Choose a root in a folder you can write to, or fix that folder's permissions."
@@ -39,28 +41,11 @@ WRITE_FIXES = {
 }
 
 
-def owner_path(root: str | Path) -> Path:
-    """The path that identifies `root`: its parent resolved (symlinks, `..`) and its own name unresolved, so a
-    symlink to a dataset is not that dataset."""
-    root = Path(root).absolute()
-    return root.resolve() if root.name in ("", "..") else root.parent.resolve() / root.name
-
-
-def is_owned(root: str | Path) -> bool:
-    """Whether `root` is a dataset this project wrote at this very path (not a copy, a download or a move)."""
-    try:
-        marker = json.loads((Path(root) / OWNER_MARKER).read_text())
-    except (OSError, ValueError):
-        return False
-    return (isinstance(marker, dict) and marker.get("created_by") == OWNER
-            and marker.get("path") == str(owner_path(root)))
-
-
 def check_output_root(root: str | Path, overwrite: bool) -> None:
     """Refuse, before any work, a `root` that cannot be created or that exists and may not be replaced.
 
     --overwrite deletes what sits at `root` once the new dataset is complete, so it only reaches a dataset
-    this project wrote there (`is_owned`): never the working directory, its parents, or others' files."""
+    this project wrote there (`ownership.owner`): never the working directory, its parents, or others' files."""
     root = Path(root)
     if not (root.exists() or root.is_symlink()):
         _check_parent_writable(root)
@@ -72,9 +57,9 @@ def check_output_root(root: str | Path, overwrite: bool) -> None:
     if resolved == cwd or resolved in cwd.parents:
         raise ValueError(f"--overwrite refuses {root}: it holds the working directory. Name the dataset's "
                          "own folder.")
-    if not is_owned(root):
+    if owner(root) != CREATED_BY:
         raise ValueError(f"--overwrite only replaces a dataset that lerobot_ccdp wrote at this same path "
-                         f"(marked by {OWNER_MARKER}); {root} is not one, so nothing was deleted. Choose a "
+                         f"(marked by {MARKER}); {root} is not one, so nothing was deleted. Choose a "
                          "new root, or remove that folder yourself if it is yours to lose.")
 
 
@@ -151,8 +136,7 @@ def staged_dataset_root(root: str | Path, overwrite: bool = False) -> Iterator[P
         staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.{os.getpid()}.", suffix=STAGING_SUFFIX,
                                         dir=root.parent))
         yield staging / "dataset"
-        marker = {"created_by": OWNER, "path": str(owner_path(root))}
-        (staging / "dataset" / OWNER_MARKER).write_text(json.dumps(marker))
+        mark(staging / "dataset", CREATED_BY, at=root)
         check_output_root(root, overwrite)  # again: what appeared at `root` meanwhile may not be ours
         if root.exists():
             root.rename(staging / "replaced")  # deleted with the staging folder, the new dataset in place
