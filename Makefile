@@ -31,10 +31,11 @@ train-local: install
 		--output_dir=outputs/train/reaching2d-$$(date +%Y%m%d-%H%M%S) --steps=2000 --batch_size=64 \
 		--policy.push_to_hub=false --num_workers=0 --wandb.enable=false
 
-# The main job end to end on one task (record, train base, synthesise, train recovery, evaluate CCDP vs DP).
+# The main job end to end on one task (record, train base, synthesise, train recovery, evaluate CCDP vs DP), in
+# a folder of its own per task, so that a second task's report does not replace the first's.
 TASK ?= DoorOpening-v0
 quickstart: install
-	$(PY) -m lerobot_ccdp.pipeline --tasks $(TASK) --methods dp ccdp --out outputs/quickstart
+	$(PY) -m lerobot_ccdp.pipeline --tasks $(TASK) --methods dp ccdp --out outputs/quickstart/$(TASK)
 
 # The paper's comparison: the five tasks with contact physics on the Franka Panda, DP / DP* / CCDP and the no-repeat
 # oracle; report in outputs/benchmark.

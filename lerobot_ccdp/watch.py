@@ -86,7 +86,7 @@ def write_gif(images: list[Image.Image], path: Path, fps: float) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--eval-root", type=Path, required=True,
-                        help="a task's eval folder holding one folder per method, e.g. outputs/quickstart/door_opening/eval")
+                        help="a task's eval folder holding one folder per method, e.g. outputs/quickstart/DoorOpening-v0/door_opening/eval")
     parser.add_argument("--out", type=Path, required=True, help="GIF to write, e.g. docs/watch_door.gif")
     parser.add_argument("--methods", nargs=2, default=["dp", "ccdp"], metavar=("BASELINE", "RECOVERING"))
     parser.add_argument("--episode", type=int, default=None, help="rendered episode to show (default: picked)")
