@@ -2,8 +2,8 @@
 
 A checkpoint never makes the policy delete or watch a file; every non-finite setting, input, z and batch is refused
 where it enters; a training that cannot work is refused before its first step; a config error is the last line
-of a LeRobot command's output (issue "Nothing a user types destroys data"). The NaN observation and the bad
-row index were refused before; every other test here failed before that issue's change.
+of a LeRobot command's output (issue "Nothing a user types destroys data"). The NaN observation was refused
+before; every other test here failed (or, for the short dataset, hung) before that issue's change.
 """
 
 import json
