@@ -6,8 +6,8 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F  # noqa: N812
 from huggingface_hub import ModelCard
-from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
 from lerobot.configs.policies import PreTrainedConfig
+from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import (
     ACTION,
@@ -109,7 +109,9 @@ class CCDPPolicy(PreTrainedPolicy):
         """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
         metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
         recording dataset without the label column); they are dropped so that loading never reads a dataset. A local
-        folder is checked first (`checkpoint_loading`): a wrong path or a damaged file is named with the fix."""
+        folder is checked first (`checkpoint_loading`): a wrong path or a damaged file is named with the fix; so is a
+        checkpoint of another policy type or action size. A `failure_signal_file` only the checkpoint names is
+        dropped: a checkpoint never chooses a file for the policy to watch."""
         for key in ("dataset_meta", "dataset_stats"):
             kwargs.pop(key, None)
         with checkpoint_loading(pretrained_name_or_path):
