@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export HF_HUB_OFFLINE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: install test test-slow train-local clean quickstart benchmark benchmark-lite benchmark-pixels benchmark-label-free
+.PHONY: install lint test test-slow train-local clean quickstart benchmark benchmark-lite benchmark-pixels benchmark-label-free
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -14,6 +14,9 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 install: $(VENV)/.installed
+
+lint: install
+	$(VENV)/bin/ruff check lerobot_ccdp tests benchmarks lerobot_policy_ccdp.py
 
 test: install
 	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=15
@@ -25,7 +28,7 @@ clean:
 	rm -rf $(VENV) outputs .pytest_cache
 
 train-local: install
-	test -d data/reaching2d || $(PY) -m lerobot_ccdp.reaching2d --root data/reaching2d
+	test -d data/reaching2d || $(PY) -m lerobot_ccdp.benchmark.reaching2d --root data/reaching2d
 	$(VENV)/bin/lerobot-train --policy.type=ccdp --policy.failure_feature=primitive --policy.num_primitives=4 \
 		--dataset.repo_id=local/reaching2d --dataset.root=data/reaching2d \
 		--output_dir=outputs/train/reaching2d-$$(date +%Y%m%d-%H%M%S) --steps=2000 --batch_size=64 \
@@ -35,20 +38,20 @@ train-local: install
 # a folder of its own per task, so that a second task's report does not replace the first's.
 TASK ?= DoorOpening-v0
 quickstart: install
-	$(PY) -m lerobot_ccdp.pipeline --tasks $(TASK) --methods dp ccdp --out outputs/quickstart/$(TASK)
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks $(TASK) --methods dp ccdp --out outputs/quickstart/$(TASK)
 
 # The paper's comparison: the five tasks with contact physics on the Franka Panda, DP / DP* / CCDP and the no-repeat
 # oracle; report in outputs/benchmark.
 benchmark: install
-	$(PY) -m lerobot_ccdp.pipeline --tasks all --out outputs/benchmark --publish docs/benchmark_report.md
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks all --out outputs/benchmark --publish docs/benchmark_report.md
 
 # The same comparison on the geometric versions of the five tasks (`<Task>-lite-v0`, docs/tasks.md).
 benchmark-lite: install
-	$(PY) -m lerobot_ccdp.pipeline --tasks lite --out outputs/benchmark_lite --publish docs/benchmark_lite_report.md
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks lite --out outputs/benchmark_lite --publish docs/benchmark_lite_report.md
 
 # The same comparison on rendered cameras (64x64 front camera + robot state) for the two tasks with pixel configs.
 benchmark-pixels: install
-	$(PY) -m lerobot_ccdp.pipeline --tasks DoorOpening-lite-v0 ButtonSearch-lite-v0 --obs-type pixels_agent_pos \
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks DoorOpening-lite-v0 ButtonSearch-lite-v0 --obs-type pixels_agent_pos \
 		--out outputs/benchmark_pixels --publish docs/benchmark_pixels_report.md
 
 # The same comparison without labels (z = where an option ends, `final_state`): the Panda tasks whose episodes hold
@@ -56,12 +59,12 @@ benchmark-pixels: install
 # where the arm holds still to pour; benchmarks/label_free_inputs.py writes the settings it changes.
 benchmark-label-free: install
 	$(PY) benchmarks/label_free_inputs.py --out outputs/label_free_inputs
-	$(PY) -m lerobot_ccdp.pipeline --tasks DoorOpening-v0 ObjectManipulation-v0 ButtonSearch-v0 \
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks DoorOpening-v0 ObjectManipulation-v0 ButtonSearch-v0 \
 		--configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
 		--out outputs/label_free --publish docs/benchmark_label_free_report.md
-	$(PY) -m lerobot_ccdp.pipeline --tasks ObjectPacking-v0 \
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks ObjectPacking-v0 \
 		--configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
 		--out outputs/label_free_packing --publish docs/benchmark_label_free_packing_report.md
-	$(PY) -m lerobot_ccdp.pipeline --tasks Bartender-v0 \
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks Bartender-v0 \
 		--configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
 		--out outputs/label_free_bartender --publish docs/benchmark_label_free_bartender_report.md

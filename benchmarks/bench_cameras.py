@@ -26,19 +26,13 @@ import sys
 from pathlib import Path
 
 import torch
-from bench_policy import (
-    SHARED,
-    interleaved_medians,
-    lerobot_train_speed,
-    recorded_once,
-    write_results,
-)
+from bench_policy import SHARED, interleaved_medians, lerobot_train_speed, recorded_once, write_results
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
-from lerobot_ccdp.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 STATE, CAMERA, ACTION = "observation.state", "observation.images.front", "action"
 TASK, REPO_ID = "DoorOpening-lite-v0", "local/door_pixels_bench"
@@ -207,8 +201,8 @@ def main(argv: list[str] | None = None) -> dict:
         print("(c) render sizes ...", flush=True)
         results["render_sizes"] = render_sizes(args.sizes, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:
-        from lerobot_ccdp.recipes.recipe_file import RecordRecipe
-        from lerobot_ccdp.recipes.record import record_dataset
+        from lerobot_ccdp.datasets.recipe_file import RecordRecipe
+        from lerobot_ccdp.datasets.record import record_dataset
 
         pixels = {"obs_type": "pixels_agent_pos", "observation_width": args.size, "observation_height": args.size}
         recipe = RecordRecipe(task=TASK, n_episodes=args.cli_episodes, seed=0, env_kwargs=pixels)

@@ -18,10 +18,10 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from lerobot_ccdp.datasets.recipe_file import RecordRecipe
+from lerobot_ccdp.datasets.record import record_dataset
 from lerobot_ccdp.envs import TASKS, gym_id
 from lerobot_ccdp.envs.scripted import Expert, NoRepeatOracle, run_episode
-from lerobot_ccdp.recipes.recipe_file import RecordRecipe
-from lerobot_ccdp.recipes.record import record_dataset
 
 
 def steps_per_second(task: str, n_steps: int) -> float:

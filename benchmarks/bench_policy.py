@@ -46,9 +46,9 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
-from lerobot_ccdp.configuration_ccdp import CLASSIFIER_QUERIES, CCDPConfig
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.ownership import NotOwned, claim_output_folder
+from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
+from lerobot_ccdp.policy.configuration_ccdp import CLASSIFIER_QUERIES, CCDPConfig
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 STATE, ENV, ACTION = "observation.state", "observation.environment_state", "action"
 FAILURE_COUNTS = (0, 1, 2, 4, 8)
@@ -231,7 +231,7 @@ def record_env_dataset(root: Path, n_episodes: int) -> None:
     stock diffusion (which needs an image or an env state) trains on it too."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_ccdp import reaching2d as r2d
+    from lerobot_ccdp.benchmark import reaching2d as r2d
 
     rng = np.random.default_rng(0)
     counts = np.round(r2d.PREFERENCE * n_episodes).astype(int)

@@ -9,7 +9,7 @@ paths; even seeds carry `primitive` labels, odd seeds do not and use `final_stat
 dataset, its base is trained with lerobot-train, and the failure-set classifier (`--policy.recovery_head=classifier`)
 is trained from that base with lerobot-train as a user would, once per --classifier-chunks value (on the
 demonstrated chunks, or on chunks the base samples at their states). Failed share and preference error after one and after
-two failures (`lerobot_ccdp/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
+two failures (`lerobot_ccdp/benchmark/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
 rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z and each way of
 querying the classifier of --classifier-query, with each count of --redraws (sampling settings, set as lerobot-eval's
 --policy.w_z, --policy.classifier_query and --policy.ccdp_redraws would: every combination runs on the same
@@ -33,13 +33,13 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from lerobot_ccdp.comparison import bootstrap_mean
-from lerobot_ccdp.configuration_ccdp import CLASSIFIER_CHUNKS, CLASSIFIER_QUERIES
-from lerobot_ccdp.ownership import NotOwned, claim_output_folder
-from lerobot_ccdp.paired import verdict
-from lerobot_ccdp.reaching2d import ReachingTask
-from lerobot_ccdp.reaching_preferences import Method, measure
-from lerobot_ccdp.stage_stamps import StampBook, stamp
+from lerobot_ccdp.benchmark.comparison import bootstrap_mean
+from lerobot_ccdp.benchmark.paired import verdict
+from lerobot_ccdp.benchmark.reaching2d import ReachingTask
+from lerobot_ccdp.benchmark.reaching_preferences import Method, measure
+from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
+from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
+from lerobot_ccdp.policy.configuration_ccdp import CLASSIFIER_CHUNKS, CLASSIFIER_QUERIES
 
 TARGETS = {"failed_share": 0.03, "preference_error": 0.08}  # issue 17, on the family's mean
 

@@ -25,9 +25,9 @@ from pathlib import Path
 import torch
 import yaml
 
+from lerobot_ccdp.benchmark.pipeline import TASK_GROUPS, task_slug
+from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
 from lerobot_ccdp.envs.tasks import TASKS
-from lerobot_ccdp.ownership import NotOwned, claim_output_folder
-from lerobot_ccdp.pipeline import TASK_GROUPS, task_slug
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -64,7 +64,7 @@ def bench_task(task: str, work: Path, base: Path | None, base_steps: int, recove
     demos, row = work / name / "demos", {"task": task}
     if not demos.exists():
         if task == "reaching2d":
-            row["record_s"] = run("python", "-m", "lerobot_ccdp.reaching2d", f"--root={demos}")
+            row["record_s"] = run("python", "-m", "lerobot_ccdp.benchmark.reaching2d", f"--root={demos}")
         else:
             row["record_s"] = run("lerobot-ccdp-record", f"--config_path={recipe_path}",
                                   f"--dataset.repo_id=local/{name}", f"--dataset.root={demos}")
@@ -95,8 +95,8 @@ def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
     import matplotlib.pyplot as plt
     from lerobot.policies.factory import make_pre_post_processors
 
-    from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-    from lerobot_ccdp.reaching2d import GOALS, chunks_after_failures, shares_per_goal
+    from lerobot_ccdp.benchmark.reaching2d import GOALS, chunks_after_failures, shares_per_goal
+    from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
     policy = CCDPPolicy.from_pretrained(checkpoint).eval()
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
@@ -127,8 +127,8 @@ def sampler_shares(checkpoint: Path) -> dict[str, dict[str, list[float]]]:
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import make_pre_post_processors
 
-    from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-    from lerobot_ccdp.reaching2d import chunks_after_failures, shares_per_goal
+    from lerobot_ccdp.benchmark.reaching2d import chunks_after_failures, shares_per_goal
+    from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
     table = {}
     for scheduler in ("DDIM", "DDPM"):

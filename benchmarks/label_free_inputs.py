@@ -1,7 +1,7 @@
 """The benchmark's settings with label-free z (issue 17: the paper's claim without labels), for the pipeline.
 
     .venv/bin/python benchmarks/label_free_inputs.py [--out outputs/label_free_inputs]
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python -m lerobot_ccdp.pipeline \
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python -m lerobot_ccdp.benchmark.pipeline \
         --tasks DoorOpening-v0 ObjectManipulation-v0 ButtonSearch-v0 \
         --configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
         --out outputs/label_free --publish docs/benchmark_label_free_report.md
@@ -39,8 +39,8 @@ from typing import NamedTuple
 
 import yaml
 
-from lerobot_ccdp.ownership import NotOwned, claim_output_folder
-from lerobot_ccdp.recipes.recipe_file import read_recipe_section
+from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
+from lerobot_ccdp.datasets.recipe_file import read_recipe_section
 
 REPO = Path(__file__).resolve().parents[1]
 NO_LABELS = "no_labels"  # a `primitive_key` naming no dataset column

@@ -6,7 +6,7 @@
         --tasks ButtonSearch-v0 --method ccdp --grid ccdp_redraws=0,3 [--write]
 
 Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy fields
-on each task's recovery checkpoint of a `make benchmark` run (or `python -m lerobot_ccdp.pipeline --train-only`),
+on each task's recovery checkpoint of a `make benchmark` run (or `python -m lerobot_ccdp.benchmark.pipeline --train-only`),
 through lerobot-eval with the task's eval config and the method's other settings from `methods.json`, but on the
 development seeds (`--seed`, default 1000: episode i uses seed + i; the configs' test seeds start at 2000), without
 rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
@@ -38,11 +38,19 @@ from typing import Any
 
 import numpy as np
 
-from lerobot_ccdp.comparison import LOST_HEADER, MethodMetrics
-from lerobot_ccdp.episodes import Episodes, LostEpisodes
-from lerobot_ccdp.paired import paired_difference, repeats_per_opportunity, success_rate
-from lerobot_ccdp.ownership import MARKER, owner
-from lerobot_ccdp.pipeline import BIN, CHECKPOINT, CREATED_BY, METHODS, TASK_GROUPS, TaskFiles, expand_tasks
+from lerobot_ccdp.benchmark.comparison import LOST_HEADER, MethodMetrics
+from lerobot_ccdp.benchmark.episodes import Episodes, LostEpisodes
+from lerobot_ccdp.benchmark.paired import paired_difference, repeats_per_opportunity, success_rate
+from lerobot_ccdp.benchmark.pipeline import (
+    BIN,
+    CHECKPOINT,
+    CREATED_BY,
+    METHODS,
+    TASK_GROUPS,
+    TaskFiles,
+    expand_tasks,
+)
+from lerobot_ccdp.datasets.ownership import MARKER, owner
 
 REPO = Path(__file__).resolve().parents[1]
 Setting = tuple[tuple[str, Any], ...]  # ((field, value), ...) in the grid's order
@@ -167,7 +175,7 @@ def main(argv: list[str] | None = None) -> None:
     if owner(args.out.resolve()) != CREATED_BY:  # its evaluations are written, and replaced, inside --out
         raise SystemExit(f"--out {args.out} is not an output folder of the pipeline (no {MARKER} of it there). Name "
                          "a `make benchmark` folder; one made before ownership markers is marked, with nothing "
-                         "rerun, by `python -m lerobot_ccdp.pipeline --tasks ... --out <it> --train-only --adopt`.")
+                         "rerun, by `python -m lerobot_ccdp.benchmark.pipeline --tasks ... --out <it> --train-only --adopt`.")
     checkpoints = dict(item.split("=", 1) for item in args.checkpoint if "=" in item)
     if len(checkpoints) != len(args.checkpoint) or OWN in checkpoints:
         raise SystemExit(f"--checkpoint takes NAME=PATH with a NAME other than {OWN!r}, got {args.checkpoint}")
@@ -178,7 +186,7 @@ def main(argv: list[str] | None = None) -> None:
     missing = [str(path) for by_name in paths.values() for path in by_name.values() if not path.is_dir()]
     if missing:
         raise SystemExit(f"No recovery checkpoint at {missing}; run `make benchmark` or "
-                         "`python -m lerobot_ccdp.pipeline --train-only` first, and check the --checkpoint paths.")
+                         "`python -m lerobot_ccdp.benchmark.pipeline --train-only` first, and check the --checkpoint paths.")
     for task, f in files.items():
         config = f.eval_config()
         test, n = config["seed"], config["eval"]["n_episodes"]

@@ -36,7 +36,7 @@ def train_args(root: Path, out: Path, steps: int, *extra: str, batch_size: int =
 
 @pytest.fixture(scope="session")
 def reaching_root(tmp_path_factory) -> Path:
-    from lerobot_ccdp.reaching2d import record_reaching_dataset
+    from lerobot_ccdp.benchmark.reaching2d import record_reaching_dataset
 
     root = tmp_path_factory.mktemp("data") / "reaching2d"
     record_reaching_dataset(root, REACHING_REPO_ID, n_episodes=60)

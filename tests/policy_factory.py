@@ -7,10 +7,11 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.datasets.utils import dataset_to_policy_features
 
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.processor_ccdp import make_ccdp_pre_post_processors
+
 from conftest import REACHING_REPO_ID
-from lerobot_ccdp.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.processor_ccdp import make_ccdp_pre_post_processors
 
 
 def make_policy(state_dim: int = 2, action_dim: int = 2, env_dim: int = 0, **overrides) -> CCDPPolicy:

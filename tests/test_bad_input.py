@@ -9,12 +9,13 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
-from policy_factory import make_policy
 
-from lerobot_ccdp.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.recipes.recipe_file import RecordRecipe
-from lerobot_ccdp.recipes.record import record_dataset
+from lerobot_ccdp.datasets.recipe_file import RecordRecipe
+from lerobot_ccdp.datasets.record import record_dataset
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+
+from policy_factory import make_policy
 
 
 @pytest.mark.parametrize(

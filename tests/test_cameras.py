@@ -12,17 +12,18 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetad
 from lerobot.policies.factory import make_pre_post_processors
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
-from conftest import REACHING_REPO_ID
-from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.benchmark.reaching2d import record_reaching_dataset
+from lerobot_ccdp.datasets.camera_windows import CameraWindows, video_backend
+from lerobot_ccdp.datasets.recipe_file import RecordRecipe, RecoveryRecipe
+from lerobot_ccdp.datasets.record import record_dataset
 from lerobot_ccdp.envs import gym_id
 from lerobot_ccdp.envs.scripted import Expert, run_episode
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.processor_ccdp import normalize_batch
-from lerobot_ccdp.recipes.camera_windows import CameraWindows, video_backend
-from lerobot_ccdp.recipes.recipe_file import RecordRecipe, RecoveryRecipe
-from lerobot_ccdp.recipes.record import record_dataset
-from lerobot_ccdp.recipes.synthesize import FAILURE_ACTION, RECIPE_COPY, synthesize_recovery_dataset
-from lerobot_ccdp.reaching2d import record_reaching_dataset
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.processor_ccdp import normalize_batch
+from lerobot_ccdp.recovery.synthesize import FAILURE_ACTION, RECIPE_COPY, synthesize_recovery_dataset
+
+from conftest import REACHING_REPO_ID
 from policy_factory import untrained_checkpoint
 
 REPO_ID, TASK, SIZE = "local/door_pixels", "DoorOpening-lite-v0", 48

@@ -8,9 +8,10 @@ from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.policies.factory import make_policy
 from safetensors.torch import load_file
 
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+
 from conftest import REACHING_REPO_ID
 from policy_factory import untrained_checkpoint
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 
 OUTCOME_TABLE = ("outcomes.chunks", "outcomes.final_states", "outcomes.primitives")
 

@@ -7,18 +7,19 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import run_cli
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from lerobot_ccdp.recipes import record
-from lerobot_ccdp.recipes.configs import (
+from lerobot_ccdp.datasets import record
+from lerobot_ccdp.datasets.configs import (
     CheckpointConfig,
     LocalDatasetConfig,
     RecordConfig,
     SynthesizeConfig,
     parse_cli,
 )
-from lerobot_ccdp.recipes.recipe_file import RecordRecipe, RecoveryRecipe
+from lerobot_ccdp.datasets.recipe_file import RecordRecipe, RecoveryRecipe
+
+from conftest import run_cli
 
 DOOR = Path(__file__).parents[1] / "datasets_recipes" / "door_opening.yaml"
 DEMOS = ["--dataset.repo_id=local/door", "--dataset.root=data/door"]

@@ -3,10 +3,23 @@
 import numpy as np
 import pytest
 
-from lerobot_ccdp.comparison import Episodes, MethodMetrics, bootstrap_mean, lost_table, markdown_table, wilson
-from lerobot_ccdp.episodes import Estimate, LostEpisodes, solved_before_any_failure
-from lerobot_ccdp.paired import cluster_bootstrap, paired_difference, repeats_per_attempt, success_rate, verdict
-from lerobot_ccdp.targets import target_checks
+from lerobot_ccdp.benchmark.comparison import (
+    Episodes,
+    MethodMetrics,
+    bootstrap_mean,
+    lost_table,
+    markdown_table,
+    wilson,
+)
+from lerobot_ccdp.benchmark.episodes import Estimate, LostEpisodes, solved_before_any_failure
+from lerobot_ccdp.benchmark.paired import (
+    cluster_bootstrap,
+    paired_difference,
+    repeats_per_attempt,
+    success_rate,
+    verdict,
+)
+from lerobot_ccdp.benchmark.targets import target_checks
 
 
 def test_wilson_matches_published_values_and_stays_in_unit_interval():

@@ -10,7 +10,7 @@ import math
 import pytest
 import torch
 
-from lerobot_ccdp.composition import CompositionWeights, compose_eps
+from lerobot_ccdp.recovery.composition import CompositionWeights, compose_eps
 
 SIGMA = 1.0  # noise level of the step: high enough that every mode has weight at x (the mixture weights matter)
 SHAPE = (4, 2)  # one action chunk: horizon x action_dim

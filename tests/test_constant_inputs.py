@@ -6,9 +6,9 @@ import logging
 import torch
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 
-from lerobot_ccdp.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.processor_ccdp import make_ccdp_pre_post_processors
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.processor_ccdp import make_ccdp_pre_post_processors
 
 STATS = {
     "observation.state": {"min": [-1.0, -1.0], "max": [1.0, 1.0], "mean": [0.0, 0.0], "std": [0.5, 0.5]},

@@ -7,13 +7,14 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from conftest import REACHING_REPO_ID
 from lerobot.processor import ProcessorStep, ProcessorStepRegistry
-from policy_factory import untrained_checkpoint
 
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
-from lerobot_ccdp.recipes.synthesize import synthesize_recovery_dataset
+from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.recovery.synthesize import synthesize_recovery_dataset
+
+from conftest import REACHING_REPO_ID
+from policy_factory import untrained_checkpoint
 
 SETTINGS = {"failure_feature": "primitive", "num_primitives": 4}
 DAMAGED = "is damaged .*Re-train the checkpoint, or copy or download it again"
@@ -87,7 +88,7 @@ def foreign_registry_name():
     ProcessorStepRegistry.unregister("ccdp_test_foreign_step")
 
 
-@pytest.mark.parametrize("entry", ["os.system", "lerobot_ccdp.checkpoint_files.importlib", "foreign"])
+@pytest.mark.parametrize("entry", ["os.system", "lerobot_ccdp.policy.checkpoint_files.importlib", "foreign"])
 def test_a_processor_step_from_outside_lerobot_and_ccdp_is_refused_before_it_runs(
     checkpoint, reaching_root, tmp_path, foreign_registry_name, entry
 ):

@@ -14,10 +14,12 @@ from pathlib import Path
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from lerobot_ccdp.datasets import record
+from lerobot_ccdp.datasets.ownership import MARKER, identity
+from lerobot_ccdp.recovery import synthesize
+
 from conftest import BIN, REACHING_REPO_ID
 from policy_factory import untrained_checkpoint
-from lerobot_ccdp.recipes import record, synthesize
-from lerobot_ccdp.ownership import MARKER, identity
 
 TASK = "DoorOpening-lite-v0"
 DEMOS_ID = "local/door"

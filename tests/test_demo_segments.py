@@ -6,13 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from policy_factory import make_policy
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.utils import dataset_to_policy_features
 
-from lerobot_ccdp.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.demo_segments import segment_ends, segment_final_states
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.recovery.demo_segments import segment_ends, segment_final_states
+
+from policy_factory import make_policy
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -11,11 +11,12 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.processor import PolicyProcessorPipeline
 from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
 
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.recovery import synthesize
+from lerobot_ccdp.recovery.synthesize import synthesis_device
+
 from conftest import REACHING_REPO_ID
 from policy_factory import untrained_checkpoint
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.recipes import synthesize
-from lerobot_ccdp.recipes.synthesize import synthesis_device
 
 SETTINGS = {"failure_feature": "primitive", "num_primitives": 4}
 SMALL = {"n_states": 8, "chunks_per_state": 4, "batch_states": 8, "pairs_per_failure": 2, "demo_frames": 100,

@@ -7,9 +7,9 @@ sampled chunk's goal from where it ends instead, so a labeller that mislabels ch
 import torch
 from lerobot.policies.factory import make_pre_post_processors
 
-from lerobot_ccdp.dp_star import nearest_failure_distance, reject_repeats
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.reaching2d import chunks_after_failures, shares_per_goal
+from lerobot_ccdp.benchmark.reaching2d import chunks_after_failures, shares_per_goal
+from lerobot_ccdp.policy.dp_star import nearest_failure_distance, reject_repeats
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 ROWS = 48
 

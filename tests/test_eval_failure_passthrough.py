@@ -8,7 +8,7 @@ from lerobot.policies.factory import make_pre_post_processors
 from lerobot.processor import PolicyProcessorPipeline
 from lerobot.scripts import lerobot_eval
 
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 FAIL_AT = (5, 12)
 
@@ -76,7 +76,7 @@ def _dropping(observations):
 def test_the_passthrough_installs_only_where_lerobot_drops_the_key(monkeypatch):
     import lerobot.envs.utils as env_utils
 
-    from lerobot_ccdp import failure_passthrough
+    from lerobot_ccdp.compat import failure_passthrough
 
     monkeypatch.setattr(env_utils, "preprocess_observation", _keeping)
     assert not failure_passthrough.needs_backport()

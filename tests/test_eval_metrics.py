@@ -8,9 +8,9 @@ import numpy as np
 from lerobot.envs.factory import make_env
 from lerobot.scripts import lerobot_eval
 
+from lerobot_ccdp.compat.eval_metrics import EPISODE_INFO_KEYS, EpisodeInfoRecorder, is_ccdp_env
 from lerobot_ccdp.envs import CCDPEnvConfig, gym_id
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
-from lerobot_ccdp.eval_metrics import EPISODE_INFO_KEYS, EpisodeInfoRecorder, is_ccdp_env
 
 TASK = "ButtonSearch-lite-v0"
 

@@ -163,9 +163,9 @@ def _make_policy_and_processors():
     import torch
     from lerobot.configs.types import FeatureType, PolicyFeature
 
-    from lerobot_ccdp.configuration_ccdp import CCDPConfig
-    from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-    from lerobot_ccdp.processor_ccdp import make_ccdp_pre_post_processors
+    from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+    from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+    from lerobot_ccdp.policy.processor_ccdp import make_ccdp_pre_post_processors
 
     torch.manual_seed(123)
     config = CCDPConfig(
@@ -211,7 +211,7 @@ def _reload(repo_id: str, work: Path) -> None:
     from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
     from safetensors.torch import load_file
 
-    from lerobot_ccdp.modeling_ccdp import CCDPPolicy
+    from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
     ref_state = load_file(str(work / "ref_policy.safetensors"))
     ref_config = json.loads((work / "ref" / "config.json").read_text())

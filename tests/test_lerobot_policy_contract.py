@@ -19,14 +19,19 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetad
 from lerobot.datasets.utils import dataset_to_policy_features
 from lerobot.envs.factory import make_env
 from lerobot.envs.utils import preprocess_observation
-from lerobot.policies.factory import get_policy_class, make_policy, make_policy_config, make_pre_post_processors
+from lerobot.policies.factory import (
+    get_policy_class,
+    make_policy,
+    make_policy_config,
+    make_pre_post_processors,
+)
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
+from lerobot_ccdp.datasets.camera_windows import video_backend
+from lerobot_ccdp.datasets.recipe_file import RecordRecipe
+from lerobot_ccdp.datasets.record import record_dataset
 from lerobot_ccdp.envs import CCDPEnvConfig
-from lerobot_ccdp.recipes.camera_windows import video_backend
-from lerobot_ccdp.recipes.recipe_file import RecordRecipe
-from lerobot_ccdp.recipes.record import record_dataset
 
 TASK = "DoorOpening-lite-v0"
 JOINTS = ["shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper"]

@@ -4,7 +4,8 @@ noise the other rows or earlier rollouts consumed, and a row without a failure p
 import pytest
 import torch
 
-from lerobot_ccdp.noise_streams import row_generators
+from lerobot_ccdp.policy.noise_streams import row_generators
+
 from policy_factory import make_policy
 
 ROWS = 3

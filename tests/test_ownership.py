@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_ccdp.ownership import MARKER, NotOwned, claim_output_folder, identity, mark, owner
+from lerobot_ccdp.datasets.ownership import MARKER, NotOwned, claim_output_folder, identity, mark, owner
 
 REPO = Path(__file__).resolve().parents[1]
 

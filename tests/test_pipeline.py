@@ -16,10 +16,8 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import OBS_IMAGES
 from PIL import Image
 
-from lerobot_ccdp.comparison import Episodes
-from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.pipeline import (
+from lerobot_ccdp.benchmark.comparison import Episodes
+from lerobot_ccdp.benchmark.pipeline import (
     CHECKPOINT,
     COMMON_NOISE,
     VIDEO_METHODS,
@@ -29,9 +27,11 @@ from lerobot_ccdp.pipeline import (
     task_slug,
     z_description,
 )
-from lerobot_ccdp.recipes.camera_windows import video_backend
-from lerobot_ccdp.run_lock import exclusive
-from lerobot_ccdp.stage_stamps import stamp
+from lerobot_ccdp.benchmark.run_lock import exclusive
+from lerobot_ccdp.benchmark.stage_stamps import stamp
+from lerobot_ccdp.datasets.camera_windows import video_backend
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "DoorOpening-lite-v0"
@@ -78,7 +78,7 @@ def settings(tmp_path_factory) -> tuple[Path, Path]:
 
 def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str, methods: list[str] = METHODS) -> str:
     result = subprocess.run(
-        [sys.executable, "-m", "lerobot_ccdp.pipeline", "--tasks", TASK, "--methods", *methods, "--out", str(out),
+        [sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--tasks", TASK, "--methods", *methods, "--out", str(out),
          "--configs", str(configs), "--recipes", str(recipes), "--eval-seed", str(EVAL_SEED), *extra],
         capture_output=True, text=True, cwd=REPO)
     if result.returncode != 0:
@@ -121,7 +121,7 @@ def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
         # One-stage task: every attempt after the first follows a failure (the env's count reached eval_info.json).
         assert (episodes.attempts_after_failure == np.maximum(episodes.attempts - 1, 0)).all()
         videos = list((task_out / "eval" / method).rglob("eval_episode_*.mp4"))
-        assert len(videos) == (N_EPISODES if method in VIDEO_METHODS else 0)  # what lerobot_ccdp.watch shows
+        assert len(videos) == (N_EPISODES if method in VIDEO_METHODS else 0)  # what lerobot_ccdp.benchmark.watch shows
     oracle = Episodes.from_infos(json.loads((task_out / "oracle.json").read_text()))
     assert len(oracle) == N_EPISODES and oracle.success.all() and not oracle.repeated_failures.any()
 
@@ -158,7 +158,7 @@ def test_report_table_chart_and_timings(pipeline_run):
 def test_watch_shows_both_methods_on_the_same_rendered_episode(pipeline_run, tmp_path):
     out, _ = pipeline_run
     gif = tmp_path / "watch.gif"
-    subprocess.run([sys.executable, "-m", "lerobot_ccdp.watch", "--eval-root", str(out / SLUG / "eval"),
+    subprocess.run([sys.executable, "-m", "lerobot_ccdp.benchmark.watch", "--eval-root", str(out / SLUG / "eval"),
                     "--episode", "1", "--out", str(gif)], check=True, cwd=REPO)
     with Image.open(gif) as image:
         assert image.n_frames > 5 and image.width > 2 * 160 and image.height > 120  # two 160x120 panels, titled
@@ -263,7 +263,7 @@ def test_a_second_pipeline_on_the_same_folder_is_refused(settings, tmp_path):
 def test_a_killed_pipeline_leaves_no_stage_running_and_a_rerun_resumes(settings, tmp_path):
     configs, recipes = settings
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "lerobot_ccdp.pipeline", "--tasks", TASK, "--methods", "dp", "--out", str(out),
+    command = [sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--tasks", TASK, "--methods", "dp", "--out", str(out),
                "--configs", str(configs), "--recipes", str(recipes), "--no-chart"]
     pipeline = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, text=True)
     for line in pipeline.stdout:  # wait until the base stage's lerobot-train is running

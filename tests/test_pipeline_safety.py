@@ -10,9 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_ccdp import pipeline, run_lock
-from lerobot_ccdp.ownership import MARKER, claim_output_folder, owner
-from lerobot_ccdp.pipeline import (
+from lerobot_ccdp.benchmark import pipeline, run_lock
+from lerobot_ccdp.benchmark.pipeline import (
     CHECKPOINT,
     CREATED_BY,
     PipelineError,
@@ -21,7 +20,8 @@ from lerobot_ccdp.pipeline import (
     main,
     task_slug,
 )
-from lerobot_ccdp.run_lock import PipelineRunning, exclusive
+from lerobot_ccdp.benchmark.run_lock import PipelineRunning, exclusive
+from lerobot_ccdp.datasets.ownership import MARKER, claim_output_folder, owner
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "DoorOpening-lite-v0"

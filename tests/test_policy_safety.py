@@ -24,10 +24,11 @@ from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 from lerobot.policies.factory import make_policy as lerobot_make_policy
 
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+
 from conftest import BIN, REACHING_REPO_ID, train_args
 from policy_factory import make_policy, untrained_checkpoint
-from lerobot_ccdp.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 
 STATE = {"observation.state": torch.zeros(1, 2)}
 
@@ -64,7 +65,7 @@ def test_a_checkpoint_naming_a_signal_file_neither_deletes_nor_watches_it(base_c
     victim = tmp_path / "thesis.tex"
     victim.write_text("years of work")
     crafted = _crafted(base_checkpoint, tmp_path, failure_signal_file=str(victim))
-    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.checkpoint_files"):
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.checkpoint_files"):
         for policy in (CCDPPolicy.from_pretrained(crafted), _load_as_lerobot_does(crafted, reaching_root)):
             assert policy.failure_signal is None and policy.config.failure_signal_file is None
     assert victim.read_text() == "years of work"
@@ -109,7 +110,7 @@ def test_a_signal_file_that_becomes_a_folder_mid_episode_warns_once_and_acts_on(
     policy = make_policy(failure_signal_file=str(signal))
     policy.select_action(STATE)
     signal.mkdir()
-    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.failure_signal"):
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.failure_signal"):
         for _ in range(3):
             assert policy.select_action(STATE).shape == (1, 2)
     assert len([r for r in caplog.records if "cannot be read" in r.getMessage()]) == 1

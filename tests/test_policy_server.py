@@ -22,7 +22,8 @@ from lerobot.transport import services_pb2, services_pb2_grpc
 from lerobot.transport.utils import send_bytes_in_chunks
 from lerobot.utils.constants import OBS_STR
 
-from lerobot_ccdp.policy_server import allow_ccdp, supported_policies
+from lerobot_ccdp.compat.policy_server import allow_ccdp, supported_policies
+
 from policy_factory import untrained_checkpoint
 
 ACTIONS_PER_CHUNK = 5
@@ -45,7 +46,7 @@ def server(tmp_path):
     """The entry point in a subprocess; stopped (by its pid) when the test ends."""
     port = _free_port()
     process = subprocess.Popen(
-        [sys.executable, "-m", "lerobot_ccdp.policy_server", "--host=127.0.0.1", f"--port={port}",
+        [sys.executable, "-m", "lerobot_ccdp.compat.policy_server", "--host=127.0.0.1", f"--port={port}",
          "--inference_latency=0"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
     )
@@ -113,7 +114,7 @@ def test_a_server_without_a_policy_list_is_named_with_the_workaround():
 
 
 def test_missing_grpc_names_the_extra_to_install(monkeypatch):
-    from lerobot_ccdp.policy_server import lerobot_policy_server
+    from lerobot_ccdp.compat.policy_server import lerobot_policy_server
 
     monkeypatch.setitem(sys.modules, "grpc", None)  # as if LeRobot's async extra were not installed
     monkeypatch.delitem(sys.modules, "lerobot.async_inference.policy_server", raising=False)

@@ -12,13 +12,14 @@ are printed (`pytest -s -k preferences`), and docs/benchmarks.md has the family'
 from pathlib import Path
 
 import pytest
-from in_memory_training import train_stage
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from lerobot_ccdp.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.reaching2d import ReachingTask
-from lerobot_ccdp.reaching_preferences import Method, measure
+from lerobot_ccdp.benchmark.reaching2d import ReachingTask
+from lerobot_ccdp.benchmark.reaching_preferences import Method, measure
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+
+from in_memory_training import train_stage
 
 EPISODES = 100
 BASE_STEPS = 300

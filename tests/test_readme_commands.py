@@ -12,11 +12,12 @@ from pathlib import Path
 
 import pytest
 import torch
+
+from lerobot_ccdp.compat.headless import choose_headless_gl
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+
 from conftest import BIN
 from policy_factory import untrained_checkpoint
-
-from lerobot_ccdp.headless import choose_headless_gl
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 
 REPO = Path(__file__).resolve().parent.parent
 README = (REPO / "README.md").read_text()
@@ -155,10 +156,10 @@ def test_every_lerobot_eval_in_the_readme_chooses_its_seeds():
 
 
 def test_pipeline_flags_in_the_readme_are_in_its_help():
-    given = {f for line in _shell_lines() for part in line.split("-m lerobot_ccdp.pipeline")[1:]
+    given = {f for line in _shell_lines() for part in line.split("-m lerobot_ccdp.benchmark.pipeline")[1:]
              for f in re.findall(r"(?<![\w-])(--[a-z][\w-]*)", part)}
     assert given
-    usage = subprocess.run([sys.executable, "-m", "lerobot_ccdp.pipeline", "--help"], capture_output=True,
+    usage = subprocess.run([sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--help"], capture_output=True,
                            text=True, check=True).stdout
     known = set(re.findall(r"--[a-z][\w-]*", usage))
     assert given <= known, f"README gives the pipeline flags its --help lacks: {given - known}"

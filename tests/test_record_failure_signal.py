@@ -12,10 +12,8 @@ import os
 from pathlib import Path
 
 import numpy as np
-import policy_factory
 import pytest
 import torch
-from conftest import REACHING_REPO_ID
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.datasets.utils import hw_to_dataset_features
@@ -23,9 +21,12 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.processor import make_default_processors
 from lerobot.scripts.lerobot_record import record_loop
 from lerobot.utils.constants import ACTION, OBS_STR
-from policy_factory import untrained_checkpoint
 
-from lerobot_ccdp.reaching2d import FPS
+from lerobot_ccdp.benchmark.reaching2d import FPS
+
+import policy_factory
+from conftest import REACHING_REPO_ID
+from policy_factory import untrained_checkpoint
 
 MOTORS = {"x": float, "y": float}
 
@@ -108,7 +109,7 @@ def test_a_failure_signal_file_reaches_ccdp_inside_lerobot_record(checkpoint, tm
 def test_an_episode_without_any_failure_source_is_reported_once(checkpoint, tmp_path, caplog):
     policy, pre, post, dataset = _record_setup(checkpoint, tmp_path)
     events = {"exit_early": False, "rerecord_episode": False, "stop_recording": False}
-    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.modeling_ccdp"):
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.modeling_ccdp"):
         for _ in range(3):  # each record_loop resets the policy: the end of the episode before
             events["exit_early"] = False
             _episode(SimReacher(events, steps=2), events, policy, pre, post, dataset)
@@ -125,7 +126,7 @@ def test_a_signal_file_in_a_missing_folder_is_refused_with_the_fix(checkpoint, t
 def test_with_recovery_off_no_warning(checkpoint, tmp_path, caplog):
     policy, pre, post, dataset = _record_setup(checkpoint, tmp_path, "--recovery_mode=dp")
     events = {"exit_early": False, "rerecord_episode": False, "stop_recording": False}
-    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.modeling_ccdp"):
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.modeling_ccdp"):
         for _ in range(2):
             events["exit_early"] = False
             _episode(SimReacher(events, steps=2), events, policy, pre, post, dataset)
@@ -138,7 +139,7 @@ def test_the_warning_follows_the_mode_the_episode_planned_in(caplog):
     benchmarks do), did not run with recovery on: no warning. One planned in ccdp mode does warn."""
     policy = policy_factory.make_policy()
     obs = {"observation.state": torch.zeros(1, 2)}
-    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.modeling_ccdp"):
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.modeling_ccdp"):
         policy.config.recovery_mode = "dp"
         policy.select_action(obs)
         policy.config.recovery_mode = "ccdp"

@@ -24,9 +24,10 @@ import pytest
 import torch
 from lerobot.policies.factory import make_pre_post_processors
 
+from lerobot_ccdp.benchmark.reaching2d import chunks_after_failures, shares_per_goal
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+
 from conftest import REACHING_REPO_ID, run_cli, train_args
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.reaching2d import chunks_after_failures, shares_per_goal
 
 RECIPE = Path(__file__).parents[1] / "datasets_recipes" / "reaching2d.yaml"
 ROWS = 512

@@ -4,7 +4,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lerobot_ccdp.recovery_pairs import pick_pairs, recovery_pair_mask
+from lerobot_ccdp.recovery.recovery_pairs import pick_pairs, recovery_pair_mask
 
 sizes = st.integers(min_value=1, max_value=9)
 thresholds = st.floats(min_value=0.0, max_value=4.0, allow_nan=False)

@@ -10,15 +10,21 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from safetensors.torch import load_file
 from torch import Tensor
 
+from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
+from lerobot_ccdp.envs import TASKS
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.processor_ccdp import normalize_batch
+from lerobot_ccdp.recovery import synthesize
+from lerobot_ccdp.recovery.synthesize import (
+    FAILURE_ACTION,
+    PAIR_SOURCE,
+    RECIPE_COPY,
+    synthesize_recovery_dataset,
+)
+
 from conftest import REACHING_REPO_ID, run_cli
 from policy_factory import untrained_checkpoint
-from lerobot_ccdp.configuration_ccdp import FAILURE_FEATURE_KEY
-from lerobot_ccdp.envs import TASKS
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.processor_ccdp import normalize_batch
-from lerobot_ccdp.recipes import synthesize
-from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
-from lerobot_ccdp.recipes.synthesize import FAILURE_ACTION, PAIR_SOURCE, RECIPE_COPY, synthesize_recovery_dataset
 
 FEATURE_SETTINGS = {
     "primitive": {"failure_feature": "primitive", "num_primitives": 4},

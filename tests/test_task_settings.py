@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from lerobot_ccdp.configuration_ccdp import FAILURE_STATES_AT, CCDPConfig
+from lerobot_ccdp.benchmark.pipeline import TaskFiles, task_slug
+from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
 from lerobot_ccdp.envs import TASKS
-from lerobot_ccdp.pipeline import TaskFiles, task_slug
-from lerobot_ccdp.recipes.recipe_file import RecoveryRecipe
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_STATES_AT, CCDPConfig
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"

@@ -8,8 +8,9 @@ import torch
 from lerobot.policies.factory import make_pre_post_processors
 from lerobot.processor import PolicyProcessorPipeline
 
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+
 from conftest import REACHING_REPO_ID, run_cli, train_args
-from lerobot_ccdp.modeling_ccdp import CCDPPolicy
 
 
 def test_checkpoint_holds_config_weights_processors_and_outcome_table(checkpoint):
@@ -41,7 +42,7 @@ def test_save_pretrained_and_from_pretrained_round_trip(checkpoint, tmp_path):
 
 def test_trained_policy_reaches_the_demonstrated_goals(checkpoint):
     """Sanity check that 1000 CPU steps learn the task: every sampled chunk heads to one of the four goals."""
-    from lerobot_ccdp.reaching2d import GOALS
+    from lerobot_ccdp.benchmark.reaching2d import GOALS
 
     policy = CCDPPolicy.from_pretrained(checkpoint).eval()
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lerobot_ccdp.episodes import Episodes
+from lerobot_ccdp.benchmark.episodes import Episodes
 
 REPO = Path(__file__).resolve().parents[1]
 spec = importlib.util.spec_from_file_location("tune_methods", REPO / "benchmarks" / "tune_methods.py")

@@ -1,10 +1,10 @@
-"""Which rendered episode `lerobot_ccdp.watch` shows: the baseline repeating a failure, the other recovering."""
+"""Which rendered episode `lerobot_ccdp.benchmark.watch` shows: the baseline repeating a failure, the other recovering."""
 
 import numpy as np
 import pytest
 
-from lerobot_ccdp.episodes import Episodes
-from lerobot_ccdp.watch import pick_episode
+from lerobot_ccdp.benchmark.episodes import Episodes
+from lerobot_ccdp.benchmark.watch import pick_episode
 
 
 def episodes(success, repeats, after_failure) -> Episodes:

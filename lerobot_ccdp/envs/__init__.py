@@ -8,13 +8,7 @@ Importing this package registers both without importing MuJoCo or any task; the 
 from typing import Any
 
 from lerobot_ccdp.envs.configuration_env import CCDPEnvConfig
-from lerobot_ccdp.envs.tasks import (
-    GYM_NAMESPACE,
-    TASKS,
-    gym_id,
-    register_tasks,
-    task_class,
-)
+from lerobot_ccdp.envs.tasks import GYM_NAMESPACE, TASKS, gym_id, register_tasks, task_class
 
 register_tasks()
 

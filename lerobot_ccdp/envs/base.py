@@ -20,8 +20,14 @@ import numpy as np
 from gymnasium import spaces
 
 from lerobot_ccdp.envs.camera import CameraRenderer
-from lerobot_ccdp.envs.interface import ACTION_NAMES, AGENT_POS_NAMES  # noqa: F401  (re-exported for recorders)
-from lerobot_ccdp.envs.interface import AGENT_POS_DIM, CONTROL_FPS, OBS_TYPES, OBSERVATION_SIZE
+from lerobot_ccdp.envs.interface import (  # noqa: F401  (re-exported for recorders)
+    ACTION_NAMES,
+    AGENT_POS_DIM,
+    AGENT_POS_NAMES,
+    CONTROL_FPS,
+    OBS_TYPES,
+    OBSERVATION_SIZE,
+)
 from lerobot_ccdp.envs.scene import CAMERAS, WORKSPACE_HIGH, WORKSPACE_LOW, CartesianGripper
 
 

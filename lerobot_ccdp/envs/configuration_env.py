@@ -8,15 +8,9 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
-from lerobot_ccdp.envs.interface import (
-    ACTION_DIM,
-    AGENT_POS_DIM,
-    CONTROL_FPS,
-    OBS_TYPES,
-    OBSERVATION_SIZE,
-)
+from lerobot_ccdp.compat.eval_metrics import install_episode_metrics
+from lerobot_ccdp.envs.interface import ACTION_DIM, AGENT_POS_DIM, CONTROL_FPS, OBS_TYPES, OBSERVATION_SIZE
 from lerobot_ccdp.envs.tasks import gym_id, task_class
-from lerobot_ccdp.eval_metrics import install_episode_metrics
 
 
 @EnvConfig.register_subclass("ccdp")

@@ -8,10 +8,10 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.envs.factory import make_env
 from lerobot.envs.utils import env_to_policy_features, preprocess_observation
 
+from lerobot_ccdp.datasets.recipe_file import RecordRecipe
+from lerobot_ccdp.datasets.record import record_dataset
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import Expert
-from lerobot_ccdp.recipes.record import record_dataset
-from lerobot_ccdp.recipes.recipe_file import RecordRecipe
 
 from env_helpers import run_cli
 

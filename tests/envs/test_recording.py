@@ -7,9 +7,9 @@ import pytest
 import yaml
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from lerobot_ccdp.datasets import record
+from lerobot_ccdp.datasets.recipe_file import RecordRecipe
 from lerobot_ccdp.envs import TASKS
-from lerobot_ccdp.recipes import record
-from lerobot_ccdp.recipes.recipe_file import RecordRecipe
 
 RECIPES = Path(__file__).parents[2] / "datasets_recipes"
 
@@ -21,7 +21,7 @@ def _write(tmp_path: Path, content: dict) -> Path:
 
 
 def test_every_task_has_a_recipe():
-    # reaching2d.yaml holds only a `recovery:` section: its demos come from `python -m lerobot_ccdp.reaching2d`.
+    # reaching2d.yaml holds only a `recovery:` section: its demos come from `python -m lerobot_ccdp.benchmark.reaching2d`.
     recorded = [p for p in RECIPES.glob("*.yaml") if "record" in yaml.safe_load(p.read_text())]
     assert {RecordRecipe.load(p).task for p in recorded} == set(TASKS)
     assert len(recorded) == len(list(RECIPES.glob("*.yaml"))) - 1

@@ -1,0 +1,527 @@
+"""`python -m lerobot_ccdp.benchmark.pipeline`: the CCDP main job end to end through the real CLIs, and the paper's comparison.
+
+Per task: record demos (lerobot-ccdp-record), train the base stage (lerobot-train), synthesise the recovery
+dataset (lerobot-ccdp-synthesize), train the recovery stage (lerobot-train), evaluate every method on the same
+seeds (lerobot-eval --policy.recovery_mode=...), run the no-repeat oracle on those seeds, and report the metrics
+with 95% intervals (`lerobot_ccdp.benchmark.comparison`) as markdown, JSON and a bar chart.
+
+Settings live in files a user can run by hand: `configs/<task>/{train_base,train_recovery,eval}.json` and
+`datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from `configs/<task>_pixels/`
+and `datasets_recipes/<task>_pixels.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
+checkpoints, eval_info.json, logs). A stage whose output exists is skipped, so an interrupted run resumes;
+`--fresh` starts over. The pipeline writes only into a folder it created or adopted, marked as its own
+(`lerobot_ccdp.datasets.ownership`), and deletes nothing else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import os
+import platform
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import torch
+
+from lerobot_ccdp.benchmark.comparison import (
+    Episodes,
+    MethodMetrics,
+    Results,
+    bar_chart,
+    lost_table,
+    markdown_table,
+)
+from lerobot_ccdp.benchmark.run_lock import PipelineRunning, die_with_parent, exclusive
+from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
+from lerobot_ccdp.benchmark.targets import target_checks
+from lerobot_ccdp.datasets.ownership import MARKER, NotOwned, check_output_folder, claim_output_folder
+from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
+from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
+from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
+from lerobot_ccdp.envs.tasks import is_lite
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.recovery.composition import failure_steps
+
+METHODS = ("dp", "dp_star", "ccdp")
+# lerobot-eval saves videos of its first 10 episodes: kept for DP and CCDP, the pair `lerobot_ccdp.benchmark.watch` shows
+# side by side. DP* runs with `--env.render_mode=null`: on the Panda each frame costs about 40 ms and LeRobot
+# renders 10 envs at every step of the first batch, so its videos alone cost minutes of the benchmark's 2 hours.
+VIDEO_METHODS = ("dp", "ccdp")
+# Every method is evaluated on common random numbers: each episode's plans draw from the same per-row noise streams
+# (`lerobot_ccdp.policy.noise_streams`), so DP, DP* and CCDP act alike until an episode's first failure and the paired
+# differences measure recovery, not the luck of the plans before it.
+COMMON_NOISE = "--policy.row_noise_streams=true"
+# Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric versions.
+TASK_GROUPS = {
+    "all": [t for t in TASKS if not is_lite(t)],
+    "lite": [t for t in TASKS if is_lite(t)],
+}
+# Observation type -> suffix of the settings folder and recipe that hold its configs.
+OBS_VARIANTS = {"state": "", "pixels_agent_pos": "_pixels"}
+BIN = Path(sys.executable).parent
+CHECKPOINT = Path("checkpoints/last/pretrained_model")
+# lerobot-train's periodic log line: seconds per step spent updating and waiting for data.
+STEP_TIMES = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
+# A tqdm bar's state: description, percentage, count and timing, without the bar itself.
+PROGRESS = re.compile(r"([A-Za-z][\w ()=.-]*:\s+\d+%)\|[^|]*\|\s*(\d+/\d+ \[[^\]]*\])")
+# What the pipeline writes in the marker of its output folder (`lerobot_ccdp.datasets.ownership`).
+CREATED_BY = "lerobot_ccdp.benchmark.pipeline"
+
+
+class PipelineError(RuntimeError):
+    """A stage's command failed; the message names the command and ends with its log."""
+
+
+def canonical(path: str | Path) -> Path:
+    """One spelling per folder, for the lock and the stage stamps (which hash command lines): the real path,
+    symlinks and `..` resolved, relative to the working directory when inside it, as `make` spells its
+    folders (so the stamps of outputs made before paths were resolved still match)."""
+    real = Path(path).expanduser().resolve()
+    return real.relative_to(Path.cwd()) if real.is_relative_to(Path.cwd()) else real
+
+
+def task_slug(task: str) -> str:
+    """File name of a task's configs and recipe: DoorOpening-v0 -> door_opening,
+    ObjectManipulation-lite-v0 -> object_manipulation_lite."""
+    name = task.removesuffix("-v0")
+    return re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower().replace("-", "_")
+
+
+def expand_tasks(names: list[str]) -> list[str]:
+    """`--tasks` as given: task ids, or one group name of TASK_GROUPS."""
+    return TASK_GROUPS[names[0]] if len(names) == 1 and names[0] in TASK_GROUPS else names
+
+
+@dataclass(frozen=True)
+class TaskFiles:
+    """A task's settings files and where its outputs go."""
+
+    task: str
+    recipe: Path
+    train_base: Path
+    train_recovery: Path
+    eval: Path
+    out: Path
+
+    @classmethod
+    def locate(cls, task: str, configs: Path, recipes: Path, out: Path, obs_type: str = "state") -> TaskFiles:
+        if task not in TASKS:
+            raise ValueError(f"Unknown task {task!r}; choose among {', '.join(TASKS)}")
+        slug = task_slug(task) + OBS_VARIANTS[obs_type]
+        files = cls(task, recipes / f"{slug}.yaml", configs / slug / "train_base.json",
+                    configs / slug / "train_recovery.json", configs / slug / "eval.json", out / slug)
+        settings = (files.recipe, files.train_base, files.train_recovery, files.eval)
+        missing = [str(p) for p in settings if not p.is_file()]
+        if missing:
+            raise FileNotFoundError(f"{task}: missing settings file(s) {', '.join(missing)}")
+        env = files.eval_config()["env"]
+        if env.get("task") != task:
+            raise ValueError(f"{files.eval} evaluates env.task={env.get('task')!r}, not {task!r}")
+        if env.get("obs_type", "state") != obs_type:
+            raise ValueError(f"{files.eval} evaluates env.obs_type={env.get('obs_type', 'state')!r}, not {obs_type!r}")
+        return files
+
+    def eval_config(self) -> dict[str, Any]:
+        return json.loads(self.eval.read_text())
+
+    def recovery_head(self) -> str:
+        """The recovery head the base config builds (part of the checkpoint's architecture, so chosen there):
+        the classifier head trains on the demonstrations, the others on a synthesised recovery dataset."""
+        return json.loads(self.train_base.read_text()).get("policy", {}).get("recovery_head", "unet")
+
+    def method_settings(self, method: str) -> dict[str, Any]:
+        """Policy fields with which `method` is evaluated, from the optional `methods.json` beside the eval config
+        ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared checkpoint does
+        not hold."""
+        path = self.eval.with_name("methods.json")
+        settings = json.loads(path.read_text()) if path.is_file() else {}
+        unknown = sorted(set(settings) - set(METHODS))
+        if unknown:
+            raise ValueError(f"{path} names unknown method(s) {unknown}; its keys are among {list(METHODS)}")
+        return settings.get(method, {})
+
+    def method_flags(self, method: str, overrides: dict[str, Any] | None = None) -> list[str]:
+        """`method_settings`, with `overrides` on top (a setting being tuned), as lerobot-eval's `--policy.*` flags."""
+        settings = {**self.method_settings(method), **(overrides or {})}
+        return [f"--policy.{key}={value}" for key, value in settings.items()]
+
+    def eval_command(self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str]) -> list[str]:
+        """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`, on common
+        random numbers (`COMMON_NOISE`)."""
+        videos = [] if method in VIDEO_METHODS else ["--env.render_mode=null"]
+        return ["lerobot-eval", f"--config_path={self.eval}", f"--policy.path={checkpoint}",
+                f"--policy.recovery_mode={method}", COMMON_NOISE, *flags, *videos, f"--seed={seed}",
+                f"--output_dir={out}"]
+
+    @property
+    def demos(self) -> Path:
+        return self.out / "demos"
+
+    @property
+    def recovery_data(self) -> Path:
+        return self.out / "recovery_data"
+
+    def eval_dir(self, method: str) -> Path:
+        return self.out / "eval" / method
+
+
+class TaskRun:
+    """Runs one task's stages, skipping those whose output exists, and times each stage."""
+
+    def __init__(self, files: TaskFiles, eval_seed: int | None = None):
+        self.files = files
+        self.eval_seed = files.eval_config().get("seed", 1000) if eval_seed is None else eval_seed
+        self.slug = files.out.name
+        self.logs = files.out / "logs"
+        self.logs.mkdir(parents=True, exist_ok=True)
+        self.stamps = StampBook(files.out / "stamps.json")
+        timings_path = files.out / "timings.json"
+        self.timings: dict[str, float] = json.loads(timings_path.read_text()) if timings_path.exists() else {}
+
+    def run(self, methods: list[str]) -> dict[str, Episodes]:
+        f = self.files
+        demos = self._stage("record", f.demos / "meta" / "info.json", [
+            "lerobot-ccdp-record", f"--config_path={f.recipe}", f"--dataset.repo_id=local/{self.slug}",
+            f"--dataset.root={f.demos}"], upstream=None, clear=f.demos)
+        base, base_stamp = self._train("train_base", f.train_base, f.out / "base", f"local/{self.slug}", f.demos,
+                                       upstream=demos)
+        if f.recovery_head() == "classifier":  # learns from the demonstrations: nothing to synthesise
+            recovery_repo, recovery_root, recovery_upstream = f"local/{self.slug}", f.demos, base_stamp
+        else:
+            recovery_repo, recovery_root = f"local/{self.slug}_recovery", f.recovery_data
+            recovery_upstream = self._stage("synthesize", f.recovery_data / "meta" / "info.json", [
+                "lerobot-ccdp-synthesize", f"--config_path={f.recipe}", f"--dataset.repo_id=local/{self.slug}",
+                f"--dataset.root={f.demos}", f"--policy.path={base}", f"--output.repo_id={recovery_repo}",
+                f"--output.root={f.recovery_data}"],
+                upstream=base_stamp, clear=f.recovery_data)
+        recovery, recovery_stamp = self._train(
+            "train_recovery", f.train_recovery, f.out / "recovery", recovery_repo, recovery_root,
+            f"--policy.path={base}", "--policy.training_stage=recovery", upstream=recovery_upstream)
+        for method in methods:
+            out = f.eval_dir(method)
+            self._stage(f"eval_{method}", out / "eval_info.json",
+                        f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method)),
+                        upstream=recovery_stamp, clear=out)
+        return self.episodes(methods) if methods else {}
+
+    def episodes(self, methods: list[str]) -> dict[str, Episodes]:
+        """Every method's evaluated episodes, and the oracle's on the same seeds (run here if missing)."""
+        missing = [m for m in methods if not (self.files.eval_dir(m) / "eval_info.json").exists()]
+        if missing:
+            raise PipelineError(f"{self.files.task}: no evaluation of {missing} under {self.files.out / 'eval'}; "
+                                "run the pipeline without --report-only first.")
+        episodes = {m: Episodes.from_eval_info(self.files.eval_dir(m) / "eval_info.json") for m in methods}
+        episodes["oracle"] = self._oracle()
+        return episodes
+
+    def _train(self, stage: str, config: Path, out: Path, repo_id: str, root: Path, *extra: str,
+               upstream: str) -> tuple[Path, str]:
+        checkpoint = out / CHECKPOINT
+        stamp_value = self._stage(stage, checkpoint / "model.safetensors", [
+            "lerobot-train", f"--config_path={config}", f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
+            f"--output_dir={out}", *extra], upstream=upstream, clear=out)
+        return checkpoint, stamp_value
+
+    def _stage(self, name: str, output: Path, command: list[str], upstream: str | None, clear: Path) -> str:
+        """Run `command` unless `output` exists and was made from the same inputs; return the stage's stamp.
+
+        `clear` (the stage's own output folder, stale or half-written) is removed before the command runs;
+        it must lie inside the task's folder, which lies in the --out this pipeline owns."""
+        task_out = self.files.out.resolve()
+        if clear.resolve() == task_out or not clear.resolve().is_relative_to(task_out):
+            raise PipelineError(f"{self.files.task} {name}: refusing to clear {clear}, which is not inside "
+                                f"the task's output folder {self.files.out}; a stage clears only its own.")
+        current = stamp(command, upstream)
+        if output.exists() and self.stamps.matches(name, current):
+            print(f"[{self.files.task}] {name}: done already ({output})", flush=True)
+            return current
+        if output.exists():
+            print(f"[{self.files.task}] {name}: its inputs changed since {output} was made; running it again",
+                  flush=True)
+        if clear.exists():
+            shutil.rmtree(clear)
+        log = self.logs / f"{name}.log"
+        print(f"[{self.files.task}] {name}: {shlex.join(command)}", flush=True)
+        start = time.perf_counter()
+        returncode = run_with_progress([str(BIN / command[0]), *command[1:]], log, f"[{self.files.task}] {name}")
+        if returncode != 0 or not output.exists():
+            tail = log.read_text()[-4000:]
+            raise PipelineError(f"{self.files.task} {name} failed (exit {returncode}, expected {output}): "
+                                f"{shlex.join(command)}\n--- end of {log} ---\n{tail}")
+        self.timings[name] = round(time.perf_counter() - start, 1)
+        (self.files.out / "timings.json").write_text(json.dumps(self.timings, indent=2))
+        self.stamps.record(name, current)
+        print(f"[{self.files.task}] {name}: {self.timings[name]:.0f} s", flush=True)
+        return current
+
+    def _oracle(self) -> Episodes:
+        """The no-repeat oracle on lerobot-eval's seeds (episode i gets seed `seed + i`) and env settings.
+
+        It reads the hidden state, never the observation, so cameras are not rendered for it."""
+        path = self.files.out / "oracle.json"
+        current = stamp(["oracle", str(self.files.eval), str(self.eval_seed)], upstream=None)
+        if not (path.exists() and self.stamps.matches("oracle", current)):
+            config = self.files.eval_config()
+            env_settings = {k: v for k, v in config["env"].items() if k != "type"}
+            env_config = CCDPEnvConfig(**{**env_settings, "obs_type": "state"})
+            env = gym.make(env_config.gym_id, **{**env_config.gym_kwargs, "render_mode": None})
+            oracle = NoRepeatOracle(env)
+            infos = [run_episode(env, oracle, seed=self.eval_seed + i).info for i in range(config["eval"]["n_episodes"])]
+            path.write_text(json.dumps([{k: _plain(v) for k, v in i.items()} for i in infos]))
+            self.stamps.record("oracle", current)
+        return Episodes.from_infos(json.loads(path.read_text()))
+
+    def step_times(self) -> dict[str, tuple[float, float]]:
+        """(update s, data s) per step from the last log line of each training stage."""
+        times = {}
+        for stage in ("train_base", "train_recovery"):
+            log = self.logs / f"{stage}.log"
+            found = STEP_TIMES.findall(log.read_text()) if log.exists() else []
+            if found:
+                times[stage] = tuple(float(v) for v in found[-1])
+        return times
+
+
+def run_with_progress(command: list[str], log: Path, label: str, every: float = 15.0) -> int:
+    """Run `command` with its output in `log`, printing its latest progress-bar state every `every` seconds
+    (a training stage is otherwise silent on the console for minutes); return its exit code."""
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    with log.open("w") as handle:
+        process = subprocess.Popen(command, stdout=handle, stderr=subprocess.STDOUT, env=env,
+                                   preexec_fn=functools.partial(die_with_parent, os.getpid()))  # noqa: PLW1509 (no locks)
+        shown = ""
+        while True:
+            try:
+                return process.wait(timeout=every)
+            except subprocess.TimeoutExpired:
+                progress = latest_progress(log)
+                if progress and progress != shown:
+                    print(f"{label}: {progress}", flush=True)
+                    shown = progress
+            except BaseException:
+                process.kill()  # an interrupted pipeline leaves no training running into its folder
+                raise
+
+
+def latest_progress(log: Path) -> str:
+    """The last tqdm state in a log (`Training:  45%|...| 360/800 [02:10<02:39, 2.76step/s]`), compacted."""
+    with log.open("rb") as handle:
+        handle.seek(max(log.stat().st_size - 4096, 0))
+        tail = handle.read().decode(errors="replace")
+    found = PROGRESS.findall(tail)
+    return " ".join(" ".join(found[-1]).split()) if found else ""
+
+
+def _plain(value: Any) -> Any:
+    return value.item() if hasattr(value, "item") else value
+
+
+def time_breakdown(runs: list[TaskRun]) -> str:
+    """Seconds per stage and task, and how much of a training step is data loading."""
+    stages = list(dict.fromkeys(s for r in runs for s in r.timings))
+    if not stages:
+        return "No stage ran in this output folder (every output was given)."
+    lines = ["| task | " + " | ".join(stages) + " | total |", "|---|" + "---|" * (len(stages) + 1)]
+    for r in runs:
+        cells = [f"{r.timings[s]:.0f}" if s in r.timings else "-" for s in stages]
+        lines.append(f"| {r.files.task} | " + " | ".join(cells) + f" | {sum(r.timings.values()):.0f} |")
+    lines.append("")
+    for r in runs:
+        for stage, (update, data) in r.step_times().items():
+            lines.append(f"- {r.files.task} {stage}: {update + data:.3f} s/step, data loading "
+                         f"{100 * data / (update + data):.0f}%")
+    return "\n".join(lines)
+
+
+def method_forms(runs: list[TaskRun]) -> str:
+    """Which form of each method ran: the seeds, and the settings of the evaluated checkpoint, the recipe's
+    synthesis and the methods' flags."""
+    lines = ["| task | seeds | z | eq. (4) weights | sampler | synthesis (eq. 5, 7) | recovery steps | DP* |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in runs:
+        checkpoint = r.files.out / "recovery" / CHECKPOINT / "config.json"
+        if not checkpoint.is_file():
+            continue
+        c = json.loads(checkpoint.read_text())
+        n = r.files.eval_config()["eval"]["n_episodes"]
+        steps = json.loads(r.files.train_recovery.read_text()).get("steps")
+        recipe = RecoveryRecipe.load(r.files.recipe)
+        dp_star = {"dp_star_candidates": c["dp_star_candidates"],
+                   "dp_star_rounds": c.get("dp_star_rounds", CCDPConfig.dp_star_rounds),  # older checkpoints
+                   "delta_z": c["delta_z"], **r.files.method_settings("dp_star")}
+        ccdp = {**c, **r.files.method_settings("ccdp")}  # the checkpoint's settings, as CCDP's flags changed them
+        if ccdp.get("recovery_head") == "classifier":
+            form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance "
+                    f"({ccdp.get('classifier_query', CCDPConfig.classifier_query)} query), w_z {ccdp['w_z']:g}")
+            synthesis = "none (classifier learns from the demos)"
+        else:
+            form = f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}, w_z {ccdp['w_z']:g} against {ccdp['z_reference']}"
+            synthesis = f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}"
+        share = ccdp.get("failure_step_share", CCDPConfig.failure_step_share)
+        if share < 1:
+            steps_with = failure_steps(c["num_inference_steps"], share)
+            form += f"; failures in the first {steps_with} of {c['num_inference_steps']} reverse steps"
+        if ccdp.get("ccdp_redraws", 0):
+            form += f"; a repeat redrawn up to {ccdp['ccdp_redraws']} times"
+        lines.append(
+            f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {z_description(ccdp)} | {form} | "
+            f"{c['noise_scheduler_type']} {c['num_inference_steps']} steps | {synthesis} | {steps} | "
+            f"{dp_star['dp_star_candidates']} candidates, "
+            f"{dp_star['dp_star_rounds']} round(s), delta_z {dp_star['delta_z']:g} |")
+    return "\n".join(lines)
+
+
+def z_description(settings: dict[str, Any]) -> str:
+    """What z was: the feature, for `action` which steps and dims, and for `final_state` which dims and where a
+    failure's z was read."""
+    if settings["failure_feature"] == "action":
+        steps, dims = settings.get("failure_action_steps") or "all", settings.get("failure_action_dims") or "all"
+        return f"action: steps {steps} of the attempt's first chunk, dims {dims}"
+    if settings["failure_feature"] != "final_state":
+        return settings["failure_feature"]
+    dims = settings.get("failure_state_dims") or "all"
+    at = settings.get("failure_state_at", CCDPConfig.failure_state_at)
+    segments = settings.get("failure_segments", CCDPConfig.failure_segments)
+    ends = "" if segments == "labels" else f", demonstrated options end at {segments}"
+    return f"final_state: {settings['failure_state_key']} dims {dims}, a failure's read at {at}{ends}"
+
+
+def machine() -> str:
+    return (f"{platform.machine()}, {os.cpu_count()} CPU cores, torch {torch.__version__} "
+            f"({torch.get_num_threads()} threads), Python {platform.python_version()}")
+
+
+def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], out: Path, command: str,
+                 chart: bool) -> str:
+    results: Results = {task: {m: MethodMetrics.of(e) for m, e in methods.items()} for task, methods in episodes.items()}
+    parts = [
+        "# CCDP vs DP vs DP* (paper Fig. 5)",
+        f"Command: `{command}`  \nMachine: {machine()}",
+        markdown_table(results),
+        "## What ran",
+        "Seeds: episode i of every method and of the oracle uses seed `first + i`, and every method draws episode "
+        "i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). The CCDP row of "
+        "the composition is eq. (4) as `lerobot_ccdp/recovery/composition.py` computes it with the evaluated checkpoint's "
+        "weights (`docs/method.md`).",
+        method_forms(runs),
+        "## Targets",
+        "Judged from paired 95% intervals (same seeds for every method): `docs/evaluation.md`.",
+        target_checks(episodes),
+        "## Lost episodes",
+        "Whether recovery or execution costs success: a lost episode repeated a failed option, or never had an "
+        "attempt fail (the policy did not complete one before the time limit), or failed distinct options only. "
+        "Before an episode's first failure DP, DP* and CCDP sample the same base policy from the same noise, so "
+        "their episodes solved without a failure match up to floating-point differences of batched network calls, "
+        "and recovery shows among the episodes with one.",
+        lost_table(episodes),
+        "## Time per stage (s)",
+        time_breakdown(runs),
+    ]
+    if chart:
+        bar_chart(results, out / "comparison.png")
+        parts.insert(3, "![comparison](comparison.png)")
+    report = "\n\n".join(parts) + "\n"
+    (out / "report.md").write_text(report)
+    summary = {task: {m: metrics.as_dict() for m, metrics in methods.items()} for task, methods in results.items()}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return report
+
+
+def publish_report(report: str, out: Path, target: Path) -> None:
+    """Copy the report (and its chart, renamed after it) to `target`, so the docs show a run's own output."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    chart = out / "comparison.png"
+    if chart.exists():
+        shutil.copyfile(chart, target.with_suffix(".png"))
+        report = report.replace("](comparison.png)", f"]({target.with_suffix('.png').name})")
+    note = f"<!-- Written by the command below ({time.strftime('%Y-%m-%d')}); rerun it rather than editing. -->\n"
+    target.write_text(note + report)
+
+
+def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[TaskRun], dict[str, dict[str, Episodes]]]:
+    """Every task's stages (or, with --report-only, its finished evaluations), in order."""
+    claim_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)
+    runs, episodes = [], {}
+    for f in files:
+        run = TaskRun(f, args.eval_seed)
+        episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
+        runs.append(run)
+        if episodes[f.task]:
+            print(markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}), flush=True)
+    return runs, episodes
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", required=True,
+                        help=f"task ids, `all` (the five tasks: {', '.join(TASK_GROUPS['all'])}) or "
+                             "`lite` (their geometric versions, `<Task>-lite-v0`)")
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
+                        help="recovery modes to evaluate (the no-repeat oracle always runs)")
+    parser.add_argument("--out", type=canonical, default="outputs/pipeline",
+                        help=f"root of every output: a new or empty folder, or one this pipeline made "
+                             f"(it holds {MARKER})")
+    parser.add_argument("--configs", type=canonical, default="configs",
+                        help="folder of <task>/*.json configs")
+    parser.add_argument("--recipes", type=canonical, default="datasets_recipes",
+                        help="folder of <task>.yaml recipes")
+    parser.add_argument("--obs-type", choices=list(OBS_VARIANTS), default="state",
+                        help="policy inputs: state vectors, or rendered cameras plus the robot state")
+    parser.add_argument("--no-chart", action="store_true", help="skip the PNG bar chart (needs matplotlib)")
+    parser.add_argument("--fresh", action="store_true",
+                        help="delete --out first instead of resuming (only a folder this pipeline made)")
+    parser.add_argument("--adopt", action="store_true",
+                        help=f"mark an existing --out as this pipeline's ({MARKER}) and resume it: for an "
+                             "output folder made by a version of this pipeline from before the marker")
+    parser.add_argument("--eval-seed", type=int, default=None,
+                        help="first evaluation seed (episode i gets seed + i); default: the eval config's, the test "
+                             "range. Tune settings on another range, e.g. the development seeds 1000-1099")
+    parser.add_argument("--publish", type=canonical, default=None,
+                        help="also write the report here (its chart beside it), e.g. docs/benchmark_report.md")
+    parser.add_argument("--report-only", action="store_true",
+                        help="write the report from the evaluations already in --out, running no stage")
+    parser.add_argument("--train-only", action="store_true",
+                        help="record, train and synthesise, evaluate nothing and write no report (e.g. to tune a "
+                             "method's settings on the development seeds: benchmarks/tune_methods.py)")
+    args = parser.parse_args(argv)
+    if args.train_only:
+        args.methods = []
+    tasks = expand_tasks(args.tasks)
+    files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type) for t in tasks]
+    if args.fresh and args.report_only:
+        parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")
+    if args.train_only and args.report_only:
+        parser.error("--train-only runs the training stages and --report-only runs none; pass one of them")
+    if args.fresh and args.adopt:
+        parser.error("--adopt keeps the folder's outputs and --fresh deletes them; pass one of them")
+    start = time.perf_counter()
+    try:
+        check_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)  # before the lock file beside it
+        with exclusive(args.out):
+            runs, episodes = run_tasks(files, args)
+    except (PipelineError, PipelineRunning, NotOwned) as error:
+        sys.exit(str(error))
+    if args.train_only:
+        print(f"Trained: {', '.join(str(f.out / 'recovery' / CHECKPOINT) for f in files)}")
+        return
+    command = "python -m lerobot_ccdp.benchmark.pipeline " + shlex.join(argv if argv is not None else sys.argv[1:])
+    report = write_report(runs, episodes, args.out, command, chart=not args.no_chart)
+    print(report)
+    if args.publish:
+        publish_report(report, args.out, args.publish)
+        print(f"Published: {args.publish}")
+    print(f"Report: {args.out / 'report.md'}; total {time.perf_counter() - start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

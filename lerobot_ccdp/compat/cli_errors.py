@@ -1,0 +1,51 @@
+"""A settings error of this package ends the traceback of a LeRobot command, as its last line.
+
+LeRobot's CLIs parse their configs with draccus, which turns the ValueError a config's checks raise into
+"Couldn't instantiate class CCDPConfig using the given arguments" and prints the real message 60 lines higher,
+in the middle of the traceback. The hook below, installed by importing the plugin, prints the traceback as
+before and then repeats that buried error as the last line. It acts only when the uncaught exception was raised
+while handling a ValueError or TypeError from this package's own code, so a LeRobot that stops burying the
+message (the error is then the top exception) leaves the output unchanged.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from types import TracebackType
+
+PACKAGE = Path(__file__).resolve().parents[1]  # lerobot_ccdp, whose code raised the buried error
+
+
+def buried_error(error: BaseException) -> BaseException | None:
+    """The ValueError or TypeError of this package's code that `error` was raised from or while handling, if any."""
+    seen, link = {id(error)}, error.__cause__ or error.__context__
+    while link is not None and id(link) not in seen:
+        if isinstance(link, (ValueError, TypeError)) and _raised_here(link):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return None
+
+
+def _raised_here(error: BaseException) -> bool:
+    tb = error.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb is not None and PACKAGE in Path(tb.tb_frame.f_code.co_filename).resolve().parents
+
+
+def install_error_surfacing() -> None:
+    """Chain a hook after the current sys.excepthook, once."""
+    previous = sys.excepthook
+    if getattr(previous, "_ccdp_surfacing", False):
+        return
+
+    def hook(kind: type[BaseException], error: BaseException, tb: TracebackType | None) -> None:
+        previous(kind, error, tb)
+        buried = buried_error(error)
+        if buried is not None:
+            print(f"{type(buried).__name__}: {buried}", file=sys.stderr)
+
+    hook._ccdp_surfacing = True
+    sys.excepthook = hook

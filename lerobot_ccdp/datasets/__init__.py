@@ -1,0 +1,1 @@
+"""Datasets: demonstration recording, recipe files and their command lines, atomic writing and ownership."""

@@ -1,0 +1,206 @@
+"""Recipe files (`datasets_recipes/<task>.yaml`): one top-level section per job; each job reads only its own.
+
+`record:` holds what `lerobot-ccdp-record` records, `recovery:` how `lerobot-ccdp-synthesize` builds the
+recovery dataset (paper eq. 5-7). The CLIs (`datasets/configs.py`) build these dataclasses from the file's
+section merged with `--record.<field>` / `--recovery.<field>` flags through `from_dict`, so a value is checked
+the same way wherever it comes from.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from lerobot.utils.constants import OBS_STATE
+
+from lerobot_ccdp.envs.interface import CONTROL_FPS
+from lerobot_ccdp.envs.tasks import task_class
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURES
+
+
+def read_recipe_section(path: str | Path, section: str) -> dict[str, Any]:
+    """The mapping under top-level key `section` of the YAML recipe at `path`."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"Recipe file not found: {path}")
+    try:
+        content = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ValueError(f"Recipe {path} is not valid YAML: {error}") from None
+    if not isinstance(content, dict) or section not in content:
+        raise ValueError(f"Recipe {path} has no top-level `{section}:` section")
+    if not isinstance(content[section], dict):
+        raise ValueError(f"Recipe {path}: `{section}:` must be a mapping")
+    return content[section]
+
+
+@dataclass(frozen=True)
+class RecordRecipe:
+    """What `lerobot-ccdp-record` records: `n_episodes` expert successes of `task`, seeds from `seed` on."""
+
+    task: str  # required: a task of docs/tasks.md, e.g. DoorOpening-v0
+    n_episodes: int  # required: successful expert episodes to keep (failed ones are discarded)
+    seed: int  # required: seed of the first episode; each next attempt takes the next seed
+    fps: int = CONTROL_FPS  # the tasks' control rate; no other value is accepted
+    max_episode_steps: int | None = None  # step limit of an episode; null: the task's own
+    task_description: str | None = None  # the dataset's task text; null: the task's own description
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # extra env arguments, e.g. {obs_type: pixels_agent_pos}
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any], source: str | None = None) -> RecordRecipe:
+        """The recipe of a `record:` mapping, checked; errors start with `source` (the file) where given."""
+        at = f"{source}: " if source else ""
+        recipe = _build(cls, values, "record", at)
+        env_class = task_class(recipe.task)  # names the known tasks if this one is not
+        for name in ("n_episodes", "max_episode_steps"):
+            if (value := getattr(recipe, name)) is not None and value < 1:
+                raise ValueError(f"{at}record.{name} must be a positive integer, got {value!r}")
+        accepted = env_arguments(env_class)
+        unknown = sorted(set(recipe.env_kwargs) - set(accepted))
+        if unknown:
+            raise ValueError(f"{at}record.env_kwargs: {recipe.task} takes no argument(s) "
+                             f"{', '.join(unknown)}; it accepts {', '.join(accepted)} (the step limit is "
+                             "record.max_episode_steps)")
+        if recipe.fps != CONTROL_FPS:
+            raise ValueError(f"{at}record.fps must be {CONTROL_FPS} (the tasks' control rate), got {recipe.fps}")
+        return recipe
+
+    @classmethod
+    def load(cls, path: str | Path) -> RecordRecipe:
+        return cls.from_dict(read_recipe_section(path, "record"), source=str(path))
+
+
+@dataclass(frozen=True)
+class RecoveryRecipe:
+    """How `lerobot-ccdp-synthesize` builds a recovery dataset (paper eq. 5-7).
+
+    The failure feature settings must be those the base checkpoint was trained with (they define z); the
+    other fields are the synthesis parameters. Distances are in the policy's normalised space.
+    """
+
+    failure_feature: str  # required: what z is, one of final_state, action, primitive (as --policy.failure_feature)
+    failure_state_key: str = OBS_STATE  # final_state z: the observation that forms z
+    failure_state_dims: list[int] = field(default_factory=list)  # final_state z: which of its dims; []: all
+    failure_action_steps: list[int] = field(default_factory=list)  # action z: which steps of the chunk; []: all
+    failure_action_dims: list[int] = field(default_factory=list)  # action z: which action dims at each step; []: all
+    primitive_key: str = "primitive"  # primitive z: the dataset column of the option label
+    num_primitives: int = 0  # primitive z: the number of options (z is one-hot)
+    n_states: int = 512  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
+    chunks_per_state: int = 16  # chunks sampled around each x_s from eq. (7)
+    sigma: float = 0.02  # std of the state noise xi_x (eq. 6)
+    w_s: float = 0.8  # state weight of eq. (7); <= 1 widens the proposals
+    outcome_radius: float = 0.0  # drop sampled chunks whose RMS gap to every demonstrated chunk exceeds this; 0 keeps all
+    demo_frames: int = 4096  # demonstrated chunks that join the pool; 0 = synthesised chunks only
+    delta_z: float = 0.5  # eq. (5): a recovery's z differs from the failure's by more than this
+    delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
+    pairs_per_failure: int = 2  # recoveries drawn per pool sample taken as a failure
+    batch_states: int = 32  # states sampled per batched denoising call
+    seed: int = 0  # seed of every random draw (states, noise, pairs)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any], source: str | None = None) -> RecoveryRecipe:
+        """The recipe of a `recovery:` mapping, checked; errors start with `source` (the file) where given."""
+        at = f"{source}: " if source else ""
+        recipe = _build(cls, values, "recovery", at)
+        if recipe.failure_feature not in FAILURE_FEATURES:
+            raise ValueError(f"{at}recovery.failure_feature must be one of {list(FAILURE_FEATURES)}, "
+                             f"got {recipe.failure_feature!r}")
+        if not 0.0 < recipe.w_s <= 1.0:
+            raise ValueError(f"{at}recovery.w_s must be in (0, 1] (eq. 7), got {recipe.w_s}")
+        counts = ("chunks_per_state", "pairs_per_failure", "batch_states")
+        bad = [name for name in counts if getattr(recipe, name) < 1] + [
+            name for name in ("n_states", "demo_frames", "sigma", "delta_z", "delta_x", "outcome_radius")
+            if getattr(recipe, name) < 0
+        ]
+        if bad:
+            raise ValueError(f"{at}recovery field(s) {', '.join(bad)} out of range (counts >= 1, the rest >= 0)")
+        if recipe.n_states == 0 and recipe.demo_frames == 0:
+            raise ValueError(f"{at}recovery.n_states and recovery.demo_frames are both 0: the pool is empty")
+        return recipe
+
+    @classmethod
+    def load(cls, path: str | Path) -> RecoveryRecipe:
+        return cls.from_dict(read_recipe_section(path, "recovery"), source=str(path))
+
+    def failure_settings(self) -> dict[str, Any]:
+        """The settings that define z, named as in CCDPConfig (`--policy.<name>`)."""
+        names = ["failure_feature"]
+        names += {
+            "final_state": ["failure_state_key", "failure_state_dims"],
+            "action": ["failure_action_steps", "failure_action_dims"],
+            "primitive": ["primitive_key", "num_primitives"],
+        }[self.failure_feature]
+        return {name: getattr(self, name) for name in names}
+
+
+def env_arguments(env_class: type) -> list[str]:
+    """The keyword arguments an env class's constructor takes, following `**kwargs` up to its base classes."""
+    names: list[str] = []
+    for klass in env_class.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = inspect.signature(klass.__init__).parameters.values()
+        names += [p.name for p in parameters if p.name != "self" and p.name not in names
+                  and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        if not any(p.kind is p.VAR_KEYWORD for p in parameters):
+            break
+    return names
+
+
+def _build(cls: type, values: dict[str, Any], section: str, at: str):
+    """Instantiate a recipe dataclass from its section, naming unknown, missing, mistyped and non-finite fields."""
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise ValueError(f"{at}unknown field(s) in `{section}:`: {', '.join(unknown)}; known: {', '.join(known)}")
+    required = [n for n, f in known.items() if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    missing = [n for n in required if n not in values]
+    if missing:
+        raise ValueError(f"{at}`{section}:` is missing required field(s): {', '.join(missing)}")
+    hints = typing.get_type_hints(cls)
+    for name, value in values.items():
+        if not _has_type(value, hints[name]):
+            raise ValueError(f"{at}{section}.{name} must be {_type_name(hints[name])}, got {value!r} "
+                             f"({type(value).__name__}); write it without quotes or decimals where a number is meant")
+        if (where := _non_finite(value, f"{section}.{name}")) is not None:
+            raise ValueError(f"{at}{where} must be a finite number, not NaN or infinite")
+    return cls(**values)
+
+
+def _has_type(value: Any, hint: Any) -> bool:
+    """Whether a YAML value fits a recipe field's annotation (bools are not numbers, ints are floats)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_has_type(value, arg) for arg in args)
+    if hint is type(None):
+        return value is None
+    if hint is Any:
+        return True
+    if isinstance(value, bool):
+        return hint is bool
+    if hint is float:
+        return isinstance(value, int | float)
+    if origin is list:
+        return isinstance(value, list) and all(_has_type(v, args[0]) for v in value)
+    if origin is dict:
+        return isinstance(value, dict)
+    return isinstance(value, hint)
+
+
+def _non_finite(value: Any, name: str) -> str | None:
+    """The dotted name of the first NaN or infinite float in `value` (YAML's .nan, .inf), or None."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else name
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    return next((where for key, item in items if (where := _non_finite(item, f"{name}.{key}"))), None)
+
+
+def _type_name(hint: Any) -> str:
+    return str(hint).replace("typing.", "") if typing.get_origin(hint) else hint.__name__

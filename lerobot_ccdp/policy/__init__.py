@@ -1,0 +1,1 @@
+"""The `ccdp` policy: its config, the policy and its networks, processors, samplers and checkpoint checks."""

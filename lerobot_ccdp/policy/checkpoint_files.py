@@ -1,0 +1,202 @@
+"""Checks on a local checkpoint folder before LeRobot reads it.
+
+Without them a wrong path surfaces as a Hub repo-id error, a damaged file as a bare JSON or safetensors error
+that names no file, and a processor file naming any class makes LeRobot's processor loader import and run it.
+Here each gives an error naming the path and the fix. A Hub repo id is left to LeRobot's own download.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import json
+import logging
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from huggingface_hub import hf_hub_download
+from huggingface_hub.errors import HFValidationError
+from huggingface_hub.utils import validate_repo_id
+from lerobot.configs.parser import get_cli_overrides
+from lerobot.processor import ProcessorStep, ProcessorStepRegistry
+from lerobot.utils.constants import POLICY_POSTPROCESSOR_DEFAULT_NAME, POLICY_PREPROCESSOR_DEFAULT_NAME
+from safetensors import SafetensorError, safe_open
+
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+
+logger = logging.getLogger(__name__)
+
+CONFIG_FILE = "config.json"
+PROCESSOR_FILES = (f"{POLICY_PREPROCESSOR_DEFAULT_NAME}.json", f"{POLICY_POSTPROCESSOR_DEFAULT_NAME}.json")
+TRUSTED_PACKAGES = ("lerobot", "lerobot_ccdp")
+WHERE = "pass the pretrained_model folder lerobot-train wrote (<output_dir>/checkpoints/last/pretrained_model)"
+
+
+@contextlib.contextmanager
+def checkpoint_loading(path: str | Path) -> Iterator[None]:
+    """Check the checkpoint at `path` (`check_checkpoint`), then run the block that loads it; a name that is no
+    local folder and that the Hub did not resolve either is reported as the missing folder it most likely is."""
+    check_checkpoint(path)
+    try:
+        yield
+    except FileNotFoundError as error:
+        if Path(path).is_dir():
+            raise
+        raise FileNotFoundError(_missing(path, str(error))) from error
+
+
+def check_checkpoint(path: str | Path) -> None:
+    """Refuse a local checkpoint folder that is missing, not a checkpoint, damaged, or that names a processor step
+    from outside LeRobot and this package. A name that is no folder but may be a Hub repo id passes."""
+    folder = Path(path)
+    if not folder.is_dir():
+        _refuse_unless_repo_id(path)
+        return
+    if not (folder / CONFIG_FILE).is_file():
+        raise FileNotFoundError(f"{folder} holds no {CONFIG_FILE}, so it is not a policy checkpoint; {WHERE}.")
+    config = _read_json(folder / CONFIG_FILE)
+    if not isinstance(config, dict) or "type" not in config:
+        raise _damaged(folder / CONFIG_FILE, "it has no policy 'type' entry")
+    for file in sorted(folder.glob("*.safetensors")):
+        _check_safetensors(file)
+    for name in PROCESSOR_FILES:
+        if (folder / name).is_file():
+            check_processor_steps(folder / name)
+
+
+def check_processor_steps(file: Path) -> None:
+    """Refuse a processor file any of whose steps is not a ProcessorStep class of LeRobot or lerobot_ccdp.
+
+    LeRobot's processor loader imports and instantiates whatever class a step names, so a crafted checkpoint could
+    run any code. The names are resolved here without importing anything outside those two packages."""
+    content = _read_json(file)
+    steps = content.get("steps") if isinstance(content, dict) else None
+    if not isinstance(steps, list):
+        raise _damaged(file, "it has no list of 'steps'")
+    for index, entry in enumerate(steps):
+        if not _trusted_step(entry):
+            raise ValueError(
+                f"{file}: step {index} names {_step_name(entry)!r}, which is not a processor step of LeRobot or "
+                "lerobot_ccdp. LeRobot would import and run that class when loading the checkpoint, so it was "
+                "refused and nothing from it ran. Checkpoints are code: load only ones you trust."
+            )
+
+
+def _trusted_step(entry: Any) -> bool:
+    step = _step_class(entry) if isinstance(entry, dict) else None
+    return isinstance(step, type) and issubclass(step, ProcessorStep) and _in_trusted_package(step.__module__)
+
+
+def _step_class(entry: dict) -> object | None:
+    """What the entry's `registry_name` (LeRobot's registry) or `class` (a module path) names, or None. A module
+    path is imported only inside the trusted packages."""
+    if "registry_name" in entry:
+        try:
+            return ProcessorStepRegistry.get(entry["registry_name"])
+        except (KeyError, TypeError):
+            return None
+    module_name, _, name = str(entry.get("class", "")).rpartition(".")
+    if not _in_trusted_package(module_name):
+        return None
+    try:
+        return getattr(importlib.import_module(module_name), name, None)
+    except ImportError:
+        return None
+
+
+def _step_name(entry: Any) -> str:
+    if isinstance(entry, dict):
+        return str(entry.get("registry_name", entry.get("class", entry)))
+    return str(entry)
+
+
+def _in_trusted_package(module: str) -> bool:
+    return any(module == package or module.startswith(f"{package}.") for package in TRUSTED_PACKAGES)
+
+
+def _refuse_unless_repo_id(path: str | Path) -> None:
+    if Path(path).exists():
+        raise NotADirectoryError(f"Checkpoint {path} is a file, not a folder; {WHERE}.")
+    try:
+        validate_repo_id(str(path))
+    except HFValidationError:
+        raise FileNotFoundError(_missing(path, "nor is it a Hub repo id")) from None
+
+
+def _missing(path: str | Path, detail: str) -> str:
+    return f"Checkpoint folder {path} does not exist ({detail}): check the path, or {WHERE}."
+
+
+def _read_json(file: Path) -> Any:
+    try:
+        return json.loads(file.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise _damaged(file, f"not valid JSON: {error}") from None
+
+
+def _check_safetensors(file: Path) -> None:
+    """Opening reads the header and checks the file's length against it, so a truncated file fails here."""
+    try:
+        with safe_open(file, framework="pt"):
+            pass
+    except SafetensorError as error:
+        raise _damaged(file, str(error)) from None
+
+
+def _damaged(file: Path, what: str) -> ValueError:
+    return ValueError(f"Checkpoint file {file} is damaged ({what}). Re-train the checkpoint, or copy or download "
+                      "it again.")
+
+
+HUB_DOWNLOAD_KEYS = ("force_download", "resume_download", "proxies", "token", "cache_dir", "local_files_only",
+                     "revision")
+
+
+def saved_config(path: str | Path, **hub: Any) -> dict:
+    """The checkpoint's config.json as saved, before any command-line override: from the local folder, or the Hub
+    file LeRobot has just downloaded for the same checkpoint (cached)."""
+    folder = Path(path)
+    if folder.is_dir():
+        return _read_json(folder / CONFIG_FILE)
+    return _read_json(Path(hf_hub_download(repo_id=str(path), filename=CONFIG_FILE, **hub)))
+
+
+def refuse_other_checkpoint(config: Any, saved: dict, path: str | Path) -> None:
+    """Refuse a checkpoint of another policy type, or one whose action size differs from the dataset's or env's
+    (LeRobot sets the output features from them), naming both layouts instead of a state-dict size mismatch."""
+    if not isinstance(config, CCDPConfig):
+        raise ValueError(f"{path} is a {saved.get('type')!r} checkpoint, not a ccdp one. Load it with its own policy "
+                         f"class (--policy.type={saved.get('type')}), or pass a checkpoint trained with "
+                         "--policy.type=ccdp.")
+    saved_action = _layout(saved.get("output_features", {})).get("action")
+    given = config.output_features.get("action")
+    if saved_action is None or given is None or saved_action[-1:] == tuple(given.shape)[-1:]:
+        return
+    raise ValueError(
+        f"{path} was trained for another task or robot: it takes inputs {_layout(saved.get('input_features', {}))} "
+        f"and acts with action {saved_action}, but the dataset or env given has action {tuple(given.shape)} (inputs "
+        f"{_layout({k: {'shape': v.shape} for k, v in config.input_features.items()})}). Use a checkpoint trained "
+        "on this task, or the dataset or env it was trained on."
+    )
+
+
+def _layout(features: dict) -> dict[str, tuple]:
+    return {key: tuple(value.get("shape", ())) for key, value in features.items() if isinstance(value, dict)}
+
+
+def ignore_saved_signal_file(config: Any, saved: dict) -> None:
+    """A checkpoint never chooses the file the policy watches for failures (`failure_signal_file`): that comes from
+    the command line (`--policy.failure_signal_file`) or the caller's config. A value that only the checkpoint's
+    config.json holds is dropped, with a warning; checkpoints this package saves hold none."""
+    named = saved.get("failure_signal_file")
+    if named is None or config.failure_signal_file != named or _named_on_command_line(named):
+        return
+    logger.warning("The checkpoint's config names failure_signal_file=%r; a checkpoint cannot choose a file for the "
+                   "policy to watch, so it is ignored. Pass --policy.failure_signal_file to use one.", named)
+    config.failure_signal_file = None
+
+
+def _named_on_command_line(value: str) -> bool:
+    overrides = get_cli_overrides("policy") or []
+    return f"--failure_signal_file={value}" in overrides

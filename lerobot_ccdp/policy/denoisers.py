@@ -1,0 +1,142 @@
+"""The networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z, or a failure-set classifier)."""
+
+import torch
+from lerobot.policies.diffusion.modeling_diffusion import (
+    DiffusionConditionalUnet1d,
+    DiffusionSinusoidalPosEmb,
+)
+from torch import Tensor, nn
+
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.small_batch_convolutions import with_small_batch_convolutions
+
+
+class BaseDenoiser(nn.Module):
+    """LeRobot's diffusion UNet with two droppable conditions, so one network gives eps_a, eps_s and eps_h.
+
+    The global condition is [state * keep_s, keep_s, history * keep_h, keep_h]: a dropped condition is zeroed
+    and its keep flag tells the network it is absent (condition dropout, as in classifier-free guidance).
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        self.state_cond_dim = config.n_obs_steps * config.frame_dim
+        self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
+        self.unet = with_small_batch_convolutions(
+            DiffusionConditionalUnet1d(config, global_cond_dim=self.state_cond_dim + self.history_cond_dim + 2)
+        )
+
+    def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, keep_s: Tensor, history: Tensor, keep_h: Tensor) -> Tensor:
+        """noisy (R, horizon, A); state (R, state_cond_dim); history (R, history_cond_dim); keep_* (R, 1)."""
+        cond = torch.cat([state * keep_s, keep_s, history * keep_h, keep_h], dim=-1)
+        return self.unet(noisy, timestep, global_cond=cond)
+
+
+def make_recovery_denoiser(config: CCDPConfig) -> nn.Module:
+    """The recovery network `config.recovery_head` names: eps_z(a, z, k) per failure, or the failure-set classifier."""
+    heads = {"unet": RecoveryUnet, "mlp": RecoveryMLP, "classifier": FailureSetClassifier}
+    return heads[config.recovery_head](config)
+
+
+class RecoveryUnet(nn.Module):
+    """eps_z(a, z, k): LeRobot's diffusion UNet with z as its global condition (no state, as in eq. 4).
+
+    It learns which modes of the demonstrated chunks are absent given z far better than an MLP over the
+    flattened chunk; all remembered failures of a step are evaluated in one batched call.
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        self.unet = with_small_batch_convolutions(
+            DiffusionConditionalUnet1d(config, global_cond_dim=config.failure_feature_dim + 1)
+        )
+
+    def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor, keep_z: Tensor) -> Tensor:
+        """noisy (R, horizon, A); timestep (R,); z (R, z_dim); keep_z (R, 1) -> predicted noise (R, horizon, A)."""
+        return self.unet(noisy, timestep, global_cond=_z_condition(z, keep_z))
+
+
+class RecoveryMLP(nn.Module):
+    """eps_z(a, z, k): a residual MLP over the flattened chunk, FiLM-conditioned on z and the diffusion step.
+
+    Several times cheaper than the UNet head, for latency-bound robots; it separates the modes of a
+    multimodal chunk distribution less sharply (see the README's recovery-head comparison).
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        width, chunk = config.recovery_hidden_dim, config.horizon * config.action_dim
+        self.step_embedding = _step_embedding(config, width)
+        self.z_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim + 1, width), nn.Mish())
+        self.inp = nn.Linear(chunk, width)
+        self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(config.recovery_num_blocks))
+        self.out = nn.Linear(width, chunk)
+
+    def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor, keep_z: Tensor) -> Tensor:
+        """noisy (R, horizon, A); timestep (R,); z (R, z_dim); keep_z (R, 1) -> predicted noise (R, horizon, A)."""
+        cond = self.step_embedding(timestep) + self.z_embedding(_z_condition(z, keep_z))
+        h = self.inp(noisy.flatten(start_dim=1))
+        for block in self.blocks:
+            h = block(h, cond)
+        return self.out(h).view_as(noisy)
+
+
+class FailureSetClassifier(nn.Module):
+    """logit of P(a_0 repeats a failure in F | a_t, s, k): a noisy-chunk classifier for the whole failure set F.
+
+    Trained on the demonstrations with F drawn independently of each row (the label says whether the row's own z
+    lies within delta_z of a failure in F; `CCDPPolicy._failure_set_loss`), its gradient turns eps_s into the noise
+    estimate of p_s restricted to the chunks outside F (`composition.guide_away_from_failures`). A residual MLP over
+    the flattened chunk, FiLM-conditioned on the diffusion step, the state (droppable) and the set's embedding (a
+    max over an MLP of each z_i, so neither F's order nor a repeated failure changes it).
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        width, chunk = config.recovery_hidden_dim, config.horizon * config.action_dim
+        self.step_embedding = _step_embedding(config, width)
+        self.state_embedding = nn.Linear(config.n_obs_steps * config.frame_dim + 1, width)
+        self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
+        self.inp = nn.Linear(chunk, width)
+        self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(config.recovery_num_blocks))
+        self.logit = nn.Linear(width, 1)
+
+    def forward(
+        self, noisy: Tensor, timestep: Tensor, state: Tensor, z: Tensor, z_mask: Tensor, keep_s: Tensor | None = None
+    ) -> Tensor:
+        """noisy (R, horizon, A); state (R, state_cond_dim); z (R, N, z_dim) with z_mask (R, N), at least one failure
+        per row; keep_s (R, 1) drops the state of some rows while training (default: kept) -> logits (R,)."""
+        keep_s = state.new_ones(state.shape[0], 1) if keep_s is None else keep_s
+        per_failure = self.set_embedding(z).masked_fill(~z_mask[..., None], float("-inf"))
+        cond = (self.step_embedding(timestep) + self.state_embedding(torch.cat([state * keep_s, keep_s], dim=-1))
+                + per_failure.amax(dim=1))
+        h = self.inp(noisy.flatten(start_dim=1))
+        for block in self.blocks:
+            h = block(h, cond)
+        return self.logit(h).squeeze(-1)
+
+
+def _step_embedding(config: CCDPConfig, width: int) -> nn.Module:
+    """The diffusion step as a `width` vector, for the FiLM conditions of the MLP heads."""
+    return nn.Sequential(
+        DiffusionSinusoidalPosEmb(config.diffusion_step_embed_dim),
+        nn.Linear(config.diffusion_step_embed_dim, width),
+        nn.Mish(),
+    )
+
+
+def _z_condition(z: Tensor, keep_z: Tensor) -> Tensor:
+    """z with its keep flag: a dropped z (keep 0) is zeroed, so the head learns eps_z_null on the same data."""
+    return torch.cat([z * keep_z, keep_z], dim=-1)
+
+
+class _FiLMBlock(nn.Module):
+    def __init__(self, width: int):
+        super().__init__()
+        self.norm = nn.LayerNorm(width)
+        self.film = nn.Linear(width, 2 * width)
+        self.mlp = nn.Sequential(nn.Linear(width, width), nn.Mish(), nn.Linear(width, width))
+
+    def forward(self, h: Tensor, cond: Tensor) -> Tensor:
+        scale, shift = self.film(cond).chunk(2, dim=-1)
+        return h + self.mlp(self.norm(h) * (1 + scale) + shift)

@@ -1,0 +1,564 @@
+"""CCDPPolicy: LeRobot's diffusion policy composed at every denoising step with failure-recovery heads."""
+
+import logging
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+from huggingface_hub import ModelCard
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import ACTION
+from torch import Tensor
+
+from lerobot_ccdp.policy.base_sample_pool import POOL_BATCHES, BaseSamplePool
+from lerobot_ccdp.policy.checkpoint_files import (
+    HUB_DOWNLOAD_KEYS,
+    checkpoint_loading,
+    ignore_saved_signal_file,
+    refuse_other_checkpoint,
+    saved_config,
+)
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
+from lerobot_ccdp.policy.denoisers import BaseDenoiser, make_recovery_denoiser
+from lerobot_ccdp.policy.dp_star import nearest_failure_distance, reject_repeats
+from lerobot_ccdp.policy.failure_signal import FailureSignalFile
+from lerobot_ccdp.policy.image_encoder import ImageEncoder
+from lerobot_ccdp.policy.model_card import make_model_card
+from lerobot_ccdp.policy.noise_streams import draw_noise, first_candidates, row_generators
+from lerobot_ccdp.policy.observations import (
+    ConstantInputs,
+    observation_frames,
+    refuse_non_finite_batch,
+    refuse_non_finite_stats,
+    refuse_unknown_cameras,
+)
+from lerobot_ccdp.policy.rollout_memory import RolloutMemory
+from lerobot_ccdp.policy.training_checks import refuse_fresh_training
+from lerobot_ccdp.recovery.composition import (
+    CompositionWeights,
+    compose_eps,
+    failure_steps,
+    guide_away_from_failures,
+    log_no_repeat,
+)
+from lerobot_ccdp.recovery.failure_buffer import FailureBuffer, distinct_failures
+from lerobot_ccdp.recovery.failure_features import FailureFeature
+from lerobot_ccdp.recovery.outcome_index import OutcomeIndex
+from lerobot_ccdp.recovery.outcome_table import build_outcome_table
+
+logger = logging.getLogger(__name__)
+
+
+class CCDPPolicy(PreTrainedPolicy):
+    """Composition of Conditional Diffusion Policies (Razmjoo et al., IROS 2025).
+
+    After a failed attempt (flagged by the env as `observation.failure`, or reported with
+    `report_failure`), the row's failure feature z joins its failure buffer and every later sample of that
+    row is drawn from eq. (4), which pushes samples away from what already failed. `recovery_mode` picks
+    CCDP, plain DP (ignore failures) or DP* (reject candidates near a failure), all on the same weights.
+    """
+
+    config_class = CCDPConfig
+    name = "ccdp"
+
+    def __init__(self, config: CCDPConfig, dataset_meta=None, dataset_stats=None, **kwargs):
+        super().__init__(config)
+        config.validate_features()
+        if dataset_meta is not None:  # a fresh policy for a dataset: lerobot-train without --policy.path
+            refuse_fresh_training(config, dataset_meta)
+        self.config = config
+        self.base = BaseDenoiser(config)
+        self.images = ImageEncoder(config) if config.image_features else None
+        self.recovery = make_recovery_denoiser(config)
+        self.outcomes = OutcomeIndex()
+        self.constant_inputs = ConstantInputs(config)
+        # Whether eps_z has been trained; a base-only checkpoint composes nothing for failures.
+        self.register_buffer("recovery_trained", torch.zeros((), dtype=torch.bool))
+        self.noise_scheduler = _make_noise_scheduler(
+            config.noise_scheduler_type,
+            num_train_timesteps=config.num_train_timesteps,
+            beta_start=config.beta_start,
+            beta_end=config.beta_end,
+            beta_schedule=config.beta_schedule,
+            clip_sample=config.clip_sample,
+            clip_sample_range=config.clip_sample_range,
+            prediction_type=config.prediction_type,
+        )
+        self.feature = FailureFeature(config)
+        self.weights = CompositionWeights(config.w_s, config.w_h, config.w_z, config.z_reference)
+        if dataset_stats is not None and config.training_stage == "base":
+            refuse_non_finite_stats(config, dataset_stats)
+            self.constant_inputs.fill(config, dataset_stats)
+        if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
+            self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
+        self.failure_signal = FailureSignalFile(config.failure_signal_file) if config.failure_signal_file else None
+        # Whether anything could tell this policy about a failure (warned about once otherwise).
+        self._heard_failure_source = self.failure_signal is not None
+        self._warned_deaf = False
+        self._sample_pool: BaseSamplePool | None = None  # classifier_chunks=base_samples, while training
+        self._rollouts = 0  # rollouts begun since the policy was made: with row_noise_streams, part of each row's seed
+        self._streams: list[torch.Generator] | None = None
+        self._set_trainable()
+        self.reset()
+
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "CCDPPolicy":
+        """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
+        metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
+        recording dataset without the label column); they are dropped so that loading never reads a dataset. A local
+        folder is checked first (`checkpoint_loading`): a wrong path or a damaged file is named with the fix; so is a
+        checkpoint of another policy type or action size. A `failure_signal_file` only the checkpoint names is
+        dropped: a checkpoint never chooses a file for the policy to watch."""
+        for key in ("dataset_meta", "dataset_stats"):
+            kwargs.pop(key, None)
+        with checkpoint_loading(pretrained_name_or_path):
+            hub = {key: kwargs[key] for key in HUB_DOWNLOAD_KEYS if key in kwargs}
+            config = kwargs.pop("config", None) or PreTrainedConfig.from_pretrained(pretrained_name_or_path, **hub)
+            saved = saved_config(pretrained_name_or_path, **hub)
+            refuse_other_checkpoint(config, saved, pretrained_name_or_path)
+            ignore_saved_signal_file(config, saved)
+            return super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
+
+    def generate_model_card(
+        self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
+    ) -> ModelCard:
+        """Called by push_model_to_hub (lerobot-train --policy.push_to_hub): LeRobot's template has no ccdp text."""
+        return make_model_card(self.config, dataset_repo_id, license, tags, bool(self.recovery_trained))
+
+    # ----- training -------------------------------------------------------------------------------------
+
+    def _set_trainable(self) -> None:
+        """The recovery stage trains eps_z only: the base network and the camera encoder are frozen."""
+        base_stage = self.config.training_stage == "base"
+        self.base.requires_grad_(base_stage)
+        if self.images is not None:
+            self.images.requires_grad_(base_stage)
+        self.recovery.requires_grad_(not base_stage)
+
+    def get_optim_params(self) -> list:
+        return [p for p in self.parameters() if p.requires_grad]
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """Loss of the stage the config names: the base denoiser on demos, or eps_z on a recovery dataset.
+        A non-finite loss stops training (LeRobot would train on to a NaN checkpoint and exit 0)."""
+        if self.config.training_stage == "base":
+            loss, info = self._base_loss(batch)
+        elif self.config.recovery_head == "classifier":
+            loss, info = self._failure_set_loss(batch)
+        else:
+            loss, info = self._recovery_loss(batch)
+        if not bool(torch.isfinite(loss)):
+            refuse_non_finite_batch(batch, f"The {self.config.training_stage} loss is {loss.item()} although the "
+                                    "batch is finite: lower --policy.optimizer_lr, or resume from an earlier checkpoint.")
+        return loss, info
+
+    def _base_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        cfg = self.config
+        state, history, chunk, pad = self._windows(batch)
+        b = chunk.shape[0]
+        keep_s = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_state).float()
+        keep_h = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_history).float() * float(cfg.history_length > 0)
+        noise, timesteps, noisy = self._noised(chunk)
+        loss = F.mse_loss(self.base(noisy, timesteps, state, keep_s, history, keep_h), noise, reduction="none")
+        if cfg.do_mask_loss_for_padding and pad is not None:
+            loss = loss * ~pad[:, cfg.history_length:, None]
+        return loss.mean(), {}
+
+    def _windows(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
+        """A demonstration batch as the base sees it: state condition, history condition, the chunk to denoise and
+        the chunk's padding flags (or None)."""
+        cfg = self.config
+        refuse_unknown_cameras(self.config, batch)
+        frames = self.frames(batch)
+        if frames.ndim != 3 or batch[ACTION].ndim != 3:
+            raise ValueError(
+                f"This stage expects observation windows (B, {cfg.history_length + cfg.n_obs_steps}, D) and "
+                f"action chunks (B, {cfg.history_length + cfg.horizon}, A); got {tuple(frames.shape)} and "
+                f"{tuple(batch[ACTION].shape)}. Load the dataset with the policy's delta timestamps (lerobot-train does)."
+            )
+        h = cfg.history_length
+        actions, pad = batch[ACTION], batch.get("action_is_pad")
+        past_actions = actions[:, :h]
+        if pad is not None:
+            past_actions = past_actions * ~pad[:, :h, None]  # no action was taken before the episode began
+        history = torch.cat([frames[:, :h].flatten(start_dim=1), past_actions.flatten(start_dim=1)], dim=-1)
+        return frames[:, h:].flatten(start_dim=1), history, actions[:, h:], pad
+
+    def _failure_set_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """The failure-set classifier on the demonstrated chunks (or, with `classifier_chunks=base_samples`, on chunks
+        the base samples at the same states). Each row gets a failure set F of 1..failure_set_train_size z drawn from
+        other rows (so F is independent of the row's own chunk) and is a repeat when its own z lies
+        within delta_z of a failure in F; the classifier learns P(repeat | a_t, s) with the base's noise schedule.
+        The state is dropped as in the base: where it already names the option, a state-conditioned row says little
+        about F, while state-free rows tie F to the chunks it excludes, in the same network."""
+        cfg = self.config
+        state, history, chunk, _ = self._windows(batch)
+        if cfg.classifier_chunks == "base_samples":
+            state, chunk = self._base_samples(state, history)
+        b, n = chunk.shape[0], cfg.failure_set_train_size
+        if b < 2:
+            raise ValueError("The classifier draws each row's failures from the other rows: use --batch_size >= 2.")
+        self.recovery_trained.fill_(True)
+        z = self.feature.from_chunk(chunk, self.outcomes)
+        others = (torch.arange(b, device=z.device)[:, None] + torch.randint(1, b, (b, n), device=z.device)) % b
+        z_set = z[others]  # (B, N, z_dim)
+        z_mask = torch.arange(n, device=z.device)[None] < torch.randint(1, n + 1, (b, 1), device=z.device)
+        repeats = ((((z_set - z[:, None]) ** 2).sum(dim=-1) <= cfg.delta_z) & z_mask).any(dim=1).to(chunk.dtype)
+        keep_s = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_state).to(chunk.dtype)
+        _, timesteps, noisy = self._noised(chunk)
+        logits = self.recovery(noisy, timesteps, state, z_set, z_mask, keep_s)
+        return F.binary_cross_entropy_with_logits(logits, repeats), {}
+
+    @torch.no_grad()
+    def _base_samples(self, state: Tensor, history: Tensor) -> tuple[Tensor, Tensor]:
+        """(states, chunks) for `classifier_chunks=base_samples`: chunks the frozen base draws as DP plans (no
+        failures) at demonstrated states, from a pool refreshed with this batch's states every
+        `classifier_resample_every` steps (`base_sample_pool.py`). The classifier then learns P(repeat | a_t, s) under
+        the base's own chunk distribution, so its guidance keeps the base's proportions among the options left."""
+        cfg, rows = self.config, state.shape[0]
+        if self._sample_pool is None:
+            self._sample_pool, self._pool_step = BaseSamplePool(POOL_BATCHES * rows), 0
+        if self._pool_step % cfg.classifier_resample_every == 0:
+            noise = torch.randn(rows, cfg.horizon, cfg.action_dim, device=state.device)
+            no_failures = torch.zeros(rows, 0, cfg.failure_feature_dim, device=state.device)
+            self._sample_pool.add(state, self._denoise(noise, state, history, no_failures, no_failures[..., 0].bool()))
+        self._pool_step += 1
+        return self._sample_pool.draw(rows)
+
+    def _recovery_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        cfg = self.config
+        z = batch.get(FAILURE_FEATURE_KEY)
+        if z is not None and z.ndim == 1 and cfg.failure_feature_dim == 1:
+            z = z[:, None]  # LeRobotDataset stores a feature of shape (1,) as a scalar column: a batch is (B,)
+        if z is None or z.shape[-1] != cfg.failure_feature_dim:
+            got = "no such column" if z is None else f"shape {tuple(z.shape)}"
+            raise ValueError(
+                f"The recovery stage trains on a recovery dataset with {FAILURE_FEATURE_KEY!r} of size "
+                f"{cfg.failure_feature_dim} ({cfg.failure_feature} feature); got {got}. Make one with "
+                "lerobot-ccdp-synthesize using the same failure feature."
+            )
+        chunk = batch[ACTION]
+        if chunk.ndim != 3 or chunk.shape[1] != cfg.horizon:
+            raise ValueError(
+                f"Recovery rows hold whole chunks (B, {cfg.horizon}, A) under {ACTION!r}; got {tuple(chunk.shape)}."
+            )
+        self.recovery_trained.fill_(True)
+        noise, timesteps, noisy = self._noised(chunk)
+        keep_z = (torch.rand(chunk.shape[0], 1, device=chunk.device) >= cfg.p_drop_failure).to(z.dtype)
+        return F.mse_loss(self.recovery(noisy, timesteps, z, keep_z), noise), {}
+
+    def _noised(self, chunk: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        noise = torch.randn_like(chunk)
+        timesteps = torch.randint(
+            0, self.noise_scheduler.config.num_train_timesteps, (chunk.shape[0],), device=chunk.device
+        )
+        return noise, timesteps, self.noise_scheduler.add_noise(chunk, noise, timesteps)
+
+    # ----- acting ---------------------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget everything about the rollout: windows, plans and every row's failures."""
+        if getattr(self, "_memory", None) is not None:
+            self._warn_if_deaf()
+        self._memory: RolloutMemory | None = None
+        self._failures: FailureBuffer | None = None
+        self._warned_untrained = False
+        self._planned_with_recovery = False  # whether this episode planned in a mode that uses failures
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """One action per row. Rows whose env flags `observation.failure` remember the failure and re-plan;
+        the other rows keep executing their current chunk."""
+        rows = self._observe(batch).needs_plan()
+        if rows.any():
+            self._memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
+        return self._memory.pop_action()
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures; it becomes
+        the rows' plan, as the chunk a client executes next."""
+        memory = self._observe(batch)
+        rows = torch.ones(memory.batch_size, dtype=torch.bool, device=memory.frames.device)
+        memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
+        return memory.plan.clone()
+
+    def report_failure(self, rows: int | list[int] | Tensor | None = None, z: Tensor | None = None) -> None:
+        """Record a failed attempt from a custom control loop (e.g. a real robot's failure detector).
+
+        `rows` are the batch rows that failed (all rows if None). z defaults to the failure feature of the
+        latest observation and the attempt's chunks; pass `z` (len(rows), z_dim), normalised, to override it.
+        Those rows re-plan from their next observation, which should be the attempt's restored start pose.
+        """
+        self._heard_failure_source = True
+        if self._memory is None:
+            raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
+        mask = self._failed_rows(rows)
+        if not mask.any():
+            return  # an empty list of rows: nothing failed
+        dim = self.config.failure_feature_dim
+        z = None if z is None else torch.as_tensor(z, dtype=torch.float32, device=mask.device)
+        if z is not None and (z.shape[-1:] != (dim,) or z.numel() != int(mask.sum()) * dim):
+            raise ValueError(
+                f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed row, "
+                f"({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out to use the "
+                "attempt's own failure feature."
+            )
+        if z is not None and not bool(torch.isfinite(z).all()):
+            raise ValueError(f"report_failure(z=...) holds NaN or inf ({z.tolist()}): a failure feature must be finite. "
+                             "Check the detector that computed it, or leave z out to use the attempt's own.")
+        self._record_failures(mask, z)
+
+    def _warn_if_deaf(self) -> None:
+        """An episode ended with recovery on and nothing that could report a failure: say so, once."""
+        if self._heard_failure_source or self._warned_deaf or not self._planned_with_recovery:
+            return
+        self._warned_deaf = True
+        logger.warning(
+            "ccdp ran an episode with recovery_mode=%s but nothing could tell it about a failure: no %s in its "
+            "inputs, no report_failure() call, no failure_signal_file. It acted as plain diffusion policy. In "
+            "lerobot-record, pass --policy.failure_signal_file=/tmp/ccdp_failed and create that file when an "
+            "attempt fails (docs/robot.md).", self.config.recovery_mode, FAILURE_FLAG_KEY,
+        )
+
+    def _failed_rows(self, rows: int | list[int] | Tensor | None) -> Tensor:
+        """Bool mask (B,) of the failed rows, refusing rows outside the batch the policy is acting on."""
+        b = self._memory.batch_size
+        mask = torch.zeros(b, dtype=torch.bool, device=self._memory.frames.device)
+        index = None if rows is None else torch.as_tensor(rows, device=mask.device)
+        if index is not None and index.numel() == 0:
+            return mask
+        try:
+            if index is not None and index.dtype != torch.bool and bool((index < 0).any()):
+                raise IndexError("negative row")  # -1 would name the last row: almost surely a bug in the loop
+            mask[slice(None) if index is None else index] = True
+        except (IndexError, RuntimeError) as error:
+            raise ValueError(
+                f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a bool mask of "
+                "that length). Pass the failed rows' indices, or None for every row."
+            ) from error
+        return mask
+
+    def failure_count(self) -> Tensor:
+        """How many failures each row currently remembers."""
+        return torch.zeros(0, dtype=torch.long) if self._failures is None else self._failures.count.clone()
+
+    def _observe(self, batch: dict[str, Tensor]) -> RolloutMemory:
+        """Take in one observation per row: remember flagged failures, then push the frame."""
+        frame = self.frames(batch)
+        if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
+            frame = frame[:, -1]
+        fresh = self._memory is None or self._memory.batch_size != frame.shape[0]
+        if fresh:
+            if self._failures is not None and bool((self._failures.count > 0).any()):
+                logger.warning("The batch went from %d to %d rows without reset(): the %d remembered failure(s) "
+                               "are dropped, as rows cannot be matched. Call policy.reset() between rollouts.",
+                               self._memory.batch_size, frame.shape[0], int(self._failures.count.sum()))
+            cfg = self.config
+            self._memory = RolloutMemory(cfg, frame.shape[0], frame.device)
+            self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, cfg.max_failures, frame.device)
+            self._streams = row_generators(self._rollouts, frame.shape[0]) if cfg.row_noise_streams else None
+            self._rollouts += 1
+        flag = batch.get(FAILURE_FLAG_KEY)
+        if flag is not None:
+            self._heard_failure_source = True
+            failed = flag.reshape(frame.shape[0], -1)[:, 0] > 0.5
+            if failed.any():
+                self._record_failures(failed)
+        if self.failure_signal is not None and self.failure_signal.poll():
+            if fresh:
+                logger.warning("%s appeared before any action since reset(): no attempt to remember, ignored.",
+                               self.failure_signal.path)
+            else:
+                self._record_failures(torch.ones(frame.shape[0], dtype=torch.bool, device=frame.device))
+        self._memory.push_frame(frame)
+        return self._memory
+
+    def _record_failures(self, failed: Tensor, z: Tensor | None = None) -> None:
+        """Remember z_f for the failed rows and restart them at their next observation."""
+        memory, rows = self._memory, failed
+        if z is None:
+            unplanned = failed & ~memory.attempt_planned
+            if not self.feature.reads_failure_frame and unplanned.any():
+                logger.warning("Row(s) %s failed before planning any chunk: no chunk to remember.",
+                               unplanned.nonzero().flatten().tolist())
+                rows = failed & memory.attempt_planned
+            z = self.feature.of_failure(memory.last_frame, memory.attempt_chunk, memory.latest_chunk,
+                                          self.outcomes)
+        else:
+            z_full = torch.zeros(memory.batch_size, self.config.failure_feature_dim, device=z.device)
+            z_full[rows] = z.reshape(-1, self.config.failure_feature_dim).to(z_full.dtype)
+            z = z_full
+        self._failures.add(rows, z)
+        memory.restart(failed)
+
+    # ----- sampling -------------------------------------------------------------------------------------
+
+    def _sample(self, rows: Tensor, noise: Tensor | None) -> Tensor:
+        """Chunks (R, horizon, A) for the selected rows, by the configured recovery mode."""
+        memory, cfg = self._memory, self.config
+        state, history = memory.state_condition(rows), memory.history_condition(rows)
+        z, z_mask = self._failures.padded(rows)
+        mode = cfg.recovery_mode
+        self._planned_with_recovery |= mode != "dp"
+        if mode == "ccdp" and z_mask.any() and not bool(self.recovery_trained):
+            if not self._warned_untrained:
+                logger.warning("recovery_mode=ccdp but eps_z is untrained (base-stage checkpoint): "
+                               "sampling as plain DP. Train the recovery stage to use failures.")
+                self._warned_untrained = True
+            mode = "dp"
+        streams = None if self._streams is None else [self._streams[i] for i in rows.nonzero().flatten().tolist()]
+        if mode == "dp_star" and z_mask.any():  # DP*: the base's candidates, failures ignored, repeats rejected
+            return self._sample_without_repeats(state, history, z, z_mask, cfg.dp_star_candidates,
+                                                cfg.dp_star_rounds, guided=False, streams=streams)
+        if mode != "ccdp":
+            z, z_mask = z[:, :0], z_mask[:, :0]
+        shape = (state.shape[0], cfg.horizon, cfg.action_dim)
+        sample = noise[rows] if noise is not None else draw_noise(shape, streams, state.device)
+        if mode == "ccdp" and cfg.ccdp_redraws and z_mask.any():  # a plan that still repeats is drawn again
+            return self._sample_without_repeats(state, history, z, z_mask, 1, 1 + cfg.ccdp_redraws, guided=True,
+                                                first_noise=sample, streams=streams)
+        return self._denoise(sample, state, history, z, z_mask, generators=streams)
+
+    @torch.no_grad()
+    def sample_exploratory(self, state: Tensor, w_s: float, noise: Tensor | None = None) -> Tensor:
+        """Chunks (R, horizon, A) drawn from eq. (7) for normalised state conditions (R, n_obs_steps * frame_dim):
+        no history, no failures. Recovery synthesis uses it to propose candidate actions around demo states."""
+        cfg = self.config
+        r = state.shape[0]
+        if noise is None:
+            noise = torch.randn(r, cfg.horizon, cfg.action_dim, device=state.device)
+        history = torch.zeros(r, self.base.history_cond_dim, device=state.device)
+        no_failures = torch.zeros(r, 0, cfg.failure_feature_dim, device=state.device)
+        return self._denoise(noise, state, history, no_failures, no_failures[..., 0].bool(),
+                             CompositionWeights.exploration(w_s))
+
+    def _denoise(
+        self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor,
+        weights: CompositionWeights | None = None, generators: list[torch.Generator] | None = None,
+    ) -> Tensor:
+        """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given):
+        one base call and at most one recovery call per step, whatever the number of failures. With the classifier
+        head, the failures enter by guidance instead (`guide_away_from_failures`). Only the first
+        `failure_step_share` of the steps add the failures (`composition.failure_steps`). The reverse steps' noise
+        comes from `generators` (one per row, `noise_streams`) when given, else from torch's global generator."""
+        weights = weights or self.weights
+        r, n = sample.shape[0], z.shape[1]
+        guided = n > 0 and self.config.recovery_head == "classifier"
+        terms = self._base_terms(z_mask.sum(dim=1) * (not guided), weights)
+        ones, zeros = torch.ones(r, 1, device=sample.device), torch.zeros(r, 1, device=sample.device)
+        keep = {"a": (zeros, zeros), "s": (ones, zeros), "h": (zeros, ones)}
+        k = len(terms)
+        state_rows, history_rows = state.repeat(k, 1), history.repeat(k, 1)
+        keep_s = torch.cat([keep[t][0] for t in terms])
+        keep_h = torch.cat([keep[t][1] for t in terms])
+        z_rows, keep_z = self._recovery_conditions(z, bool(weights.w_z) and weights.z_reference == "eps_z_null")
+        self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
+        with_failures = failure_steps(len(self.noise_scheduler.timesteps), self.config.failure_step_share)
+        for i, t in enumerate(self.noise_scheduler.timesteps):
+            step = torch.full((r * k,), int(t), dtype=torch.long, device=sample.device)
+            eps = self.base(sample.repeat(k, 1, 1), step, state_rows, keep_s, history_rows, keep_h)
+            by_term = dict(zip(terms, eps.split(r), strict=True))
+            refining = i >= with_failures  # low noise: the base alone refines the chunk within its option
+            if refining or guided:
+                composed = compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"))
+                failed = z_mask.any(dim=1)
+                if guided and not refining and failed.any():
+                    gradient = torch.zeros_like(sample)
+                    gradient[failed] = self._no_repeat_gradient(sample[failed], step[: int(failed.sum())],
+                                                                state[failed], z[failed], z_mask[failed])
+                    alpha_bar = self.noise_scheduler.alphas_cumprod[int(t)].to(sample.device)
+                    composed = guide_away_from_failures(composed, gradient, alpha_bar, weights.w_z)
+            else:
+                eps_z, eps_z_null = self._recovery_terms(sample, step[0], z_rows, keep_z, n) if n else (None, None)
+                composed = compose_eps(
+                    weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null
+                )
+            sample = self.noise_scheduler.step(composed, t, sample, generator=generators).prev_sample
+        return sample
+
+    @staticmethod
+    def _recovery_conditions(z: Tensor, null_row: bool) -> tuple[Tensor, Tensor]:
+        """The recovery head's z rows (R * N [+ R], z_dim) and keep flags, fixed for a whole reverse diffusion:
+        one row per failure slot and, with `null_row`, one z-dropped row per batch row for eps_z_null."""
+        r, n, dim = z.shape
+        z_rows, keep_z = z.reshape(r * n, dim), z.new_ones(r * n, 1)
+        if null_row:
+            z_rows, keep_z = torch.cat([z_rows, z.new_zeros(r, dim)]), torch.cat([keep_z, z.new_zeros(r, 1)])
+        return z_rows, keep_z
+
+    def _recovery_terms(
+        self, sample: Tensor, timestep: Tensor, z_rows: Tensor, keep_z: Tensor, n: int
+    ) -> tuple[Tensor, Tensor | None]:
+        """eps_z(z_i) for every failure slot (R, N, horizon, A) and, when `z_rows` ends with the z-dropped rows,
+        eps_z_null (R, horizon, A): one recovery call for all of them."""
+        r, chunk = sample.shape[0], sample.shape[1:]
+        noisy = sample[:, None].expand(r, n, *chunk).reshape(r * n, *chunk)
+        null_row = z_rows.shape[0] > r * n
+        if null_row:
+            noisy = torch.cat([noisy, sample])
+        eps = self.recovery(noisy, timestep.expand(noisy.shape[0]), z_rows, keep_z)
+        return eps[: r * n].view(r, n, *chunk), (eps[r * n :] if null_row else None)
+
+    @staticmethod
+    def _base_terms(n_failures: Tensor, weights: CompositionWeights) -> list[str]:
+        """Which base-network outputs eq. (4) needs: zero-weight terms are not evaluated."""
+        terms = [name for name, w in (("s", weights.w_s), ("h", weights.w_h)) if w]
+        if weights.uses_unconditional(n_failures * bool(weights.w_z)) or not terms:
+            terms.insert(0, "a")
+        return terms
+
+    def _no_repeat_gradient(self, sample: Tensor, step: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
+        """grad_{a_t} log P(a_0 outside F | a_t, s) from the classifier head. LeRobot samples under
+        torch.inference_mode(), where no gradient exists: the inputs are copied into ordinary tensors first."""
+        with torch.inference_mode(False), torch.enable_grad():
+            noisy = sample.clone().requires_grad_(True)
+            step, state, z, z_mask = step.clone(), state.clone(), z.clone(), z_mask.clone()
+            if self.config.classifier_query == "set":
+                log_outside = log_no_repeat(self.recovery(noisy, step, state, z, z_mask))
+            else:  # one classifier call for every (row, failure) pair
+                rows, n = z_mask.shape
+                logits = self.recovery(noisy.repeat_interleave(n, dim=0), step.repeat_interleave(n, dim=0),
+                                       state.repeat_interleave(n, dim=0), z.reshape(rows * n, 1, -1),
+                                       z_mask.new_ones(rows * n, 1))
+                log_outside = log_no_repeat(logits.view(rows, n), distinct_failures(z, z_mask, self.config.delta_z))
+            (gradient,) = torch.autograd.grad(log_outside.sum(), noisy)
+        return gradient
+
+    def _sample_without_repeats(self, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor, candidates: int,
+                                rounds: int, guided: bool, first_noise: Tensor | None = None,
+                                streams: list[torch.Generator] | None = None) -> Tensor:
+        """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round draws
+        `candidates` chunks per pending row, from CCDP's guided composition (`guided`: `ccdp_redraws`, one candidate,
+        the first round from the caller's `first_noise`) or from the base composition with failures ignored (DP*),
+        and labels them with the outcome of the nearest demonstrated chunk. With row `streams`, each row's first
+        candidate of the first round draws from its row's stream, later draws from torch's global generator."""
+        cfg, failures = self.config, slice(None) if guided else slice(0)
+        first_round = iter([(first_noise, first_candidates(streams, candidates))])
+
+        def draw(rows: Tensor) -> tuple[Tensor, Tensor]:
+            r = rows.shape[0]
+            noise, generators = next(first_round, (None, None))
+            if noise is None:
+                noise = draw_noise((r * candidates, cfg.horizon, cfg.action_dim), generators, state.device)
+            chunks = self._denoise(
+                noise,
+                state[rows].repeat_interleave(candidates, dim=0),
+                history[rows].repeat_interleave(candidates, dim=0),
+                z[rows][:, failures].repeat_interleave(candidates, dim=0),
+                z_mask[rows][:, failures].repeat_interleave(candidates, dim=0),
+                generators=generators,
+            )
+            z_candidates = self.feature.from_chunk(chunks, self.outcomes).view(r, candidates, -1)
+            distance = nearest_failure_distance(z_candidates, z[rows], z_mask[rows])
+            return chunks.view(r, candidates, cfg.horizon, cfg.action_dim), distance
+
+        return reject_repeats(draw, state.shape[0], rounds, cfg.delta_z, state.device)
+
+    # ----- inputs ---------------------------------------------------------------------------------------
+
+    def frames(self, batch: dict[str, Tensor]) -> Tensor:
+        """Observation frames (B, [T,] frame_dim) as the networks see them (`observations.observation_frames`)."""
+        return observation_frames(self.config, self.images, batch, self.constant_inputs)

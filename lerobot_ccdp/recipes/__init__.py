@@ -1,1 +1,0 @@
-"""The jobs behind `datasets_recipes/`: demonstration recording (and, later, recovery synthesis)."""

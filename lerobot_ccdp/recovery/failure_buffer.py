@@ -1,0 +1,59 @@
+"""Per-row memory of failure features z_1..z_N (one row per vectorised env)."""
+
+import torch
+from torch import Tensor
+
+from lerobot_ccdp.policy.tensor_modes import ordinary_tensors
+
+
+class FailureBuffer:
+    """Remembers up to `cap` failure features per batch row; beyond the cap the oldest is forgotten.
+
+    Rows are independent: a failure in row i never shows up in another row, and clearing one row (a new
+    episode in that env) leaves the others as they are. Updates work in any grad or inference mode.
+    """
+
+    @ordinary_tensors
+    def __init__(self, batch_size: int, feature_dim: int, cap: int, device: torch.device | str = "cpu"):
+        self.cap = cap
+        self.z = torch.zeros(batch_size, cap, feature_dim, device=device)
+        self.count = torch.zeros(batch_size, dtype=torch.long, device=device)
+
+    @property
+    def batch_size(self) -> int:
+        return self.z.shape[0]
+
+    @ordinary_tensors
+    def add(self, rows: Tensor, z: Tensor) -> None:
+        """Append z[i] to row i for every i where `rows` (bool, (B,)) is set; z is (B, feature_dim)."""
+        for i in torch.nonzero(rows).flatten().tolist():
+            if self.count[i] == self.cap:
+                self.z[i] = torch.roll(self.z[i], shifts=-1, dims=0)
+                self.count[i] -= 1
+            self.z[i, self.count[i]] = z[i]
+            self.count[i] += 1
+
+    @ordinary_tensors
+    def clear(self, rows: Tensor | None = None) -> None:
+        """Forget the failures of `rows` (bool, (B,)), or of every row."""
+        rows = torch.ones_like(self.count, dtype=torch.bool) if rows is None else rows
+        self.z[rows] = 0.0
+        self.count[rows] = 0
+
+    def padded(self, rows: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """(z, mask) for the selected rows, trimmed to the largest failure count among them.
+
+        z is (R, N, feature_dim) and mask (R, N) is True where a slot holds a failure.
+        """
+        z, count = (self.z, self.count) if rows is None else (self.z[rows], self.count[rows])
+        n = int(count.max()) if count.numel() else 0
+        mask = torch.arange(n, device=count.device)[None, :] < count[:, None]
+        return z[:, :n], mask
+
+
+def distinct_failures(z: Tensor, z_mask: Tensor, delta_z: float) -> Tensor:
+    """(R, N) mask of the failures that are not a repeat of an earlier one in their row: within `delta_z` (squared
+    distance, as the classifier's labels and DP*'s rejection measure it) of an earlier failure is the same option."""
+    close = ((z[:, :, None] - z[:, None]) ** 2).sum(dim=-1) <= delta_z  # (R, N, N): failure i near failure j
+    earlier = torch.ones(z.shape[1], z.shape[1], dtype=torch.bool, device=z.device).tril(diagonal=-1)
+    return z_mask & ~(close & earlier & z_mask[:, None]).any(dim=-1)

@@ -1,0 +1,54 @@
+"""Builds the policy's table of demonstrated chunk outcomes from a LeRobot demo dataset."""
+
+import numpy as np
+import torch
+from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+from lerobot.utils.constants import ACTION
+from torch import Tensor
+
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.processor_ccdp import normalize_batch
+from lerobot_ccdp.recovery.demo_segments import segment_ends, segment_final_states
+from lerobot_ccdp.recovery.outcome_index import demo_chunks
+
+
+def build_outcome_table(
+    config: CCDPConfig, meta: LeRobotDatasetMetadata, stats: dict | None
+) -> tuple[Tensor, Tensor, Tensor]:
+    """(chunks, final-state z, primitive labels) of demonstrated frames, in the policy's normalised space."""
+    required = [ACTION, config.failure_state_key]
+    if config.failure_feature == "primitive":
+        required.append(config.primitive_key)
+    columns = read_columns(meta, required, optional=[config.primitive_key])
+    normalized = normalize_batch(config, stats or meta.stats, {
+        key: torch.from_numpy(columns[key]) for key in (ACTION, config.failure_state_key)
+    })
+    episodes, primitives = columns["episode_index"], columns.get(config.primitive_key)
+    chunks = demo_chunks(episodes, normalized[ACTION].numpy(), 1 - config.n_obs_steps, config.horizon)
+    ends = segment_ends(config.failure_segments, episodes, normalized[ACTION].numpy(), primitives,
+                        config.gripper_action_dim, config.pause_steps, config.pause_tolerance)
+    finals = segment_final_states(normalized[config.failure_state_key].numpy(), ends)
+    finals = finals[:, config.failure_state_dims or slice(None)]
+    labels = np.zeros(len(chunks), dtype=np.int64) if primitives is None else primitives.reshape(-1).astype(np.int64)
+    if config.failure_feature == "primitive" and labels.max() >= config.num_primitives:
+        raise ValueError(
+            f"Column {config.primitive_key!r} holds label {labels.max()}, but num_primitives is "
+            f"{config.num_primitives}; set --policy.num_primitives={labels.max() + 1}."
+        )
+    keep = np.sort(np.random.default_rng(0).permutation(len(chunks))[: config.outcome_index_size])
+    return torch.from_numpy(chunks[keep]), torch.from_numpy(finals[keep]), torch.from_numpy(labels[keep])
+
+
+def read_columns(meta: LeRobotDatasetMetadata, required: list[str], optional: list[str] = ()) -> dict[str, np.ndarray]:
+    """Whole columns of a local LeRobot dataset as float32 arrays (frames in episode order)."""
+    missing = [k for k in required if k not in meta.features]
+    if missing:
+        raise ValueError(
+            f"Dataset {meta.repo_id!r} at {meta.root} lacks column(s) {missing} (it has {sorted(meta.features)}). "
+            "Record it with the needed features, or change the policy's failure feature settings."
+        )
+    data = LeRobotDataset(meta.repo_id, root=meta.root).hf_dataset.with_format("numpy")
+    keys = dict.fromkeys([*required, *(k for k in optional if k in meta.features)])
+    out = {k: np.stack(data[k]).astype(np.float32) for k in keys}
+    out["episode_index"] = np.asarray(data["episode_index"]).reshape(-1)
+    return out
