@@ -149,7 +149,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--base", nargs="*", default=[], metavar="TASK=CHECKPOINT",
                         help="use an existing base checkpoint instead of training one")
     parser.add_argument("--base-steps", type=int, default=1000)
-    parser.add_argument("--recovery-steps", type=int, default=3000, help="as tests/test_recovery_claim.py")
+    parser.add_argument("--recovery-steps", type=int, default=3000, help="as tests/recovery/test_recovery_claim.py")
     parser.add_argument("--w-z", type=float, default=3.0, help="composition weight of the recovery checkpoint, as the task configs")
     parser.add_argument("--work", type=Path, default=REPO / "outputs" / "bench_synthesis")
     parser.add_argument("--adopt", action="store_true",

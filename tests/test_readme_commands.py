@@ -16,8 +16,8 @@ import torch
 from lerobot_ccdp.compat.headless import choose_headless_gl
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
-from conftest import BIN
-from policy_factory import untrained_checkpoint
+from fixtures.policy_factory import untrained_checkpoint
+from fixtures.reaching import BIN
 
 REPO = Path(__file__).resolve().parent.parent
 README = (REPO / "README.md").read_text()

@@ -10,7 +10,7 @@ the two most preferred goals failed ("after 2"), under torch.inference_mode() as
 
 A chunk's goal is the goal whose demonstrated path from the start it lies nearest (`ReachingTask.option_of`), not
 the policy's own labeller. `benchmarks/bench_preferences.py` runs it over the seeded family of issue 17 and
-`tests/test_preferences.py` asserts the targets on two members.
+`tests/recovery/test_preferences.py` asserts the targets on two members.
 """
 
 from typing import NamedTuple

@@ -18,7 +18,7 @@ GYM_NAMESPACE = "lerobot_ccdp"
 
 # Task id -> (env class as "module:Class", step limit of its gym id). `<Task>-v0` is the task with contact physics
 # on the Franka Panda, `<Task>-lite-v0` its geometric version. The step limit repeats the class's
-# `default_episode_steps` so registering needs no import; tests/test_plugin_import.py checks that they agree.
+# `default_episode_steps` so registering needs no import; tests/compat/test_plugin_import.py checks that they agree.
 ENTRY_POINTS: dict[str, tuple[str, int]] = {
     "DoorOpening-v0": ("lerobot_ccdp.envs.door_opening_physics:DoorOpeningPhysicsEnv", 150),
     "ButtonSearch-v0": ("lerobot_ccdp.envs.button_search_physics:ButtonSearchPhysicsEnv", 200),

@@ -1,0 +1,367 @@
+"""The main job end to end through the real CLIs, reduced (tiny steps, one task, a few episodes): every stage's
+outputs exist, load, and feed the next; the report and a resumed run agree."""
+
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.utils.constants import OBS_IMAGES
+from PIL import Image
+
+from lerobot_ccdp.benchmark.comparison import Episodes
+from lerobot_ccdp.benchmark.pipeline import (
+    CHECKPOINT,
+    COMMON_NOISE,
+    VIDEO_METHODS,
+    TaskFiles,
+    latest_progress,
+    main,
+    task_slug,
+    z_description,
+)
+from lerobot_ccdp.benchmark.run_lock import exclusive
+from lerobot_ccdp.benchmark.stage_stamps import stamp
+from lerobot_ccdp.datasets.camera_windows import video_backend
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+
+REPO = Path(__file__).resolve().parents[2]
+TASK = "DoorOpening-lite-v0"
+SLUG = task_slug(TASK)
+METHODS = ["dp", "ccdp"]
+N_DEMOS, N_EPISODES = 8, 4
+EVAL_SEED = 3000  # not the configs' test range: --eval-seed must reach lerobot-eval and the oracle
+
+
+def _shrink_json(src: Path, dst: Path, changes: dict) -> None:
+    config = json.loads(src.read_text())
+    for key, value in changes.items():
+        config[key] = {**config[key], **value} if isinstance(value, dict) else value
+    dst.write_text(json.dumps(config))
+
+
+def _shrunk_settings(root: Path, slug: str, n_episodes: int = N_EPISODES) -> tuple[Path, Path]:
+    """The repository's configs and recipe of `slug`, shrunk to seconds per stage."""
+    configs, recipes = root / "configs", root / "recipes"
+    (configs / slug).mkdir(parents=True)
+    recipes.mkdir()
+    train = {"steps": 10, "batch_size": 8, "save_freq": 10, "log_freq": 5}
+    # Episodes of 50 steps, not 150: the oracle needs at most 37 here (two attempts); an untrained policy uses all.
+    evaluation = {"env": {"episode_length": 50}, "eval": {"n_episodes": n_episodes, "batch_size": 2}}
+    for name, changes in {"train_base": train, "train_recovery": train, "eval": evaluation}.items():
+        _shrink_json(REPO / "configs" / slug / f"{name}.json", configs / slug / f"{name}.json", changes)
+    recipe = yaml.safe_load((REPO / "datasets_recipes" / f"{slug}.yaml").read_text())
+    recipe["record"]["n_episodes"] = N_DEMOS
+    recipe["recovery"].update({"n_states": 8, "chunks_per_state": 4, "batch_states": 8, "pairs_per_failure": 4,
+                               "demo_frames": 64})  # RecoveryRecipe refuses unknown keys
+    (recipes / f"{slug}.yaml").write_text(yaml.safe_dump(recipe))
+    return configs, recipes
+
+
+@pytest.fixture(scope="module")
+def settings(tmp_path_factory) -> tuple[Path, Path]:
+    configs, recipes = _shrunk_settings(tmp_path_factory.mktemp("settings"), SLUG)
+    # DP*'s own repeat threshold, which the report must name rather than the checkpoint's, and a CCDP sampling
+    # setting that lerobot-eval must accept as a flag
+    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32, "delta_z": 0.3},
+                                                             "ccdp": {"failure_step_share": 0.8}}))
+    return configs, recipes
+
+
+def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str, methods: list[str] = METHODS) -> str:
+    result = subprocess.run(
+        [sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--tasks", TASK, "--methods", *methods, "--out", str(out),
+         "--configs", str(configs), "--recipes", str(recipes), "--eval-seed", str(EVAL_SEED), *extra],
+        capture_output=True, text=True, cwd=REPO)
+    if result.returncode != 0:
+        pytest.fail(f"pipeline failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}")
+    return result.stdout
+
+
+@pytest.fixture(scope="module")
+def pipeline_run(settings, tmp_path_factory) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("pipeline")
+    return out, _run_pipeline(*settings, out, "--publish", str(out / "docs" / "benchmark.md"))
+
+
+def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
+    out, _ = pipeline_run
+    task_out = out / SLUG
+
+    demos = LeRobotDataset(f"local/{SLUG}", root=task_out / "demos")
+    assert demos.meta.total_episodes == N_DEMOS
+
+    base = CCDPPolicy.from_pretrained(task_out / "base" / CHECKPOINT)
+    assert base.config.training_stage == "base" and not bool(base.recovery_trained)
+    assert base.config.failure_feature == "primitive" and base.config.num_primitives == 2
+
+    recovery_data = LeRobotDataset(f"local/{SLUG}_recovery", root=task_out / "recovery_data")
+    row = recovery_data[0]
+    assert row[FAILURE_FEATURE_KEY].shape == (base.config.failure_feature_dim,)
+    assert row["action"].shape == (base.config.horizon, 4)
+    source = yaml.safe_load((task_out / "recovery_data" / "meta" / "ccdp_recovery_recipe.yaml").read_text())
+    assert source["source"]["policy_path"] == str(task_out / "base" / CHECKPOINT)  # made from this base
+
+    recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
+    assert bool(recovery.recovery_trained)
+    for name, weight in base.base.state_dict().items():  # the recovery stage starts from the base and freezes it
+        assert torch.equal(weight, recovery.base.state_dict()[name]), name
+
+    for method in METHODS:
+        episodes = Episodes.from_eval_info(task_out / "eval" / method / "eval_info.json")
+        assert len(episodes) == N_EPISODES
+        # One-stage task: every attempt after the first follows a failure (the env's count reached eval_info.json).
+        assert (episodes.attempts_after_failure == np.maximum(episodes.attempts - 1, 0)).all()
+        videos = list((task_out / "eval" / method).rglob("eval_episode_*.mp4"))
+        assert len(videos) == (N_EPISODES if method in VIDEO_METHODS else 0)  # what lerobot_ccdp.benchmark.watch shows
+    oracle = Episodes.from_infos(json.loads((task_out / "oracle.json").read_text()))
+    assert len(oracle) == N_EPISODES and oracle.success.all() and not oracle.repeated_failures.any()
+
+
+def test_report_table_chart_and_timings(pipeline_run):
+    out, stdout = pipeline_run
+    report = (out / "report.md").read_text()
+    for label in ("| DoorOpening-lite-v0 | DP |", "| DoorOpening-lite-v0 | CCDP |", "| DoorOpening-lite-v0 | no-repeat oracle |",
+                  "success > DP", "attempts within 15% of oracle", "data loading"):
+        assert label in report, label
+    assert report.split("## Targets")[0] in stdout  # the table is printed too
+    form = report.split("## What ran")[1].split("## Targets")[0]  # the form of the method that ran, and the seeds
+    assert (f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 3 against eps_z_null; "
+            "failures in the first 8 of 10 reverse steps |") in form
+    assert "| 32 candidates, 4 round(s), delta_z 0.3 |" in form
+    assert "--policy.failure_step_share=0.8" in stdout
+    lost = report.split("## Lost episodes")[1].split("## Time per stage")[0]  # each method's lost episodes, by cause
+    for method in METHODS:
+        episodes = Episodes.from_eval_info(out / SLUG / "eval" / method / "eval_info.json")
+        assert f"| {TASK} | {method.upper()} | {(~episodes.success).sum()}: " in lost
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary[TASK]) == {*METHODS, "oracle"}
+    assert summary[TASK]["oracle"]["success"]["value"] == 1.0
+    assert (out / "comparison.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    published = (out / "docs" / "benchmark.md").read_text()
+    assert published.split("\n", 1)[1] == report.replace("](comparison.png)", "](benchmark.png)")
+    assert (out / "docs" / "benchmark.png").read_bytes() == (out / "comparison.png").read_bytes()
+    for method in METHODS:  # lerobot-eval logs its config: the seed it was given
+        assert f"'seed': {EVAL_SEED}," in (out / SLUG / "logs" / f"eval_{method}.log").read_text()
+    timings = json.loads((out / SLUG / "timings.json").read_text())
+    assert set(timings) == {"record", "train_base", "synthesize", "train_recovery", *(f"eval_{m}" for m in METHODS)}
+
+
+def test_watch_shows_both_methods_on_the_same_rendered_episode(pipeline_run, tmp_path):
+    out, _ = pipeline_run
+    gif = tmp_path / "watch.gif"
+    subprocess.run([sys.executable, "-m", "lerobot_ccdp.benchmark.watch", "--eval-root", str(out / SLUG / "eval"),
+                    "--episode", "1", "--out", str(gif)], check=True, cwd=REPO)
+    with Image.open(gif) as image:
+        assert image.n_frames > 5 and image.width > 2 * 160 and image.height > 120  # two 160x120 panels, titled
+
+
+def test_a_second_run_resumes_every_stage_however_the_folder_is_spelled(settings, pipeline_run, tmp_path):
+    out, _ = pipeline_run
+    summary = (out / "summary.json").read_text()
+    (tmp_path / "link").symlink_to(out)  # the stages' commands name the folder's real path, as the first run did
+    stdout = _run_pipeline(*settings, tmp_path / "link")
+    assert stdout.count("done already") == 4 + len(METHODS)
+    assert (out / "summary.json").read_text() == summary
+
+
+def test_train_only_stops_before_the_evaluations_and_the_report(settings, pipeline_run):
+    out, _ = pipeline_run
+    report = (out / "report.md").read_text()
+    (out / SLUG / "oracle.json").rename(out / "oracle.json.kept")
+    try:
+        stdout = _run_pipeline(*settings, out, "--train-only")
+        assert stdout.count("done already") == 4  # record, base, synthesis, recovery
+        assert "eval_" not in stdout and not (out / SLUG / "oracle.json").exists()
+        assert f"Trained: {out / SLUG / 'recovery' / CHECKPOINT}" in stdout
+        assert (out / "report.md").read_text() == report
+    finally:
+        (out / "oracle.json.kept").rename(out / SLUG / "oracle.json")
+
+
+def test_a_changed_config_reruns_its_stage_and_those_after_it(settings, pipeline_run):
+    out, _ = pipeline_run
+    configs, _ = settings
+    recovery_config = configs / SLUG / "train_recovery.json"
+    _shrink_json(recovery_config, recovery_config, {"steps": 12, "save_freq": 12})
+    base_weights = (out / SLUG / "base" / CHECKPOINT / "model.safetensors").read_bytes()
+    stdout = _run_pipeline(configs, settings[1], out)
+    assert stdout.count("done already") == 3  # record, base, synthesis
+    assert stdout.count("its inputs changed") == 1 + len(METHODS)  # the recovery stage and every evaluation
+    assert (out / SLUG / "base" / CHECKPOINT / "model.safetensors").read_bytes() == base_weights
+    step = json.loads((out / SLUG / "recovery" / "checkpoints" / "last" / "training_state" / "training_step.json")
+                      .read_text())
+    assert step["step"] == 12
+
+
+def test_a_method_setting_reruns_only_that_method_with_its_flags(settings, pipeline_run):
+    out, _ = pipeline_run
+    configs, recipes = settings
+    methods = configs / SLUG / "methods.json"
+    methods.write_text(json.dumps({**json.loads(methods.read_text()), "dp": {"dp_star_rounds": 2}}))
+    try:
+        stdout = _run_pipeline(configs, recipes, out)
+    finally:
+        methods.unlink()
+    assert "eval_dp: its inputs changed" in stdout and "--policy.dp_star_rounds=2" in stdout
+    assert "eval_ccdp: done already" in stdout
+
+
+def test_method_settings_name_known_methods(tmp_path):
+    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG)  # the module's settings hold a methods.json
+    files = TaskFiles.locate(TASK, configs, recipes, tmp_path)
+    assert files.method_flags("dp_star") == []  # no methods.json: the checkpoint's settings
+    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32}, "DP": {}}))
+    with pytest.raises(ValueError, match=r"unknown method\(s\) \['DP'\]"):
+        files.method_flags("dp_star")
+
+
+def test_only_the_watched_methods_render_videos(settings, tmp_path):
+    """DP* runs with rendering off (videos of the Panda scene cost minutes); DP and CCDP keep lerobot-eval's."""
+    files = TaskFiles.locate(TASK, *settings, tmp_path)
+    for method in ("dp", "dp_star", "ccdp"):
+        command = files.eval_command(Path("checkpoint"), method, 0, tmp_path / method, [])
+        assert ("--env.render_mode=null" in command) == (method not in VIDEO_METHODS), method
+        assert COMMON_NOISE in command  # every method on the same noise streams
+        assert command[-2:] == ["--seed=0", f"--output_dir={tmp_path / method}"]
+
+
+def test_stamps_follow_settings_files_and_upstream_stages(tmp_path):
+    config = tmp_path / "train.json"
+    config.write_text('{"steps": 10}')
+    command = ["lerobot-train", f"--config_path={config}", "--output_dir=x"]
+    first = stamp(command, upstream="a")
+    assert stamp(command, upstream="a") == first
+    assert stamp(command, upstream="b") != first  # a rerun upstream stage reruns this one
+    config.write_text('{"steps": 11}')
+    assert stamp(command, upstream="a") != first  # so does an edited config
+
+
+def test_console_progress_is_the_latest_bar_state_of_the_log(tmp_path):
+    log = tmp_path / "train.log"
+    log.write_text("INFO start\rTraining:  10%|█         | 80/800 [00:30<04:30,  2.66step/s]"
+                   "\rTraining:  11%|█▏        | 88/800 [00:33<04:27,  2.66step/s]\nINFO step:88 loss:0.1")
+    assert latest_progress(log) == "Training: 11% 88/800 [00:33<04:27, 2.66step/s]"
+    log.write_text("no bar yet")
+    assert latest_progress(log) == ""
+
+
+def test_a_second_pipeline_on_the_same_folder_is_refused(settings, tmp_path):
+    configs, recipes = settings
+    with exclusive(tmp_path / "out"), pytest.raises(SystemExit, match=r"Another pipeline \(pid \d+\) is running"):
+        main(["--tasks", TASK, "--out", str(tmp_path / "out"), "--configs", str(configs), "--recipes", str(recipes)])
+
+
+def test_a_killed_pipeline_leaves_no_stage_running_and_a_rerun_resumes(settings, tmp_path):
+    configs, recipes = settings
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--tasks", TASK, "--methods", "dp", "--out", str(out),
+               "--configs", str(configs), "--recipes", str(recipes), "--no-chart"]
+    pipeline = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, text=True)
+    for line in pipeline.stdout:  # wait until the base stage's lerobot-train is running
+        if "train_base: lerobot-train" in line:
+            break
+    children_file = Path(f"/proc/{pipeline.pid}/task/{pipeline.pid}/children")
+    children: list[int] = []
+    while not children and pipeline.poll() is None:  # the command is printed just before it starts
+        children = [int(pid) for pid in children_file.read_text().split()]
+    assert children, "the stage runs as a child process"
+    pipeline.kill()  # SIGKILL: no handler of the pipeline runs
+    pipeline.wait()
+    while any(_running(pid) for pid in children):  # the kernel delivers the child's death signal
+        time.sleep(0.2)
+    assert "End of training" not in (out / SLUG / "logs" / "train_base.log").read_text()  # killed, not finished
+    stdout = _run_pipeline(configs, recipes, out, "--train-only", methods=["dp"])  # the evaluations add nothing here
+    assert "record: done already" in stdout and "train_base: lerobot-train" in stdout  # the killed stage reruns
+    assert "End of training" in (out / SLUG / "logs" / "train_base.log").read_text()
+    assert (out / SLUG / "recovery" / CHECKPOINT / "model.safetensors").exists()  # and the stages after it
+
+
+def _running(pid: int) -> bool:
+    """Whether `pid` is alive and not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
+
+
+def test_bad_task_and_missing_settings_are_named(settings, tmp_path):
+    configs, recipes = settings
+    with pytest.raises(ValueError, match="Unknown task"):
+        TaskFiles.locate("PushT-v0", configs, recipes, tmp_path)
+    with pytest.raises(FileNotFoundError, match="button_search"):
+        TaskFiles.locate("ButtonSearch-lite-v0", configs, recipes, tmp_path)
+    with pytest.raises(SystemExit):
+        main(["--tasks", TASK, "--methods", "oracle"])
+
+
+@pytest.mark.slow  # about 100 s; the camera paths are covered stage by stage in tests/policy/test_cameras.py
+def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
+    """--obs-type pixels_agent_pos: camera demos as video, a camera checkpoint, image-free recovery rows, and CCDP
+    evaluated on rendered frames (DP runs the same checkpoint with its recovery off)."""
+    slug = f"{SLUG}_pixels"
+    configs, recipes = _shrunk_settings(tmp_path / "settings", slug, n_episodes=2)
+    out = tmp_path / "out"
+    _run_pipeline(configs, recipes, out, "--obs-type", "pixels_agent_pos", "--no-chart", methods=["ccdp"])
+    task_out = out / slug
+
+    demos = LeRobotDataset(f"local/{slug}", root=task_out / "demos", video_backend=video_backend())
+    assert demos.meta.video_keys == [f"{OBS_IMAGES}.front"]
+    recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
+    assert bool(recovery.recovery_trained) and list(recovery.config.image_features) == [f"{OBS_IMAGES}.front"]
+    recovery_meta = LeRobotDataset(f"local/{slug}_recovery", root=task_out / "recovery_data").meta
+    assert not recovery_meta.video_keys and f"{OBS_IMAGES}.front" in recovery_meta.stats
+    assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
+    assert "| DoorOpening-lite-v0 | CCDP |" in (out / "report.md").read_text()
+
+
+def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):
+    """State configs filed under the pixel variant's name would train a state policy and report it as pixels."""
+    configs, recipes = settings
+    shutil.copytree(configs / SLUG, tmp_path / f"{SLUG}_pixels")
+    shutil.copy(recipes / f"{SLUG}.yaml", tmp_path / f"{SLUG}_pixels.yaml")
+    with pytest.raises(ValueError, match="obs_type='state', not 'pixels_agent_pos'"):
+        TaskFiles.locate(TASK, tmp_path, tmp_path, tmp_path / "out", "pixels_agent_pos")
+
+
+@pytest.mark.slow  # about 80 s; the classifier head trains and samples in CI through tests/recovery/test_preferences.py
+def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
+    """A base config naming `recovery_head: classifier` makes the recovery stage learn from the demonstrations:
+    no synthesis stage runs, the checkpoint holds a trained classifier, lerobot-eval runs CCDP with the sampling
+    settings of methods.json (each failure queried, repeats redrawn), and the report names that form."""
+    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG, n_episodes=2)
+    _shrink_json(configs / SLUG / "train_base.json", configs / SLUG / "train_base.json",
+                 {"policy": {"recovery_head": "classifier", "w_z": 1.0}})
+    (configs / SLUG / "methods.json").write_text(json.dumps({"ccdp": {"classifier_query": "each", "ccdp_redraws": 2}}))
+    out = tmp_path / "out"
+    stdout = _run_pipeline(configs, recipes, out, "--no-chart", methods=["ccdp"])
+    task_out = out / SLUG
+
+    assert not (task_out / "recovery_data").exists()
+    assert "synthesize" not in json.loads((task_out / "timings.json").read_text())
+    recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
+    assert recovery.config.recovery_head == "classifier" and bool(recovery.recovery_trained)
+    assert f"--dataset.root={task_out / 'demos'} --output_dir={task_out / 'recovery'}" in stdout
+    assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
+    assert "--policy.classifier_query=each --policy.ccdp_redraws=2" in stdout
+    report = (out / "report.md").read_text()
+    assert "failures by classifier guidance (each query), w_z 1; a repeat redrawn up to 2 times" in report
+
+
+def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_end():
+    settings = {"failure_feature": "final_state", "failure_state_key": "observation.state", "failure_state_dims": [1, 2],
+                "failure_state_at": "demonstrated_end"}
+    assert z_description(settings) == "final_state: observation.state dims [1, 2], a failure's read at demonstrated_end"
+    assert z_description({"failure_feature": "primitive"}) == "primitive"
+    action = {"failure_feature": "action", "failure_action_steps": [23], "failure_action_dims": [1, 2]}
+    assert z_description(action) == "action: steps [23] of the attempt's first chunk, dims [1, 2]"
+    released = {**settings, "failure_segments": "releases"}
+    assert z_description(released).endswith("demonstrated_end, demonstrated options end at releases")

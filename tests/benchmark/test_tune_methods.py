@@ -1,0 +1,67 @@
+"""`benchmarks/tune_methods.py` keeps the grid's first setting unless a paired interval says another is better: a
+higher mean that the development seeds cannot tell from noise is a tie, not a win (issue 17's honest comparison)."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lerobot_ccdp.benchmark.episodes import Episodes
+
+REPO = Path(__file__).resolve().parents[2]
+spec = importlib.util.spec_from_file_location("tune_methods", REPO / "benchmarks" / "tune_methods.py")
+tune = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(tune)
+
+N = 100
+FIRST, OTHER = ("recovery", (("w_z", 3),)), ("recovery", (("w_z", 1),))
+
+
+def episodes(successes: int, repeats: int = 0, shift: int = 0) -> Episodes:
+    """N episodes: `successes` consecutive ones from episode `shift` on solved, each with two attempts after a
+    failure, the last `repeats` with one repeated failure."""
+    success = (np.arange(N) - shift) % N < successes
+    repeated = (np.arange(N) >= N - repeats).astype(int)
+    return Episodes(success=success, attempts=np.full(N, 3), repeated_failures=repeated,
+                    preference_matched=success, attempts_after_failure=np.full(N, 2.0), failures=np.ones(N))
+
+
+def test_a_higher_mean_success_within_noise_keeps_the_first_setting():
+    # Paired: OTHER solves 12 episodes FIRST lost and loses 8 that FIRST solved (+0.04, an interval across 0).
+    row, why = tune.pick([FIRST, OTHER], {FIRST: episodes(60), OTHER: episodes(64, shift=8)})
+    assert row == FIRST and "first setting" in why
+
+
+def test_a_success_gain_clear_of_zero_wins():
+    row, why = tune.pick([FIRST, OTHER], {FIRST: episodes(50), OTHER: episodes(70)})
+    assert row == OTHER and why.startswith("success 0.20")
+
+
+def test_fewer_repeats_win_a_success_tie_but_not_a_clear_success_loss():
+    pooled = {FIRST: episodes(60, repeats=30), OTHER: episodes(60, repeats=2)}
+    row, why = tune.pick([FIRST, OTHER], pooled)
+    assert row == OTHER and why.startswith("repeats -0.14")
+    pooled[OTHER] = episodes(40, repeats=2)
+    assert tune.pick([FIRST, OTHER], pooled)[0] == FIRST
+
+
+def test_pooling_tasks_concatenates_their_episodes_in_order():
+    a, b = episodes(10, repeats=1), episodes(90)
+    both = Episodes.concatenate([a, b])
+    assert len(both) == 2 * N and both.success.sum() == 100 and both.repeated_failures[:N].sum() == 1
+
+
+def test_heads_choose_which_checkpoints_are_evaluated_and_the_first_is_the_reference():
+    grid = tune.parse_grid(["w_z=1,3"])
+    checkpoints = {"classifier": "outputs/classifier/{slug}"}
+    every = tune.table_rows(grid, checkpoints, None)
+    assert [name for name, _ in every] == ["recovery", "recovery", "classifier", "classifier"]
+    only = tune.table_rows(grid, checkpoints, ["classifier"])
+    assert only == [("classifier", (("w_z", 1),)), ("classifier", (("w_z", 3),))]
+    assert tune.table_rows(grid, checkpoints, ["classifier", "recovery"])[0][0] == "classifier"
+
+
+def test_heads_refuses_a_head_without_a_checkpoint():
+    with pytest.raises(SystemExit, match="mlp.*--checkpoint NAME=PATH"):
+        tune.table_rows(tune.parse_grid(["w_z=1"]), {"classifier": "x"}, ["mlp"])

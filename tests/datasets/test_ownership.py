@@ -1,0 +1,67 @@
+"""What this project's commands delete or write into is a folder they made where it is (issue 49): a user's folder,
+a copy or a symlink of ours is refused, and the benchmark scripts that clear their folders follow the same rule."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from lerobot_ccdp.datasets.ownership import MARKER, NotOwned, claim_output_folder, identity, mark, owner
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def script(name: str):
+    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def users_folder(path: Path) -> Path:
+    path.mkdir()
+    (path / "thesis.tex").write_text("years of work")
+    return path
+
+
+def test_a_marker_holds_only_where_it_was_written(tmp_path, monkeypatch):
+    ours = tmp_path / "ours"
+    ours.mkdir()
+    mark(ours, "a command")
+    (tmp_path / "x").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert owner(ours) == owner(Path("ours")) == owner(tmp_path / "x" / ".." / "ours") == "a command"
+    (tmp_path / "link").symlink_to(ours)
+    (tmp_path / "copy").mkdir()
+    (tmp_path / "copy" / MARKER).write_bytes((ours / MARKER).read_bytes())
+    assert owner(tmp_path / "link") is None and owner(tmp_path / "copy") is None
+    assert str(tmp_path) not in (ours / MARKER).read_text() and identity(ours) in (ours / MARKER).read_text()
+
+
+def test_another_commands_folder_is_not_claimed(tmp_path):
+    folder = tmp_path / "out"
+    claim_output_folder(folder, "one command")
+    (folder / "result.json").write_text("{}")
+    with pytest.raises(NotOwned, match="made by one command, not by another"):
+        claim_output_folder(folder, "another", fresh=True)
+    assert (folder / "result.json").exists()
+
+
+def test_label_free_inputs_refuses_to_clear_a_users_folder_and_rewrites_its_own(tmp_path):
+    label_free = script("label_free_inputs")
+    mine = users_folder(tmp_path / "mine")
+    with pytest.raises(SystemExit, match="Nothing was deleted"):
+        label_free.main(["--out", str(mine)])
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.tex"]
+    out = tmp_path / "inputs"
+    label_free.main(["--out", str(out)])
+    (out / "stale.json").write_text("{}")
+    label_free.main(["--out", str(out)])  # its own folder: cleared, so no stale setting survives
+    assert not (out / "stale.json").exists() and (out / "configs").is_dir()
+
+
+def test_tune_methods_writes_only_into_a_pipeline_output_folder(tmp_path):
+    mine = users_folder(tmp_path / "mine")
+    with pytest.raises(SystemExit, match="not an output folder of the pipeline.*--adopt"):
+        script("tune_methods").main(["--out", str(mine), "--tasks", "DoorOpening-lite-v0"])
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.tex"]

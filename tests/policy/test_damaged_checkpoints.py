@@ -1,0 +1,122 @@
+"""A missing, damaged or untrusted checkpoint folder is refused with its path and the fix, before LeRobot reads it:
+through CCDPPolicy.from_pretrained (also what lerobot-eval and lerobot-record call) and lerobot-ccdp-synthesize."""
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from lerobot.processor import ProcessorStep, ProcessorStepRegistry
+
+from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.recovery.synthesize import synthesize_recovery_dataset
+
+from fixtures.reaching import REACHING_REPO_ID
+
+SETTINGS = {"failure_feature": "primitive", "num_primitives": 4}
+DAMAGED = "is damaged .*Re-train the checkpoint, or copy or download it again"
+
+
+def damaged_copy(checkpoint: Path, tmp_path: Path, damage: Callable[[Path], None]) -> Path:
+    copy = tmp_path / "pretrained_model"
+    shutil.copytree(checkpoint, copy)
+    damage(copy)
+    return copy
+
+
+def truncate_weights(folder: Path) -> None:
+    weights = folder / "model.safetensors"
+    weights.write_bytes(weights.read_bytes()[: weights.stat().st_size // 2])
+
+
+def garble_config(folder: Path) -> None:
+    (folder / "config.json").write_text('{"type": "ccdp", "horizon": 1')
+
+
+def synthesize_from(policy_path: Path | str, demo_root: Path, out_root: Path) -> None:
+    recipe = RecoveryRecipe.from_dict({**SETTINGS, "n_states": 4, "chunks_per_state": 2})
+    synthesize_recovery_dataset(recipe, REACHING_REPO_ID, demo_root, policy_path, "local/r", out_root, progress=False)
+
+
+@pytest.mark.parametrize(("damage", "file"), [(truncate_weights, "model.safetensors"), (garble_config, "config.json")])
+def test_a_damaged_checkpoint_file_is_named_with_the_fix(untrained_primitive_checkpoint, reaching_root, tmp_path, damage, file):
+    folder = damaged_copy(untrained_primitive_checkpoint, tmp_path, damage)
+    message = f"Checkpoint file {folder / file} {DAMAGED}"
+    with pytest.raises(ValueError, match=message):
+        CCDPPolicy.from_pretrained(folder)
+    with pytest.raises(ValueError, match=message):
+        synthesize_from(folder, reaching_root, tmp_path / "recovery")
+    assert not (tmp_path / "recovery").exists()
+
+
+@pytest.mark.parametrize("missing", ["does/not/exist", "outputs/base"])
+def test_a_missing_checkpoint_folder_is_named_not_taken_for_a_repo_id(reaching_root, tmp_path, missing):
+    """`outputs/base` has a repo id's form: the Hub is asked (offline here), then the missing folder is named."""
+    message = f"Checkpoint folder {missing} does not exist .*checkpoints/last/pretrained_model"
+    with pytest.raises(FileNotFoundError, match=message):
+        CCDPPolicy.from_pretrained(missing)
+    with pytest.raises(FileNotFoundError, match=message):
+        synthesize_from(missing, reaching_root, tmp_path / "recovery")
+
+
+def test_a_folder_that_is_no_checkpoint_is_named(reaching_root):
+    with pytest.raises(FileNotFoundError, match=f"{reaching_root} holds no config.json, so it is not a policy"):
+        CCDPPolicy.from_pretrained(reaching_root)
+
+
+def test_a_missing_demo_folder_says_it_does_not_exist(untrained_primitive_checkpoint, tmp_path):
+    with pytest.raises(FileNotFoundError, match=f"--dataset.root={tmp_path / 'demos'}: the folder does not exist"):
+        synthesize_from(untrained_primitive_checkpoint, tmp_path / "demos", tmp_path / "recovery")
+
+
+class ForeignStep(ProcessorStep):
+    """A step registered by a package other than LeRobot and lerobot_ccdp."""
+
+
+@pytest.fixture
+def foreign_registry_name():
+    ProcessorStepRegistry.register("ccdp_test_foreign_step")(ForeignStep)
+    yield "ccdp_test_foreign_step"
+    ProcessorStepRegistry.unregister("ccdp_test_foreign_step")
+
+
+@pytest.mark.parametrize("entry", ["os.system", "lerobot_ccdp.policy.checkpoint_files.importlib", "foreign"])
+def test_a_processor_step_from_outside_lerobot_and_ccdp_is_refused_before_it_runs(
+    untrained_primitive_checkpoint, reaching_root, tmp_path, foreign_registry_name, entry
+):
+    """Checkpoints are code: LeRobot's loader would import and call the class a processor file names."""
+    marker = tmp_path / "ran"
+    step = ({"registry_name": foreign_registry_name} if entry == "foreign"
+            else {"class": entry, "config": {"command": f"touch {marker}"}})
+
+    def add_step(folder: Path) -> None:
+        processor = folder / "policy_preprocessor.json"
+        content = json.loads(processor.read_text())
+        content["steps"].insert(1, step)
+        processor.write_text(json.dumps(content))
+
+    folder = damaged_copy(untrained_primitive_checkpoint, tmp_path, add_step)
+    name = foreign_registry_name if entry == "foreign" else entry
+    message = (f"{folder / 'policy_preprocessor.json'}: step 1 names '{name}', which is not a processor step of "
+               "LeRobot or lerobot_ccdp.*Checkpoints are code: load only ones you trust")
+    with pytest.raises(ValueError, match=message):
+        CCDPPolicy.from_pretrained(folder)
+    with pytest.raises(ValueError, match=message):
+        synthesize_from(folder, reaching_root, tmp_path / "recovery")
+    assert not marker.exists()
+
+
+def test_processor_steps_named_by_lerobot_class_path_are_accepted(untrained_primitive_checkpoint, tmp_path):
+    """LeRobot writes `class` (a module path) for unregistered steps; its own and ours load as before."""
+
+    def spell_out_classes(folder: Path) -> None:
+        processor = folder / "policy_preprocessor.json"
+        content = json.loads(processor.read_text())
+        for entry in content["steps"]:
+            step = ProcessorStepRegistry.get(entry.pop("registry_name"))
+            entry["class"] = f"{step.__module__}.{step.__name__}"
+        processor.write_text(json.dumps(content))
+
+    assert CCDPPolicy.from_pretrained(damaged_copy(untrained_primitive_checkpoint, tmp_path, spell_out_classes)) is not None

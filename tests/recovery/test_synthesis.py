@@ -1,0 +1,235 @@
+"""lerobot-ccdp-synthesize: recipe checks, z identical to the policy's, LeRobot loading and training, atomicity."""
+
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+from lerobot.utils.constants import ACTION, OBS_STATE
+from safetensors.torch import load_file
+from torch import Tensor
+
+from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
+from lerobot_ccdp.envs import TASKS
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.processor_ccdp import normalize_batch
+from lerobot_ccdp.recovery import synthesize
+from lerobot_ccdp.recovery.synthesize import (
+    FAILURE_ACTION,
+    PAIR_SOURCE,
+    RECIPE_COPY,
+    synthesize_recovery_dataset,
+)
+
+from fixtures.policy_factory import untrained_checkpoint
+from fixtures.reaching import REACHING_REPO_ID, run_cli
+
+FEATURE_SETTINGS = {
+    "primitive": {"failure_feature": "primitive", "num_primitives": 4},
+    "final_state": {"failure_feature": "final_state", "failure_state_dims": [0, 1]},
+    # A z of one dim is a column of shape (1,), which LeRobotDataset loads as a scalar per row.
+    "final_state_1d": {"failure_feature": "final_state", "failure_state_dims": [1]},
+    "action": {"failure_feature": "action", "failure_action_steps": [7, 15], "failure_action_dims": [1]},
+}
+# Small and loose enough that an untrained base (near-random chunks) still yields pairs quickly.
+SMALL = {"n_states": 16, "chunks_per_state": 6, "batch_states": 8, "pairs_per_failure": 2, "demo_frames": 200,
+         "delta_x": 0.05, "delta_z": 0.1}
+
+
+def normalized_rows(checkpoint: Path, root: Path, chunk_column: str) -> tuple[CCDPPolicy, dict]:
+    """The policy, and every row's z and chunk `chunk_column` normalised by LeRobot with the dataset's stats."""
+    policy = CCDPPolicy.from_pretrained(checkpoint)
+    dataset = LeRobotDataset("local/recovery", root=root)
+    rows = dataset.hf_dataset.with_format("torch")[:]
+    z = rows[FAILURE_FEATURE_KEY].reshape(len(rows[ACTION]), -1)  # (N,) for a one-dim z
+    return policy, normalize_batch(policy.config, dataset.meta.stats, {FAILURE_FEATURE_KEY: z, ACTION: rows[chunk_column]})
+
+
+@pytest.fixture(scope="module", params=list(FEATURE_SETTINGS))
+def synthesised(request, reaching_root, tmp_path_factory) -> tuple[Path, Path, RecoveryRecipe]:
+    settings = FEATURE_SETTINGS[request.param]
+    tmp = tmp_path_factory.mktemp(f"synth_{request.param}")
+    checkpoint = untrained_checkpoint(reaching_root, tmp / "base", **settings)
+    recipe = RecoveryRecipe.from_dict({**settings, **SMALL})
+    out = synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/recovery",
+                                      tmp / "recovery", progress=False)
+    return checkpoint, out, recipe
+
+
+def test_recovery_dataset_loads_with_its_stats_and_recipe_record(synthesised, reaching_root):
+    checkpoint, root, recipe = synthesised
+    dataset = LeRobotDataset("local/recovery", root=root)
+    item = dataset[0]
+    assert item[ACTION].shape == (16, 2) and item[FAILURE_ACTION].shape == (16, 2)
+    assert item[FAILURE_FEATURE_KEY].numel() == CCDPPolicy.from_pretrained(checkpoint).config.failure_feature_dim
+    sources = torch.as_tensor(dataset.hf_dataset[PAIR_SOURCE]).flatten()
+    assert (sources == 0).any() and (sources == 1).any(), "recoveries both synthesised and drawn from the demos"
+    demo_stats = LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root).stats
+    for key in (ACTION, OBS_STATE):  # lerobot-train normalises with these: they must be the base's
+        torch.testing.assert_close(torch.as_tensor(dataset.meta.stats[key]["min"]), torch.as_tensor(demo_stats[key]["min"]))
+        torch.testing.assert_close(torch.as_tensor(dataset.meta.stats[key]["max"]), torch.as_tensor(demo_stats[key]["max"]))
+    record = yaml.safe_load((root / RECIPE_COPY).read_text())
+    assert record["recovery"] == {**record["recovery"], **recipe.failure_settings(), "delta_z": recipe.delta_z}
+    assert record["source"] == {"repo_id": REACHING_REPO_ID, "root": str(reaching_root), "policy_path": str(checkpoint)}
+    result = record["result"]
+    assert result["rows"] == dataset.num_frames == result["recoveries_synthesised"] + result["recoveries_from_demos"]
+    assert result["pool_synthesised"] == 16 * 6 and result["pool_demo"] == 200
+    assert dataset.num_frames <= 2 * (16 * 6 + 200), "at most pairs_per_failure recoveries per pool sample"
+
+
+def test_stored_z_is_the_policys_z_of_the_failed_chunk(synthesised):
+    """z of every row, normalised by LeRobot with the dataset's stats, equals what the policy computes at run time
+    for the failed chunk (FailureFeature.from_chunk, the code behind report_failure and the env flag)."""
+    policy, normalized = normalized_rows(*synthesised[:2], chunk_column=FAILURE_ACTION)
+    expected = policy.feature.from_chunk(normalized[ACTION], policy.outcomes)
+    torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], expected, atol=1e-4, rtol=1e-4)
+
+
+def test_every_row_satisfies_eq5(synthesised):
+    """The recovery chunk's z differs from the failure's by more than delta_z (the state condition is checked
+    between perturbed windows inside the recipe; here the stored z and chunks are re-read from disk)."""
+    policy, normalized = normalized_rows(*synthesised[:2], chunk_column=ACTION)
+    z_recovery = policy.feature.from_chunk(normalized[ACTION], policy.outcomes)
+    distance = ((z_recovery - normalized[FAILURE_FEATURE_KEY]) ** 2).sum(dim=-1)
+    assert (distance > synthesised[2].delta_z - 1e-4).all()
+
+
+# Real lerobot-train runs for a z of several dims and for one of one dim (a scalar column in LeRobot's batches).
+@pytest.mark.parametrize("synthesised", ["primitive", "final_state_1d"], indirect=True)
+def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tmp_path):
+    checkpoint, root, _ = synthesised
+    out = tmp_path / "recovery_run"
+    run_cli("lerobot-train", f"--policy.path={checkpoint}", "--policy.training_stage=recovery",
+            "--dataset.repo_id=local/recovery", f"--dataset.root={root}", f"--output_dir={out}", "--steps=20",
+            "--batch_size=16", "--save_freq=20", "--policy.push_to_hub=false", "--num_workers=0",
+            "--wandb.enable=false", "--log_freq=10")
+    trained = out / "checkpoints" / "last" / "pretrained_model"
+    before, after = load_file(checkpoint / "model.safetensors"), load_file(trained / "model.safetensors")
+    assert bool(after["recovery_trained"]) and not bool(before["recovery_trained"])
+    for key, value in before.items():
+        if key.startswith("base."):
+            torch.testing.assert_close(after[key], value, msg=f"{key} changed: the base must stay frozen")
+        if key.startswith("outcomes."):
+            torch.testing.assert_close(after[key], value, msg=f"{key}: the outcome table must travel along")
+    assert any(not torch.equal(after[k], before[k]) for k in before if k.startswith("recovery."))
+    policy = CCDPPolicy.from_pretrained(trained)
+    assert policy.config.training_stage == "recovery" and policy.config.input_features == CCDPPolicy.from_pretrained(checkpoint).config.input_features
+
+
+def test_interrupted_synthesis_leaves_nothing(reaching_root, tmp_path, monkeypatch):
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
+    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL})
+    original = synthesize.LeRobotDataset.add_frame
+    calls = {"n": 0}
+
+    def interrupt_midway(self, frame):
+        calls["n"] += 1
+        if calls["n"] == 50:
+            raise KeyboardInterrupt
+        return original(self, frame)
+
+    monkeypatch.setattr(synthesize.LeRobotDataset, "add_frame", interrupt_midway)
+    with pytest.raises(KeyboardInterrupt):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/recovery",
+                                    tmp_path / "recovery", progress=False)
+    assert calls["n"] == 50
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["base"], "no dataset and no staging folder left"
+
+
+def test_outcome_radius_keeps_only_sampled_chunks_near_a_demonstration(reaching_root, tmp_path):
+    """Sampled chunks borrow the outcome of their nearest demonstrated chunk; with outcome_radius those farther
+    than the radius from every demonstrated chunk leave the pool, while demonstrated chunks all stay."""
+    settings = FEATURE_SETTINGS["primitive"]
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
+    policy = CCDPPolicy.from_pretrained(checkpoint)
+
+    def synthesised_gaps(radius: float, name: str) -> tuple[Tensor, dict]:
+        recipe = RecoveryRecipe.from_dict({**settings, **SMALL, "outcome_radius": radius})
+        root = synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r",
+                                           tmp_path / name, progress=False)
+        rows = LeRobotDataset("local/r", root=root).hf_dataset.with_format("torch")[:]
+        chunks = normalize_batch(policy.config, LeRobotDatasetMetadata("local/r", root=root).stats,
+                                 {ACTION: rows[ACTION]})[ACTION][rows[PAIR_SOURCE].flatten() == 0]
+        result = yaml.safe_load((root / RECIPE_COPY).read_text())["result"]
+        return policy.outcomes.rms_distance(chunks), result
+
+    gaps, unfiltered = synthesised_gaps(0.0, "all")
+    radius = float(gaps.median())
+    kept, filtered = synthesised_gaps(radius, "near")
+    assert unfiltered["pool_synthesised"] == unfiltered["sampled"] and (gaps > radius + 1e-4).any()
+    assert 0 < filtered["pool_synthesised"] < filtered["sampled"]
+    assert len(kept) and (kept <= radius + 1e-4).all()
+    assert filtered["pool_demo"] == unfiltered["pool_demo"]
+
+
+def test_refuses_an_outcome_radius_that_drops_every_sampled_chunk(reaching_root, tmp_path):
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
+    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "outcome_radius": 1e-6})
+    with pytest.raises(ValueError, match="Raise outcome_radius"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r",
+                                    progress=False)
+    assert not (tmp_path / "r").exists()
+
+
+def test_refuses_a_recipe_that_defines_z_differently(reaching_root, tmp_path):
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
+    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["final_state"], **SMALL})
+    with pytest.raises(ValueError, match="--policy.failure_feature=final_state"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r",
+                                    progress=False)
+    assert not (tmp_path / "r").exists()
+
+
+def test_refuses_a_demo_dataset_without_the_named_feature(reaching_root, tmp_path):
+    settings = {"failure_feature": "primitive", "num_primitives": 4, "primitive_key": "option"}
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **{**settings, "primitive_key": "primitive"})
+    policy = CCDPPolicy.from_pretrained(checkpoint)
+    policy.config.primitive_key = "option"  # a checkpoint whose recipe names a column the demos lack
+    policy.save_pretrained(checkpoint)
+    recipe = RecoveryRecipe.from_dict({**settings, **SMALL})
+    with pytest.raises(ValueError, match=r"lacks column\(s\) \['option'\]"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r",
+                                    progress=False)
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"w_s": 1.5}, r"w_s must be in \(0, 1\]"),
+    ({"failure_feature": "colour"}, "failure_feature must be one of"),
+    ({"n_states": 0, "demo_frames": 0}, "the pool is empty"),
+    ({"pairs_per_failure": 0}, "pairs_per_failure"),
+    ({"delta_x": -1.0}, "delta_x"),
+    ({"outcome_radius": -0.1}, "outcome_radius"),
+    ({"sigmaa": 0.1}, "unknown field"),
+    ({"sigma": "0.02"}, r"recovery.sigma must be float, got '0.02'"),
+    ({"chunks_per_state": 2.5}, "recovery.chunks_per_state must be int, got 2.5"),
+])
+def test_recipe_validation(change, message):
+    with pytest.raises(ValueError, match=message):
+        RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **change})
+
+
+def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
+    """A wrong --output.root or --dataset.root is named at once, not after minutes of loading and sampling."""
+    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL})
+    missing_checkpoint = tmp_path / "no_such_checkpoint"
+    (tmp_path / "out").mkdir()
+    with pytest.raises(FileExistsError, match="out.*already exists"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, missing_checkpoint, "local/r",
+                                    tmp_path / "out", progress=False)
+    with pytest.raises(ValueError, match="only replaces a dataset that lerobot_ccdp wrote"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, missing_checkpoint, "local/r",
+                                    tmp_path / "out", overwrite=True, progress=False)
+    with pytest.raises(FileNotFoundError, match=f"No LeRobot dataset at --dataset.root={tmp_path / 'demos'}"):
+        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, tmp_path / "demos", missing_checkpoint, "local/r",
+                                    tmp_path / "new", progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_every_task_recipe_has_a_valid_recovery_section():
+    recipes = sorted(Path(__file__).parents[2].joinpath("datasets_recipes").glob("*.yaml"))
+    assert len(recipes) == len(TASKS) + 5  # every task, four of them also with cameras, and the 2-D task
+    for path in recipes:
+        RecoveryRecipe.load(path)
