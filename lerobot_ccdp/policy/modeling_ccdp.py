@@ -447,7 +447,7 @@ class CCDPPolicy(PreTrainedPolicy):
         weights = weights or self.weights
         r, n = sample.shape[0], z.shape[1]
         guided = n > 0 and self.config.recovery_head == "classifier"
-        terms = self._base_terms(z_mask.sum(dim=1) * (not guided), weights)
+        terms = weights.base_terms(z_mask.sum(dim=1) * (not guided))
         ones, zeros = torch.ones(r, 1, device=sample.device), torch.zeros(r, 1, device=sample.device)
         keep = {"a": (zeros, zeros), "s": (ones, zeros), "h": (zeros, ones)}
         k = len(terms)
@@ -501,14 +501,6 @@ class CCDPPolicy(PreTrainedPolicy):
             noisy = torch.cat([noisy, sample])
         eps = self.recovery(noisy, timestep.expand(noisy.shape[0]), z_rows, keep_z)
         return eps[: r * n].view(r, n, *chunk), (eps[r * n :] if null_row else None)
-
-    @staticmethod
-    def _base_terms(n_failures: Tensor, weights: CompositionWeights) -> list[str]:
-        """Which base-network outputs eq. (4) needs: zero-weight terms are not evaluated."""
-        terms = [name for name, w in (("s", weights.w_s), ("h", weights.w_h)) if w]
-        if weights.uses_unconditional(n_failures * bool(weights.w_z)) or not terms:
-            terms.insert(0, "a")
-        return terms
 
     def _no_repeat_gradient(self, sample: Tensor, step: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
         """grad_{a_t} log P(a_0 outside F | a_t, s) from the classifier head. LeRobot samples under

@@ -31,6 +31,14 @@ class CompositionWeights:
         coefficient = 1.0 - self.w_s - self.w_h - per_failure * n_failures.to(torch.float32)
         return bool((coefficient.abs() > 1e-9).any())
 
+    def base_terms(self, n_failures: Tensor) -> list[str]:
+        """Which outputs of the base network eq. (4) needs for rows remembering `n_failures` failures (zero when
+        the failures enter otherwise): "a" (eps_a), "s" (eps_s), "h" (eps_h). Zero-weight terms are not evaluated."""
+        terms = [name for name, w in (("s", self.w_s), ("h", self.w_h)) if w]
+        if self.uses_unconditional(n_failures * bool(self.w_z)) or not terms:
+            terms.insert(0, "a")
+        return terms
+
     @classmethod
     def exploration(cls, w_s: float) -> "CompositionWeights":
         """eps_bar = eps_a + w_s (eps_s - eps_a)   (eq. 7): eq. (4) without history and failures.

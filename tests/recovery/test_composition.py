@@ -100,3 +100,14 @@ def test_failure_terms_against_the_null_estimate_need_it_and_not_eps_a():
 def test_a_weighted_term_that_was_not_evaluated_is_an_error():
     with pytest.raises(ValueError, match="eps_h"):
         compose_eps(CompositionWeights(1.0, 0.5, 0.0), torch.zeros(1, *SHAPE), torch.zeros(1, *SHAPE))
+
+
+@pytest.mark.parametrize("weights,failures,terms", [
+    (CompositionWeights(1.0, 0.0, 1.0, "eps_a"), [0, 0], ["s"]),  # eps_a's coefficient 1 - w_s is 0
+    (CompositionWeights(1.0, 0.0, 1.0, "eps_a"), [0, 2], ["a", "s"]),  # -2 w_z for the row with failures
+    (CompositionWeights(1.0, 0.0, 3.0, "eps_z_null"), [4, 1], ["s"]),  # failures measured against eps_z_null
+    (CompositionWeights(1.0, 0.5, 1.0, "eps_z_null"), [0, 0], ["a", "s", "h"]),
+    (CompositionWeights(0.0, 0.0, 0.0), [0], ["a"]),
+])
+def test_only_the_base_terms_eq4_weighs_are_evaluated(weights, failures, terms):
+    assert weights.base_terms(torch.tensor(failures)) == terms
