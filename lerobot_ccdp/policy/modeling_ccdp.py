@@ -42,6 +42,7 @@ from lerobot_ccdp.recovery.composition import (
     failure_steps,
     guide_away_from_failures,
     log_no_repeat,
+    recovery_conditions,
 )
 from lerobot_ccdp.recovery.failure_buffer import FailureBuffer, distinct_failures
 from lerobot_ccdp.recovery.failure_features import FailureFeature
@@ -454,7 +455,7 @@ class CCDPPolicy(PreTrainedPolicy):
         state_rows, history_rows = state.repeat(k, 1), history.repeat(k, 1)
         keep_s = torch.cat([keep[t][0] for t in terms])
         keep_h = torch.cat([keep[t][1] for t in terms])
-        z_rows, keep_z = self._recovery_conditions(z, bool(weights.w_z) and weights.z_reference == "eps_z_null")
+        z_rows, keep_z = recovery_conditions(z, weights.measures_against_z_null)
         self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
         with_failures = failure_steps(len(self.noise_scheduler.timesteps), self.config.failure_step_share)
         for i, t in enumerate(self.noise_scheduler.timesteps):
@@ -478,16 +479,6 @@ class CCDPPolicy(PreTrainedPolicy):
                 )
             sample = self.noise_scheduler.step(composed, t, sample, generator=generators).prev_sample
         return sample
-
-    @staticmethod
-    def _recovery_conditions(z: Tensor, null_row: bool) -> tuple[Tensor, Tensor]:
-        """The recovery head's z rows (R * N [+ R], z_dim) and keep flags, fixed for a whole reverse diffusion:
-        one row per failure slot and, with `null_row`, one z-dropped row per batch row for eps_z_null."""
-        r, n, dim = z.shape
-        z_rows, keep_z = z.reshape(r * n, dim), z.new_ones(r * n, 1)
-        if null_row:
-            z_rows, keep_z = torch.cat([z_rows, z.new_zeros(r, dim)]), torch.cat([keep_z, z.new_zeros(r, 1)])
-        return z_rows, keep_z
 
     def _recovery_terms(
         self, sample: Tensor, timestep: Tensor, z_rows: Tensor, keep_z: Tensor, n: int

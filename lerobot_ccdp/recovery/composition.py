@@ -31,6 +31,11 @@ class CompositionWeights:
         coefficient = 1.0 - self.w_s - self.w_h - per_failure * n_failures.to(torch.float32)
         return bool((coefficient.abs() > 1e-9).any())
 
+    @property
+    def measures_against_z_null(self) -> bool:
+        """Whether the failure terms need eps_z_null, the recovery head's z-dropped estimate."""
+        return bool(self.w_z) and self.z_reference == "eps_z_null"
+
     def base_terms(self, n_failures: Tensor) -> list[str]:
         """Which outputs of the base network eq. (4) needs for rows remembering `n_failures` failures (zero when
         the failures enter otherwise): "a" (eps_a), "s" (eps_s), "h" (eps_h). Zero-weight terms are not evaluated."""
@@ -85,6 +90,17 @@ def compose_eps(
         reference = eps_a if weights.z_reference == "eps_a" else _require(eps_z_null, "eps_z_null")
         eps = eps + weights.w_z * ((eps_z - reference[:, None]) * mask).sum(dim=1)
     return eps
+
+
+def recovery_conditions(z: Tensor, null_row: bool) -> tuple[Tensor, Tensor]:
+    """The recovery head's z rows (R * N [+ R], z_dim) and keep flags for eq. (4)'s failure terms, fixed for a whole
+    reverse diffusion: one row per failure slot (R, N, z_dim) and, with `null_row`, one z-dropped row per batch row
+    for eps_z_null; all of them go through the recovery head in one call per step."""
+    r, n, dim = z.shape
+    z_rows, keep_z = z.reshape(r * n, dim), z.new_ones(r * n, 1)
+    if null_row:
+        z_rows, keep_z = torch.cat([z_rows, z.new_zeros(r, dim)]), torch.cat([keep_z, z.new_zeros(r, 1)])
+    return z_rows, keep_z
 
 
 def guide_away_from_failures(eps: Tensor, no_repeat_gradient: Tensor, alpha_bar: Tensor, w_z: float) -> Tensor:
