@@ -1,20 +1,23 @@
 """CCDP versus LeRobot's stock DiffusionPolicy: planning latency and training speed, side by side.
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
-        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp|classifier] [--classifier-query each|set]
-        [--failure-step-share 1.0]
+        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp|classifier|set_denoiser]
+        [--classifier-query each|set] [--failure-step-share 1.0] [--plan-batch 1] [--horizon 16]
         [--out outputs/bench_policy.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
 kernel 5, 8 groups, n_obs_steps 1, horizon 16, n_action_steps 8, DDIM with 10 inference steps) and the same
 inputs: a 2-D robot state plus a small environment state (stock diffusion needs an image or an env state).
 
-(a) Planning latency: one call that samples a chunk (`predict_action_chunk`, batch size 1, no grad), median
-    over --repeats calls after warm-up. CCDP runs with recovery_mode=ccdp, eps_z marked trained
-    (`recovery_trained.fill_(True)`, so the failure terms are really evaluated) and N = 0, 1, 2, 4, 8 failures
-    recorded with `report_failure`; DP* (rejection sampling, --dp-star-candidates candidates) and DP at N = 4
-    share the same weights. Calls of all configurations are interleaved round-robin so background load hits
-    them alike.
+(a) Planning latency: one call that samples a chunk for --plan-batch rows (`predict_action_chunk`, no grad;
+    lerobot-eval plans for its eval batch, a robot for 1 row), median over --repeats calls after warm-up. The
+    failure feature is `primitive` (4 options) with an outcome table of OUTCOME_ROWS demonstrated chunks, so DP*
+    (and CCDP with redraws) pay for the outcome lookup as on the Panda tasks. CCDP runs with
+    recovery_mode=ccdp, its head marked trained (`recovery_trained.fill_(True)`, so the failure terms are really
+    evaluated) and N = 0, 1, 2, 4, 8 failures recorded with `report_failure`; DP* (--dp-star-candidates
+    candidates, up to --dp-star-rounds rounds), the compute-matched DP* (--matched-candidates candidates, one
+    round) and DP at N = 4 share the same weights. Calls of all configurations are interleaved round-robin so
+    background load hits them alike.
 (b) Training: forward + backward + grad clipping + Adam step on batches of --batch-size (each policy's own
     batch layout: CCDP's base stage reads history_length extra frames), median over --train-steps interleaved
     steps; then, unless --no-cli, real `lerobot-train` runs of both policy types for --cli-steps steps on a
@@ -47,11 +50,12 @@ from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
-from lerobot_ccdp.policy.configuration_ccdp import CLASSIFIER_QUERIES, CCDPConfig
+from lerobot_ccdp.policy.configuration_ccdp import CLASSIFIER_QUERIES, RECOVERY_HEADS, CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 STATE, ENV, ACTION = "observation.state", "observation.environment_state", "action"
 FAILURE_COUNTS = (0, 1, 2, 4, 8)
+OUTCOME_ROWS, OPTIONS = 10000, 4
 SHARED = dict(  # the UNet and sampling settings both policies use
     n_obs_steps=1, horizon=16, n_action_steps=8, down_dims=(32, 64, 128), diffusion_step_embed_dim=32,
     kernel_size=5, n_groups=8, noise_scheduler_type="DDIM", num_train_timesteps=100, num_inference_steps=10,
@@ -67,14 +71,18 @@ def features(env_dim: int) -> tuple[dict, dict]:
 
 def make_ccdp(env_dim: int, **overrides) -> CCDPPolicy:
     inputs, outputs = features(env_dim)
-    config = CCDPConfig(input_features=inputs, output_features=outputs, device="cpu", failure_feature="action",
-                        **SHARED, **overrides)
-    return CCDPPolicy(config)
+    settings = {"failure_feature": "primitive", "num_primitives": OPTIONS, **SHARED, **overrides}
+    policy = CCDPPolicy(CCDPConfig(input_features=inputs, output_features=outputs, device="cpu", **settings))
+    chunk = policy.config.horizon * policy.config.action_dim
+    policy.outcomes.fill(torch.rand(OUTCOME_ROWS, chunk) * 2 - 1, torch.zeros(OUTCOME_ROWS, 2),
+                         torch.randint(0, OPTIONS, (OUTCOME_ROWS,)))
+    return policy
 
 
-def make_diffusion(env_dim: int) -> DiffusionPolicy:
+def make_diffusion(env_dim: int, **overrides) -> DiffusionPolicy:
     inputs, outputs = features(env_dim)
-    return DiffusionPolicy(DiffusionConfig(input_features=inputs, output_features=outputs, device="cpu", **SHARED))
+    return DiffusionPolicy(DiffusionConfig(input_features=inputs, output_features=outputs, device="cpu",
+                                           **{**SHARED, **overrides}))
 
 
 def n_params(module: torch.nn.Module) -> int:
@@ -115,14 +123,14 @@ def interleaved_medians(calls: dict[str, callable], repeats: int, warmup: int) -
 # ----- (a) planning latency -------------------------------------------------------------------------------
 
 
-def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates: int, recovery_head: str,
-                     classifier_query: str, failure_step_share: float) -> dict:
+def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Namespace) -> dict:
     torch.manual_seed(0)
-    make = functools.partial(make_ccdp, recovery_head=recovery_head, classifier_query=classifier_query,
-                             failure_step_share=failure_step_share)
-    obs = {STATE: torch.randn(1, 2), ENV: torch.randn(1, env_dim)}
+    make = functools.partial(make_ccdp, recovery_head=args.recovery_head, classifier_query=args.classifier_query,
+                             failure_step_share=args.failure_step_share, horizon=args.horizon)
+    rows = args.plan_batch
+    obs = {STATE: torch.randn(rows, 2), ENV: torch.randn(rows, env_dim)}
 
-    diffusion = make_diffusion(env_dim).eval()
+    diffusion = make_diffusion(env_dim, horizon=args.horizon).eval()
     diffusion.reset()
     diffusion.select_action(dict(obs))  # fills the observation queues predict_action_chunk stacks
 
@@ -136,7 +144,7 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates
         policy.eval().reset()
         policy.select_action(dict(obs))
         for _ in range(n):
-            policy.report_failure(rows=[0], z=torch.randn(1, z_dim))
+            policy.report_failure(z=torch.eye(z_dim)[torch.randint(0, z_dim, (rows,))])
         assert int(policy.failure_count()[0]) == n
         return policy
 
@@ -144,9 +152,13 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, dp_star_candidates
     ccdp_policies = {n: with_failures(make(env_dim).eval(), n) for n in FAILURE_COUNTS}
     for n, policy in ccdp_policies.items():
         calls[f"ccdp N={n}"] = lambda p=policy: p.predict_action_chunk(dict(obs))
-    dp_star = with_failures(make(env_dim, recovery_mode="dp_star", dp_star_candidates=dp_star_candidates), 4)
+    dp_star = with_failures(make(env_dim, recovery_mode="dp_star", dp_star_candidates=args.dp_star_candidates,
+                                 dp_star_rounds=args.dp_star_rounds), 4)
+    matched = with_failures(make(env_dim, recovery_mode="dp_star", dp_star_candidates=args.matched_candidates,
+                                 dp_star_rounds=1), 4)
     dp = with_failures(make(env_dim, recovery_mode="dp"), 4)
     calls["dp_star N=4"] = lambda: dp_star.predict_action_chunk(dict(obs))
+    calls["dp_star matched N=4"] = lambda: matched.predict_action_chunk(dict(obs))
     calls["dp N=4"] = lambda: dp.predict_action_chunk(dict(obs))
 
     # Also the full select_action path right after reset (queue/memory set-up included), failure-free.
@@ -327,9 +339,14 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--train-steps", type=int, default=30, help="timed training steps per policy")
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--env-dim", type=int, default=4, help="size of observation.environment_state")
-    parser.add_argument("--dp-star-candidates", type=int, default=16)
+    parser.add_argument("--dp-star-candidates", type=int, default=32)
+    parser.add_argument("--dp-star-rounds", type=int, default=4)
+    parser.add_argument("--matched-candidates", type=int, default=2,
+                        help="candidates of the compute-matched DP* (one round)")
+    parser.add_argument("--plan-batch", type=int, default=1, help="rows planned per call (lerobot-eval: its batch)")
+    parser.add_argument("--horizon", type=int, default=16, help="chunk length (the Panda tasks: 32)")
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--recovery-head", choices=["unet", "mlp", "classifier"], default="unet", help="recovery head")
+    parser.add_argument("--recovery-head", choices=RECOVERY_HEADS, default="unet", help="recovery head")
     parser.add_argument("--classifier-query", choices=CLASSIFIER_QUERIES, default="each",
                         help="how the classifier head is asked about the failures (recovery head classifier)")
     parser.add_argument("--failure-step-share", type=float, default=1.0,
@@ -353,8 +370,7 @@ def main(argv: list[str] | None = None) -> dict:
     results["args"]["command"] = " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])])
 
     print("(a) planning latency ...", flush=True)
-    results["latency"] = planning_latency(args.env_dim, args.repeats, args.warmup, args.dp_star_candidates,
-                                          args.recovery_head, args.classifier_query, args.failure_step_share)
+    results["latency"] = planning_latency(args.env_dim, args.repeats, args.warmup, args)
     print("(b) training step ...", flush=True)
     results["train_step"] = training_step_time(args.env_dim, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:

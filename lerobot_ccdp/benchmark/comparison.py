@@ -28,7 +28,8 @@ from lerobot_ccdp.benchmark.episodes import Episodes, Estimate, LostEpisodes, so
 from lerobot_ccdp.benchmark.paired import cluster_bootstrap, repeats_per_attempt, repeats_per_opportunity
 from lerobot_ccdp.envs.tasks import task_family
 
-METHOD_LABELS = {"dp": "DP", "dp_star": "DP*", "ccdp": "CCDP", "oracle": "no-repeat oracle"}
+METHOD_LABELS = {"dp": "DP", "dp_star": "DP*", "dp_star_matched": "DP* at CCDP's cost", "ccdp": "CCDP",
+                 "oracle": "no-repeat oracle"}
 METRIC_LABELS = {
     "success": "success rate",
     "attempts": "attempts (successes)",

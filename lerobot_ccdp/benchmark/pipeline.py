@@ -52,7 +52,12 @@ from lerobot_ccdp.envs.tasks import is_lite
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.recovery.composition import failure_steps
 
-METHODS = ("dp", "dp_star", "ccdp")
+METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp")
+# The recovery_mode each method evaluates with. "dp_star_matched" is the compute-matched baseline: DP* with the
+# candidates that fit in CCDP's measured per-plan cost (MATCHED_DP_STAR unless methods.json names its own), so that
+# CCDP - matched DP* shows what composition buys over rejection at equal compute.
+RECOVERY_MODE = {"dp": "dp", "dp_star": "dp_star", "dp_star_matched": "dp_star", "ccdp": "ccdp"}
+MATCHED_DP_STAR = {"dp_star_candidates": 2, "dp_star_rounds": 1}
 # lerobot-eval saves videos of its first 10 episodes: kept for DP and CCDP, the pair `lerobot_ccdp.benchmark.watch` shows
 # side by side. DP* runs with `--env.render_mode=null`: on the Panda each frame costs about 40 ms and LeRobot
 # renders 10 envs at every step of the first batch, so its videos alone cost minutes of the benchmark's 2 hours.
@@ -148,7 +153,7 @@ class TaskFiles:
         unknown = sorted(set(settings) - set(METHODS))
         if unknown:
             raise ValueError(f"{path} names unknown method(s) {unknown}; its keys are among {list(METHODS)}")
-        return settings.get(method, {})
+        return settings.get(method, MATCHED_DP_STAR if method == "dp_star_matched" else {})
 
     def method_flags(self, method: str, overrides: dict[str, Any] | None = None) -> list[str]:
         """`method_settings`, with `overrides` on top (a setting being tuned), as lerobot-eval's `--policy.*` flags."""
@@ -160,7 +165,7 @@ class TaskFiles:
         random numbers (`COMMON_NOISE`)."""
         videos = [] if method in VIDEO_METHODS else ["--env.render_mode=null"]
         return ["lerobot-eval", f"--config_path={self.eval}", f"--policy.path={checkpoint}",
-                f"--policy.recovery_mode={method}", COMMON_NOISE, *flags, *videos, f"--seed={seed}",
+                f"--policy.recovery_mode={RECOVERY_MODE[method]}", COMMON_NOISE, *flags, *videos, f"--seed={seed}",
                 f"--output_dir={out}"]
 
     @property
@@ -364,6 +369,11 @@ def method_forms(runs: list[TaskRun]) -> str:
             form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance "
                     f"({ccdp.get('classifier_query', CCDPConfig.classifier_query)} query), w_z {ccdp['w_z']:g}")
             synthesis = "none (classifier learns from the demos)"
+        elif ccdp.get("recovery_head") == "set_denoiser":
+            form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by the failure-set denoiser eps_(s,F), "
+                    f"w_z {ccdp['w_z']:g}")
+            synthesis = (f"chunks sampled where attempts start: sigma {recipe.sigma:g}, w_s {recipe.w_s:g}, "
+                         f"{recipe.n_states} x {recipe.chunks_per_state}")
         else:
             form = f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}, w_z {ccdp['w_z']:g} against {ccdp['z_reference']}"
             synthesis = f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}"

@@ -15,7 +15,7 @@ FAILURE_FEATURES = ("final_state", "action", "primitive")
 FAILURE_STATES_AT = ("attempt_end", "demonstrated_end")
 FAILURE_SEGMENTS = ("labels", "releases", "drops", "pauses")
 TRAINING_STAGES = ("base", "recovery")
-RECOVERY_HEADS = ("unet", "mlp", "classifier")
+RECOVERY_HEADS = ("unet", "mlp", "classifier", "set_denoiser")
 CLASSIFIER_CHUNKS = ("demonstrations", "base_samples")
 CLASSIFIER_QUERIES = ("set", "each")
 Z_REFERENCES = ("eps_a", "eps_z_null")
@@ -167,8 +167,12 @@ class CCDPConfig(PreTrainedConfig):
     # Recovery head: "unet" (eps_z, LeRobot's diffusion UNet conditioned on z, trained on a synthesised recovery
     # dataset), "mlp" (eps_z as a residual MLP over the flattened chunk, FiLM-conditioned on z: cheaper, less sharp)
     # or "classifier" (a noisy-chunk classifier of "repeats a failure of the set F" given the state, trained on the
-    # demonstrations themselves, whose gradient guides eps_s; composition.guide_away_from_failures). The size of
-    # the MLP and of the classifier, and the most failures drawn for one training row of the classifier.
+    # demonstrations themselves, whose gradient guides eps_s; composition.guide_away_from_failures) or "set_denoiser"
+    # (eps_{s,F}: a copy of the base UNet conditioned on the state and the whole failure set F, trained on chunks the
+    # base samples where attempts start (lerobot-ccdp-synthesize) with F drawn independently of each row and the rows
+    # whose own outcome lies in F left out: it learns p_s restricted to the options outside F, one network call per
+    # step whatever the number of failures; composition.compose_with_failure_set). The size of the MLP heads and of the set embedding, and the most
+    # failures drawn for one training row of the classifier and the set denoiser.
     recovery_head: str = "unet"
     recovery_hidden_dim: int = 128
     recovery_num_blocks: int = 3
@@ -241,6 +245,9 @@ class CCDPConfig(PreTrainedConfig):
         if not 0.0 < self.failure_step_share <= 1.0:
             raise ValueError(f"`failure_step_share` must be in (0, 1] (1: failures at every reverse step); got "
                              f"{self.failure_step_share}. For no failures at all use --policy.recovery_mode=dp.")
+        if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
+            raise ValueError(f"recovery_head='set_denoiser' trains on one-frame rows of a synthesised dataset: it needs "
+                             f"n_obs_steps=1; got {self.n_obs_steps}. Use --policy.recovery_head=unet.")
         if self.horizon % 2 ** len(self.down_dims) != 0:
             raise ValueError(
                 f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = {2 ** len(self.down_dims)}."
@@ -314,6 +321,9 @@ class CCDPConfig(PreTrainedConfig):
                 f"{sorted(self.input_features)}. Record the robot state as {OBS_STATE!r}."
             )
         self._validate_images()
+        if self.image_features and self.recovery_head == "set_denoiser":
+            raise ValueError("recovery_head='set_denoiser' conditions on the state of synthesised rows, which carry no "
+                             "camera images yet: use --policy.recovery_head=unet with cameras.")
         if self.action_feature is None:
             raise ValueError(f"CCDP needs an {ACTION!r} output feature; the dataset has none.")
         if len(self.action_feature.shape) == 2:
@@ -386,9 +396,14 @@ class CCDPConfig(PreTrainedConfig):
 
     @property
     def trains_on_windows(self) -> bool:
-        """Whether this stage reads demonstration windows (the base, and the classifier head, which learns from the
-        demos too) rather than whole recovery rows of a synthesised dataset."""
-        return self.training_stage == "base" or self.recovery_head == "classifier"
+        """Whether this stage reads demonstration windows (the base, and the heads that learn from the demos too)
+        rather than whole recovery rows of a synthesised dataset."""
+        return self.training_stage == "base" or self.recovery_head_learns_from_demonstrations
+
+    @property
+    def recovery_head_learns_from_demonstrations(self) -> bool:
+        """Whether the recovery head trains on the demonstrations themselves (no synthesised recovery dataset)."""
+        return self.recovery_head == "classifier"
 
     @property
     def drop_n_last_frames(self) -> int:

@@ -1,4 +1,5 @@
-"""The networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z, or a failure-set classifier)."""
+"""The networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z, a failure-set classifier, or the
+failure-set denoiser eps_{s,F})."""
 
 import torch
 from lerobot.policies.diffusion.modeling_diffusion import (
@@ -34,7 +35,8 @@ class BaseDenoiser(nn.Module):
 
 def make_recovery_denoiser(config: CCDPConfig) -> nn.Module:
     """The recovery network `config.recovery_head` names: eps_z(a, z, k) per failure, or the failure-set classifier."""
-    heads = {"unet": RecoveryUnet, "mlp": RecoveryMLP, "classifier": FailureSetClassifier}
+    heads = {"unet": RecoveryUnet, "mlp": RecoveryMLP, "classifier": FailureSetClassifier,
+             "set_denoiser": FailureSetDenoiser}
     return heads[config.recovery_head](config)
 
 
@@ -114,6 +116,46 @@ class FailureSetClassifier(nn.Module):
         for block in self.blocks:
             h = block(h, cond)
         return self.logit(h).squeeze(-1)
+
+
+class FailureSetDenoiser(nn.Module):
+    """eps_{s,F}(a_t, k): the noise estimate of p_s restricted to the chunks whose outcome lies outside the failure set F.
+
+    A copy of the base UNet whose global condition is the base's own with the state kept and the history dropped,
+    followed by an embedding of F (a max over an MLP of each z_i, so neither F's order nor a repeated failure changes
+    it). `start_from` copies the base with the set's condition weights zeroed, so training starts from eps_s exactly.
+    Trained on the demonstrations with F drawn independently of each row and the rows whose own outcome lies in F left
+    out (`CCDPPolicy._set_denoiser_loss`): p(a | s, F) is then proportional to p_s(a | s) 1[z(a) outside F], the
+    demonstrated proportions over the options left, learnt by one network that sampling calls once per step.
+    """
+
+    def __init__(self, config: CCDPConfig):
+        super().__init__()
+        width = config.recovery_hidden_dim
+        self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
+        base_cond_dim = config.n_obs_steps * config.frame_dim + self.history_cond_dim + 2
+        self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
+        self.unet = with_small_batch_convolutions(DiffusionConditionalUnet1d(config, global_cond_dim=base_cond_dim + width))
+
+    def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
+        """noisy (R, horizon, A); timestep (R,); state (R, state_cond_dim); z (R, N, z_dim) with z_mask (R, N), at
+        least one failure per row -> predicted noise (R, horizon, A)."""
+        ones = state.new_ones(state.shape[0], 1)
+        no_history = state.new_zeros(state.shape[0], self.history_cond_dim)
+        failures = self.set_embedding(z).masked_fill(~z_mask[..., None], float("-inf")).amax(dim=1)
+        cond = torch.cat([state, ones, no_history, 0 * ones, failures], dim=-1)
+        return self.unet(noisy, timestep, global_cond=cond)
+
+    @torch.no_grad()
+    def start_from(self, base: BaseDenoiser) -> None:
+        """Copy the base UNet's weights; the condition columns the base lacks (F's embedding) start at zero."""
+        own = self.unet.state_dict()
+        for name, value in base.unet.state_dict().items():
+            target = own[name]
+            if target.shape == value.shape:
+                target.copy_(value)
+            else:  # a FiLM encoder's input weights: (out, base_cond + width)
+                target.zero_()[:, : value.shape[1]].copy_(value)
 
 
 def _step_embedding(config: CCDPConfig, width: int) -> nn.Module:

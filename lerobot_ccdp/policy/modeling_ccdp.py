@@ -39,12 +39,13 @@ from lerobot_ccdp.policy.training_checks import refuse_fresh_training
 from lerobot_ccdp.recovery.composition import (
     CompositionWeights,
     compose_eps,
+    compose_with_failure_set,
     failure_steps,
     guide_away_from_failures,
     log_no_repeat,
     recovery_conditions,
 )
-from lerobot_ccdp.recovery.failure_buffer import FailureBuffer, distinct_failures
+from lerobot_ccdp.recovery.failure_buffer import FailureBuffer, distinct_failures, draw_failure_sets
 from lerobot_ccdp.recovery.failure_features import FailureFeature
 from lerobot_ccdp.recovery.outcome_index import OutcomeIndex
 from lerobot_ccdp.recovery.outcome_table import build_outcome_table
@@ -148,6 +149,8 @@ class CCDPPolicy(PreTrainedPolicy):
             loss, info = self._base_loss(batch)
         elif self.config.recovery_head == "classifier":
             loss, info = self._failure_set_loss(batch)
+        elif self.config.recovery_head == "set_denoiser":
+            loss, info = self._set_denoiser_loss(batch)
         else:
             loss, info = self._recovery_loss(batch)
         if not bool(torch.isfinite(loss)):
@@ -202,15 +205,39 @@ class CCDPPolicy(PreTrainedPolicy):
         if b < 2:
             raise ValueError("The classifier draws each row's failures from the other rows: use --batch_size >= 2.")
         self.recovery_trained.fill_(True)
-        z = self.feature.from_chunk(chunk, self.outcomes)
-        others = (torch.arange(b, device=z.device)[:, None] + torch.randint(1, b, (b, n), device=z.device)) % b
-        z_set = z[others]  # (B, N, z_dim)
-        z_mask = torch.arange(n, device=z.device)[None] < torch.randint(1, n + 1, (b, 1), device=z.device)
-        repeats = ((((z_set - z[:, None]) ** 2).sum(dim=-1) <= cfg.delta_z) & z_mask).any(dim=1).to(chunk.dtype)
+        z_set, z_mask, repeats = draw_failure_sets(self.feature.from_chunk(chunk, self.outcomes), n, cfg.delta_z)
         keep_s = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_state).to(chunk.dtype)
         _, timesteps, noisy = self._noised(chunk)
         logits = self.recovery(noisy, timesteps, state, z_set, z_mask, keep_s)
-        return F.binary_cross_entropy_with_logits(logits, repeats), {}
+        return F.binary_cross_entropy_with_logits(logits, repeats.to(logits.dtype)), {}
+
+    def _set_denoiser_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """eps_{s,F} on the rows of a set-denoiser dataset: chunks the base samples where attempts start, with their
+        state (lerobot-ccdp-synthesize). Each row gets a failure set F of 1..failure_set_train_size z drawn from other
+        rows (so F is independent of the row's own chunk); rows whose own z lies within delta_z of a failure in F are
+        left out. The rows kept are p_s(a | s) q(F) 1[z(a) outside F], whose conditional given (s, F) is p_s restricted
+        to the options outside F in the base's proportions: DP*'s rejection, distilled. The first step copies the base
+        into the head (`FailureSetDenoiser.start_from`)."""
+        cfg = self.config
+        state, chunk = self.frames(batch), batch[ACTION]
+        if state.ndim != 2 or chunk.ndim != 3 or chunk.shape[1] != cfg.horizon:
+            raise ValueError(
+                f"The set denoiser trains on synthesised rows: one state (B, D) and one whole chunk (B, {cfg.horizon}, "
+                f"A) per row; got {tuple(state.shape)} and {tuple(chunk.shape)}. Make the dataset with "
+                "lerobot-ccdp-synthesize from this checkpoint."
+            )
+        if chunk.shape[0] < 2:
+            raise ValueError("The set denoiser draws each row's failures from the other rows: use --batch_size >= 2.")
+        if not bool(self.recovery_trained):
+            self.recovery.start_from(self.base)
+            self.recovery_trained.fill_(True)
+        z_set, z_mask, repeats = draw_failure_sets(self.feature.from_chunk(chunk, self.outcomes),
+                                                   cfg.failure_set_train_size, cfg.delta_z)
+        noise, timesteps, noisy = self._noised(chunk)
+        loss = F.mse_loss(self.recovery(noisy, timesteps, state, z_set, z_mask), noise, reduction="none")
+        kept = (~repeats).to(loss.dtype)
+        loss = (loss.mean(dim=(1, 2)) * kept).sum() / kept.sum().clamp_min(1.0)
+        return loss, {"kept_rows": float(kept.mean())}
 
     @torch.no_grad()
     def _base_samples(self, state: Tensor, history: Tensor) -> tuple[Tensor, Tensor]:
@@ -440,48 +467,100 @@ class CCDPPolicy(PreTrainedPolicy):
         self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor,
         weights: CompositionWeights | None = None, generators: list[torch.Generator] | None = None,
     ) -> Tensor:
-        """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given):
-        one base call and at most one recovery call per step, whatever the number of failures. With the classifier
-        head, the failures enter by guidance instead (`guide_away_from_failures`). Only the first
-        `failure_step_share` of the steps add the failures (`composition.failure_steps`). The reverse steps' noise
-        comes from `generators` (one per row, `noise_streams`) when given, else from torch's global generator."""
+        """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given): one base
+        call and at most one recovery call per step, whatever the number of failures. With the classifier head the
+        failures enter by guidance instead (`guide_away_from_failures`); with the set denoiser, by its single
+        failure-set term (`compose_with_failure_set`). Only the first `failure_step_share` of the steps add the
+        failures (`composition.failure_steps`). The reverse steps' noise comes from `generators` (one per row,
+        `noise_streams`) when given, else from torch's global generator."""
         weights = weights or self.weights
-        r, n = sample.shape[0], z.shape[1]
-        guided = n > 0 and self.config.recovery_head == "classifier"
-        terms = weights.base_terms(z_mask.sum(dim=1) * (not guided))
-        ones, zeros = torch.ones(r, 1, device=sample.device), torch.zeros(r, 1, device=sample.device)
-        keep = {"a": (zeros, zeros), "s": (ones, zeros), "h": (zeros, ones)}
-        k = len(terms)
-        state_rows, history_rows = state.repeat(k, 1), history.repeat(k, 1)
-        keep_s = torch.cat([keep[t][0] for t in terms])
-        keep_h = torch.cat([keep[t][1] for t in terms])
-        z_rows, keep_z = recovery_conditions(z, weights.measures_against_z_null)
+        if z.shape[1] and self.config.recovery_head == "set_denoiser":
+            estimate = self._failure_set_estimate(weights, state, history, z, z_mask)
+        else:
+            estimate = self._composed_estimate(weights, state, history, z, z_mask)
         self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
         with_failures = failure_steps(len(self.noise_scheduler.timesteps), self.config.failure_step_share)
         for i, t in enumerate(self.noise_scheduler.timesteps):
-            step = torch.full((r * k,), int(t), dtype=torch.long, device=sample.device)
-            eps = self.base(sample.repeat(k, 1, 1), step, state_rows, keep_s, history_rows, keep_h)
-            by_term = dict(zip(terms, eps.split(r), strict=True))
-            refining = i >= with_failures  # low noise: the base alone refines the chunk within its option
-            if refining or guided:
-                composed = compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"))
-                failed = z_mask.any(dim=1)
-                if guided and not refining and failed.any():
-                    gradient = torch.zeros_like(sample)
-                    gradient[failed] = self._no_repeat_gradient(sample[failed], step[: int(failed.sum())],
-                                                                state[failed], z[failed], z_mask[failed])
-                    alpha_bar = self.noise_scheduler.alphas_cumprod[int(t)].to(sample.device)
-                    composed = guide_away_from_failures(composed, gradient, alpha_bar, weights.w_z)
-            else:
-                eps_z, eps_z_null = self._recovery_terms(sample, step[0], z_rows, keep_z, n) if n else (None, None)
-                composed = compose_eps(
-                    weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null
-                )
-            sample = self.noise_scheduler.step(composed, t, sample, generator=generators).prev_sample
+            eps = estimate(sample, int(t), refining=i >= with_failures)
+            sample = self.noise_scheduler.step(eps, t, sample, generator=generators).prev_sample
         return sample
 
+    def _base_estimates(self, terms: list[str], state: Tensor, history: Tensor):
+        """A function of (noisy sample, timestep) giving the base network's `terms` ("a": eps_a, "s": eps_s, "h":
+        eps_h) for every row, in one call with the conditions repeated once per term."""
+        r, k = state.shape[0], len(terms)
+        if not k or not r:
+            return lambda sample, t: {}
+        ones, zeros = torch.ones(r, 1, device=state.device), torch.zeros(r, 1, device=state.device)
+        keep = {"a": (zeros, zeros), "s": (ones, zeros), "h": (zeros, ones)}
+        state_rows, history_rows = state.repeat(k, 1), history.repeat(k, 1)
+        keep_s = torch.cat([keep[term][0] for term in terms])
+        keep_h = torch.cat([keep[term][1] for term in terms])
+
+        def estimates(sample: Tensor, t: int) -> dict[str, Tensor]:
+            step = torch.full((r * k,), t, dtype=torch.long, device=sample.device)
+            eps = self.base(sample.repeat(k, 1, 1), step, state_rows, keep_s, history_rows, keep_h)
+            return dict(zip(terms, eps.split(r), strict=True))
+
+        return estimates
+
+    def _composed_estimate(self, weights: CompositionWeights, state: Tensor, history: Tensor, z: Tensor,
+                           z_mask: Tensor):
+        """eq. (4) with one term per failure (eps_z heads), or the classifier's guidance, as a function of (noisy
+        sample, timestep, whether the step only refines)."""
+        n = z.shape[1]
+        guided = n > 0 and self.config.recovery_head == "classifier"
+        base = self._base_estimates(weights.base_terms(z_mask.sum(dim=1) * (not guided)), state, history)
+        z_rows, keep_z = recovery_conditions(z, weights.measures_against_z_null)
+        failed = z_mask.any(dim=1)
+
+        def estimate(sample: Tensor, t: int, refining: bool) -> Tensor:
+            by_term = base(sample, t)
+            if not (refining or guided):  # eps_z of every failure slot: the failures enter eq. (4)
+                eps_z, eps_z_null = self._recovery_terms(sample, t, z_rows, keep_z, n) if n else (None, None)
+                return compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask,
+                                   eps_z_null)
+            composed = compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"))
+            if guided and not refining and failed.any():
+                step = torch.full((int(failed.sum()),), t, dtype=torch.long, device=sample.device)
+                gradient = torch.zeros_like(sample)
+                gradient[failed] = self._no_repeat_gradient(sample[failed], step, state[failed], z[failed],
+                                                            z_mask[failed])
+                alpha_bar = self.noise_scheduler.alphas_cumprod[t].to(sample.device)
+                composed = guide_away_from_failures(composed, gradient, alpha_bar, weights.w_z)
+            return composed
+
+        return estimate
+
+    def _failure_set_estimate(self, weights: CompositionWeights, state: Tensor, history: Tensor, z: Tensor,
+                              z_mask: Tensor):
+        """`compose_with_failure_set` for the rows with failures (eps_{s,F} in one recovery call, plus the base terms
+        whose coefficient is not zero: none at w_s = w_z = 1, w_h = 0) and the base composition for the other rows
+        and the refining steps, as a function of (noisy sample, timestep, whether the step only refines)."""
+        failed = z_mask.any(dim=1)
+        no_failures = z[:, :0], z_mask[:, :0]
+        plain = self._composed_estimate(weights, state, history, *no_failures)
+        plain_rest = self._composed_estimate(weights, state[~failed], history[~failed], no_failures[0][~failed],
+                                             no_failures[1][~failed])
+        base = self._base_estimates(weights.failure_set_base_terms(), state[failed], history[failed])
+        z_failed, mask_failed, state_failed = z[failed], z_mask[failed], state[failed]
+
+        def estimate(sample: Tensor, t: int, refining: bool) -> Tensor:
+            if refining:
+                return plain(sample, t, refining)
+            eps = torch.empty_like(sample)
+            if not failed.all():
+                eps[~failed] = plain_rest(sample[~failed], t, refining)
+            noisy = sample[failed]
+            step = torch.full((noisy.shape[0],), t, dtype=torch.long, device=sample.device)
+            estimates = base(noisy, t) | {"sF": self.recovery(noisy, step, state_failed, z_failed, mask_failed)}
+            eps[failed] = compose_with_failure_set(weights, estimates)
+            return eps
+
+        return estimate
+
     def _recovery_terms(
-        self, sample: Tensor, timestep: Tensor, z_rows: Tensor, keep_z: Tensor, n: int
+        self, sample: Tensor, t: int, z_rows: Tensor, keep_z: Tensor, n: int
     ) -> tuple[Tensor, Tensor | None]:
         """eps_z(z_i) for every failure slot (R, N, horizon, A) and, when `z_rows` ends with the z-dropped rows,
         eps_z_null (R, horizon, A): one recovery call for all of them."""
@@ -490,7 +569,8 @@ class CCDPPolicy(PreTrainedPolicy):
         null_row = z_rows.shape[0] > r * n
         if null_row:
             noisy = torch.cat([noisy, sample])
-        eps = self.recovery(noisy, timestep.expand(noisy.shape[0]), z_rows, keep_z)
+        step = torch.full((noisy.shape[0],), t, dtype=torch.long, device=sample.device)
+        eps = self.recovery(noisy, step, z_rows, keep_z)
         return eps[: r * n].view(r, n, *chunk), (eps[r * n :] if null_row else None)
 
     def _no_repeat_gradient(self, sample: Tensor, step: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:

@@ -44,6 +44,16 @@ class CompositionWeights:
             terms.insert(0, "a")
         return terms
 
+    def failure_set_coefficients(self) -> dict[str, float]:
+        """The coefficient of each estimate in `compose_with_failure_set` for a row with failures: "a" (eps_a),
+        "s" (eps_s), "h" (eps_h) and "sF" (eps_{s,F}). At w_s = w_z = 1, w_h = 0 only eps_{s,F} remains: one network
+        call per step."""
+        return {"a": 1.0 - self.w_s - self.w_h, "s": self.w_s - self.w_z, "h": self.w_h, "sF": self.w_z}
+
+    def failure_set_base_terms(self) -> list[str]:
+        """The base network's outputs `compose_with_failure_set` needs (those with a non-zero coefficient)."""
+        return [name for name, c in self.failure_set_coefficients().items() if name != "sF" and abs(c) > 1e-9]
+
     @classmethod
     def exploration(cls, w_s: float) -> "CompositionWeights":
         """eps_bar = eps_a + w_s (eps_s - eps_a)   (eq. 7): eq. (4) without history and failures.
@@ -89,6 +99,24 @@ def compose_eps(
         mask = _require(z_mask, "z_mask").to(eps_z.dtype)[..., None, None]  # (B, N, 1, 1)
         reference = eps_a if weights.z_reference == "eps_a" else _require(eps_z_null, "eps_z_null")
         eps = eps + weights.w_z * ((eps_z - reference[:, None]) * mask).sum(dim=1)
+    return eps
+
+
+def compose_with_failure_set(weights: CompositionWeights, estimates: dict[str, Tensor]) -> Tensor:
+    """eps = eps_a + w_s (eps_s - eps_a) + w_h (eps_h - eps_a) + w_z (eps_{s,F} - eps_s)   (eq. 4, failure-set head)
+
+    `recovery_head="set_denoiser"`: one term for the whole failure set F, where eq. (4) sums one term per failure.
+    eps_{s,F} (`denoisers.FailureSetDenoiser`) is the noise estimate of p_s restricted to the options outside F, so at
+    w_z = 1 the failure term replaces eps_s by it: exact "everything but what failed" in the demonstrated proportions
+    at every noise level, up to the network's error, and w_z > 1 pushes further from F as classifier-free guidance
+    does. `estimates` maps "a", "s", "h", "sF" to (B, horizon, action_dim) tensors; those whose coefficient
+    (`CompositionWeights.failure_set_coefficients`) is zero may be absent.
+    """
+    eps = None
+    for name, coefficient in weights.failure_set_coefficients().items():
+        if abs(coefficient) > 1e-9:
+            term = coefficient * _require(estimates.get(name), f"eps_{name}")
+            eps = term if eps is None else eps + term
     return eps
 
 

@@ -97,6 +97,7 @@ class Demos:
 
     windows: Tensor  # (N, n_obs_steps, state_dim): the observation window ending at each frame
     chunks: Tensor  # (N, horizon, A): the chunk each frame starts (as in training)
+    starts: Tensor  # (E,): the first frame of each episode, where an attempt starts
 
 
 def synthesis_device(saved: str | None, requested: str | None) -> str:
@@ -185,20 +186,23 @@ def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) ->
     return Demos(
         windows=torch.from_numpy(demo_chunks(episodes, frames, start, config.n_obs_steps)),
         chunks=torch.from_numpy(demo_chunks(episodes, normalized[ACTION].numpy(), start, config.horizon)),
+        starts=torch.from_numpy(np.flatnonzero(np.r_[True, np.diff(episodes.reshape(-1)) != 0])),
     )
 
 
 def synthesised_samples(
     policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator, progress: bool = True,
-    images: Callable[[Tensor], Tensor] | None = None,
+    images: Callable[[Tensor], Tensor] | None = None, among: Tensor | None = None,
 ) -> Samples:
     """Eq. (6) and (7): demo states x_s perturbed by N(0, sigma^2), `chunks_per_state` chunks sampled at each.
 
-    `images` maps demo frame indices to their encoded camera windows (b, n_obs, F), for checkpoints with cameras.
-    Random draws come from `generator` on the CPU, so a seed gives the same inputs on every device.
+    The states are drawn among every demo frame, or among the frames `among` names. `images` maps demo frame indices
+    to their encoded camera windows (b, n_obs, F), for checkpoints with cameras. Random draws come from `generator`
+    on the CPU, so a seed gives the same inputs on every device.
     """
     cfg, k, device = policy.config, recipe.chunks_per_state, torch.device(policy.config.device)
-    picks = torch.randint(0, len(demos.windows), (recipe.n_states,), generator=generator)
+    among = torch.arange(len(demos.windows)) if among is None else among
+    picks = among[torch.randint(0, len(among), (recipe.n_states,), generator=generator)]
     parts = []
     for batch in tqdm(picks.split(recipe.batch_states), desc="Sampling chunks (eq. 7)", disable=not progress):
         x_s = demos.windows[batch].repeat_interleave(k, dim=0)  # (b * k, n_obs, D)
@@ -228,9 +232,12 @@ def camera_encoder(policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata
     return encode
 
 
-def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator) -> Samples:
-    """Up to `demo_frames` demonstrated chunks, with their z computed like any other chunk's."""
-    pick = torch.randperm(len(demos.windows), generator=generator)[: recipe.demo_frames]
+def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator,
+                 among: Tensor | None = None) -> Samples:
+    """Up to `demo_frames` demonstrated chunks (among the frames `among` names, if given), with their z computed like
+    any other chunk's."""
+    among = torch.arange(len(demos.windows)) if among is None else among
+    pick = among[torch.randperm(len(among), generator=generator)[: recipe.demo_frames]]
     chunks = demos.chunks[pick]
     z = policy.feature.from_chunk(chunks.to(policy.config.device), policy.outcomes).cpu()
     return Samples(demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS))
@@ -247,6 +254,14 @@ def recovery_pairs(pool: Samples, recipe: RecoveryRecipe, generator: torch.Gener
         failures.append(block[row])
         recoveries.append(j)
     return torch.cat(failures), torch.cat(recoveries)
+
+
+def attempt_start_rows(pool: Samples) -> tuple[Tensor, Tensor]:
+    """For `recovery_head=set_denoiser`: every pool sample is a row of its own (its z is its own outcome), with no
+    pairing. Drawn where attempts start, at w_s = 1 they are the base's own plans there, which the set denoiser
+    learns to restrict to the options outside a failure set; the same (failure, recovery) indices as `recovery_pairs`."""
+    rows = torch.arange(len(pool))
+    return rows, rows
 
 
 def synthesize_recovery_dataset(
@@ -285,16 +300,18 @@ def synthesize_recovery_dataset(
     torch.manual_seed(recipe.seed)
     sampling_started = time.perf_counter()
     images = camera_encoder(policy, stats, meta) if config.image_features else None
-    parts = [synthesised_samples(policy, recipe, demos, generator, progress, images)] if recipe.n_states else []
+    # The set denoiser learns from the chunks where attempts start (`attempt_start_rows`); eq. (4)'s eps_z from pairs.
+    among = demos.starts if config.recovery_head == "set_denoiser" else None
+    parts = [synthesised_samples(policy, recipe, demos, generator, progress, images, among)] if recipe.n_states else []
     sampling_seconds = time.perf_counter() - sampling_started
     if recipe.demo_frames:
-        parts.append(demo_samples(policy, recipe, demos, generator))
+        parts.append(demo_samples(policy, recipe, demos, generator, among))
     pool = Samples.cat(parts)
     if recipe.n_states and recipe.outcome_radius and not (pool.source == SYNTHESISED).any():
         raise ValueError(f"Every sampled chunk lies farther than outcome_radius={recipe.outcome_radius} from the "
                          "demonstrated chunks, so none has an outcome to borrow. Raise outcome_radius (0 keeps all) "
                          "or train the base checkpoint longer.")
-    failure, recovery = recovery_pairs(pool, recipe, generator)
+    failure, recovery = attempt_start_rows(pool) if among is not None else recovery_pairs(pool, recipe, generator)
     if len(failure) == 0:
         raise ValueError(f"No pair satisfies eq. (5) with delta_z={recipe.delta_z}, delta_x={recipe.delta_x}: the "
                          "sampled chunks never differ in z at nearby states. Lower delta_z, raise delta_x, sigma or "

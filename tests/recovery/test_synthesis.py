@@ -233,3 +233,35 @@ def test_every_task_recipe_has_a_valid_recovery_section():
     assert len(recipes) == len(TASKS) + 5  # every task, four of them also with cameras, and the 2-D task
     for path in recipes:
         RecoveryRecipe.load(path)
+
+
+def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_through_lerobot_train(reaching_root,
+                                                                                                  tmp_path):
+    """With `recovery_head=set_denoiser` every row is one chunk of its own, sampled (or demonstrated) at an episode's
+    first state (perturbed by eq. 6), with its own z; lerobot-train's recovery stage then trains eps_{s,F} from the
+    copied base while the base stays frozen."""
+    settings = {**FEATURE_SETTINGS["primitive"], "recovery_head": "set_denoiser", "history_length": 0}
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
+    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "sigma": 0.0})
+    root = synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/recovery",
+                                       tmp_path / "recovery", progress=False)
+    demos = LeRobotDataset(REACHING_REPO_ID, root=reaching_root).hf_dataset.with_format("torch")[:]
+    starts = demos[OBS_STATE][demos["frame_index"].flatten() == 0]
+    rows = LeRobotDataset("local/recovery", root=root)
+    assert rows.num_frames == 16 * 6 + len(starts)  # every sampled chunk, and each episode's first demonstrated chunk
+    states = rows.hf_dataset.with_format("torch")[:][OBS_STATE]
+    assert torch.cdist(states, starts).min(dim=1).values.max() < 1e-4  # sigma 0: exactly the episodes' first states
+    policy, normalized = normalized_rows(checkpoint, root, chunk_column=ACTION)
+    torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], policy.feature.from_chunk(normalized[ACTION],
+                                                                                          policy.outcomes))
+    out = tmp_path / "set_run"
+    run_cli("lerobot-train", f"--policy.path={checkpoint}", "--policy.training_stage=recovery",
+            "--dataset.repo_id=local/recovery", f"--dataset.root={root}", f"--output_dir={out}", "--steps=10",
+            "--batch_size=16", "--save_freq=10", "--policy.push_to_hub=false", "--num_workers=0",
+            "--wandb.enable=false", "--log_freq=5")
+    before = load_file(checkpoint / "model.safetensors")
+    after = load_file(out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors")
+    assert bool(after["recovery_trained"])
+    assert all(torch.equal(after[k], v) for k, v in before.items() if k.startswith("base."))
+    unet = "recovery.unet.mid_modules.0.conv1.block.0.weight"  # the head started as a copy of the base ...
+    assert not torch.equal(after[unet], after[unet.replace("recovery.", "base.")])  # ... and trained away from it

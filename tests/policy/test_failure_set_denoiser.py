@@ -1,0 +1,74 @@
+"""recovery_head=set_denoiser: eps_{s,F} starts as the base's eps_s, trains only on rows whose outcome lies outside
+their drawn failure set, costs one network call per reverse step for a row with failures, and refuses the settings it
+cannot serve."""
+
+import torch
+
+from lerobot_ccdp.recovery.failure_buffer import draw_failure_sets
+
+from fixtures.policy_factory import make_policy
+
+SETTINGS = {"failure_feature": "primitive", "num_primitives": 3, "recovery_head": "set_denoiser", "history_length": 0}
+
+
+def test_start_from_copies_the_base_so_the_head_begins_as_eps_s_whatever_the_failures():
+    torch.manual_seed(0)
+    policy = make_policy(**SETTINGS)
+    noisy, step, state = torch.randn(5, 16, 2), torch.randint(0, 100, (5,)), torch.randn(5, 2)
+    z, z_mask = torch.eye(3)[torch.randint(0, 3, (5, 2))], torch.tensor([[True, False]] * 3 + [[True, True]] * 2)
+    ones, no_history = torch.ones(5, 1), torch.zeros(5, 0)
+    eps_s = policy.base(noisy, step, state, ones, no_history, 0 * ones)
+    assert not torch.allclose(policy.recovery(noisy, step, state, z, z_mask), eps_s, atol=1e-3)
+    policy.recovery.start_from(policy.base)
+    torch.testing.assert_close(policy.recovery(noisy, step, state, z, z_mask), eps_s)
+
+
+def test_failure_sets_come_from_other_rows_and_flag_the_rows_whose_outcome_they_hold():
+    torch.manual_seed(0)
+    z = torch.eye(4)[torch.arange(64) % 4]
+    z_set, z_mask, repeats = draw_failure_sets(z, 3, delta_z=0.1)
+    assert z_set.shape == (64, 3, 4) and z_mask[:, 0].all() and not z_mask.all()
+    holds_own = ((z_set == z[:, None]).all(-1) & z_mask).any(1)
+    assert torch.equal(repeats, holds_own) and 0 < repeats.float().mean() < 1
+
+
+def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set():
+    """With a single option, every drawn failure set holds each row's own outcome: no row is kept, so no gradient."""
+    torch.manual_seed(0)
+    policy = make_policy(**{**SETTINGS, "training_stage": "recovery"}).train()
+    policy.outcomes.fill(torch.zeros(4, 16 * 2), torch.zeros(4, 2), torch.zeros(4, dtype=torch.long))
+    batch = {"observation.state": torch.randn(8, 2), "action": torch.randn(8, 16, 2)}  # synthesised rows
+    loss, info = policy.forward(batch)
+    assert info["kept_rows"] == 0.0 and loss.item() == 0.0
+    assert bool(policy.recovery_trained)  # the first step copied the base into the head
+
+
+def count_calls(module: torch.nn.Module) -> list[int]:
+    rows = []
+    module.register_forward_hook(lambda _m, args, _out: rows.append(args[0].shape[0]))
+    return rows
+
+
+def test_a_plan_after_failures_calls_only_the_set_denoiser_once_per_step():
+    """At w_s = w_z = 1, w_h = 0, eq. (4)'s failure-set form is eps_{s,F} alone: rows remembering failures cost what DP
+    costs, one call per reverse step (here with 4 failures), while rows without failures keep using the base."""
+    torch.manual_seed(0)
+    policy = make_policy(**SETTINGS)
+    policy.recovery_trained.fill_(True)
+    base_rows, head_rows = count_calls(policy.base), count_calls(policy.recovery)
+    with torch.inference_mode():
+        policy.select_action({"observation.state": torch.zeros(3, 2)})
+        for option in (0, 1, 0, 1):
+            policy.report_failure(rows=[0, 1], z=torch.eye(3)[[option, option]])
+        base_rows.clear()
+        policy.predict_action_chunk({"observation.state": torch.zeros(3, 2)})
+    steps = policy.config.num_inference_steps
+    assert head_rows[-steps:] == [2] * steps  # the two failed rows, four failures, one call per step
+    assert base_rows == [1] * steps  # the row without failures: eps_s only
+
+
+def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
+    import pytest
+
+    with pytest.raises(ValueError, match="n_obs_steps=1"):
+        make_policy(**SETTINGS, n_obs_steps=2, n_action_steps=8)
