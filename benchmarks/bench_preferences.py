@@ -1,8 +1,8 @@
 """Does recovery keep the demonstrated preferences? A seeded family of 2-D reaching tasks (issue 17).
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_preferences.py [--members 0 1 ... 11] [--w-z 1 2 4] \
-        [--classifier-chunks demonstrations base_samples] [--classifier-query each set] [--redraws 0 1] \
-        [--out outputs/preferences]
+        [--classifier-chunks demonstrations base_samples | --classifier-chunks] [--classifier-query each set] \
+        [--redraws 0 1] [--set-denoiser] [--out outputs/preferences]
 
 Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences, bent
 paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a LeRobot
@@ -18,6 +18,13 @@ writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferenc
 under --out (CCDP with the first classifier, query, weight and redraw count). Members run side by side each with its own
 --out are tabulated together with `--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
 family; settings are chosen on the development members 100-103 (`--members 100 101 102 103`).
+
+With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifiers, if any, train
+from it with their head named on the command line), lerobot-ccdp-synthesize writes its rows (SET_RECIPE: chunks the
+base samples at the episodes' first states), lerobot-train trains the failure-set denoiser on them for --head-steps,
+and "CCDP set denoiser" (w_z = 1, one sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost"
+(`dp_star_matched`'s 2 candidates, 1 round) on the same base and seeds. `--classifier-chunks` with no value trains no
+classifier.
 """
 
 from __future__ import annotations
@@ -31,10 +38,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_ccdp.benchmark.comparison import bootstrap_mean
 from lerobot_ccdp.benchmark.paired import verdict
+from lerobot_ccdp.benchmark.pipeline import MATCHED_DP_STAR
 from lerobot_ccdp.benchmark.reaching2d import ReachingTask
 from lerobot_ccdp.benchmark.reaching_preferences import Method, measure
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
@@ -49,9 +58,19 @@ BASELINES = {
     "DP": Method("dp", {}),
     "DP*": Method("dp_star", {"dp_star_candidates": 32, "dp_star_rounds": 4}),
 }
+MATCHED = {"DP* at CCDP's cost": Method("dp_star", MATCHED_DP_STAR)}
+# The failure-set denoiser's rows (RecoveryRecipe fields besides z): 512 first states x 16 base samples at w_s = 1.
+SET_RECIPE = {"n_states": 512, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0, "demo_frames": 4096}
 
 
 def methods(chunks: str, first: bool, sampling: argparse.Namespace, demos: LeRobotDataset) -> dict[str, Method]:
+    if chunks == "set_denoiser":  # one sample per plan; the baselines again on the same base when it is the only head
+        return {**(BASELINES if first else {}), **MATCHED, "CCDP set denoiser": Method("ccdp", {"w_z": 1.0})}
+    return classifier_methods(chunks, first, sampling, demos)
+
+
+def classifier_methods(chunks: str, first: bool, sampling: argparse.Namespace,
+                       demos: LeRobotDataset) -> dict[str, Method]:
     """The methods measured on the classifier trained on `chunks` (a `classifier_chunks` value): its guidance for
     each query, weight w_z and redraw count of `sampling` (sampling settings: one checkpoint serves all) and, on the
     first classifier only (they share the base), DP, DP* and the reference row: the same base guided at w_z = 1 by
@@ -93,9 +112,9 @@ def member_dataset(seed: int, out: Path) -> tuple[Path, str]:
 
 
 def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episodes: int,
-                   classifier_chunks: list[str]) -> dict[str, Path]:
-    """Record member `seed`, train its base and, from it, one classifier head per `classifier_chunks` value; return
-    the heads' checkpoints by that value."""
+                   classifier_chunks: list[str], set_denoiser: bool) -> dict[str, Path]:
+    """Record member `seed`, train its base and, from it, one classifier head per `classifier_chunks` value and, with
+    `set_denoiser`, the failure-set denoiser; return the heads' checkpoints by that value ("set_denoiser")."""
     task = ReachingTask.family_member(seed)
     root = out / f"member_{seed}"
     root.mkdir(parents=True, exist_ok=True)
@@ -109,12 +128,41 @@ def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episo
     z = (["--policy.failure_feature=primitive", f"--policy.num_primitives={len(task.goals)}"] if task.labelled
          else ["--policy.failure_feature=final_state"])
     dataset = [f"--dataset.repo_id={repo}", f"--dataset.root={data}"]
-    base, base_stamp = train("base", root / "base", ["--policy.type=ccdp", *z, *dataset, f"--steps={base_steps}",
+    head = ["--policy.recovery_head=set_denoiser", "--policy.history_length=0"] if set_denoiser else []
+    base, base_stamp = train("base", root / "base", ["--policy.type=ccdp", *z, *head, *dataset, f"--steps={base_steps}",
                                                      "--batch_size=64", f"--save_freq={base_steps}"], data_stamp, book)
-    return {chunks: train(f"classifier_{chunks}", root / f"classifier_{chunks}", [
+    heads = {chunks: train(f"classifier_{chunks}", root / f"classifier_{chunks}", [
         f"--policy.path={base}", "--policy.training_stage=recovery", "--policy.recovery_head=classifier",
         f"--policy.classifier_chunks={chunks}", *dataset, f"--steps={head_steps}", "--batch_size=64",
         f"--save_freq={head_steps}"], base_stamp, book)[0] for chunks in classifier_chunks}
+    if set_denoiser:
+        heads["set_denoiser"] = train_set_denoiser(root, task, base, base_stamp, head_steps, book)
+    return heads
+
+
+def train_set_denoiser(root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int,
+                       book: StampBook) -> Path:
+    """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE), then lerobot-train it on them."""
+    z = ({"failure_feature": "primitive", "num_primitives": len(task.goals)} if task.labelled
+         else {"failure_feature": "final_state"})
+    recipe, rows, repo = root / "set_recipe.yaml", root / "set_rows", f"local/set_rows_{root.name}"
+    recipe.write_text(yaml.safe_dump({"recovery": {**z, **SET_RECIPE}}))
+    command = ["lerobot-ccdp-synthesize", f"--config_path={recipe}", f"--dataset.repo_id={member_dataset_repo(root)}",
+               f"--dataset.root={root / 'data'}", f"--policy.path={base}", f"--output.repo_id={repo}",
+               f"--output.root={rows}", "--overwrite=true"]
+    rows_stamp = stamp(command, base_stamp)
+    if not (rows / "meta" / "info.json").exists() or not book.matches("set_rows", rows_stamp):
+        print(f"  set_rows: lerobot-ccdp-synthesize into {rows}", flush=True)
+        subprocess.run([str(BIN / command[0]), *command[1:]], check=True, capture_output=True)
+        book.record("set_rows", rows_stamp)
+    return train("set_denoiser", root / "set_denoiser", [
+        f"--policy.path={base}", "--policy.training_stage=recovery", f"--dataset.repo_id={repo}",
+        f"--dataset.root={rows}", f"--steps={steps}", "--batch_size=64", f"--save_freq={steps}"], rows_stamp, book)[0]
+
+
+def member_dataset_repo(root: Path) -> str:
+    """The repo id of the member whose folder is `root`."""
+    return f"local/reaching_family_{root.name.removeprefix('member_')}"
 
 
 def table(results: dict[int, dict]) -> str:
@@ -216,8 +264,11 @@ def main() -> None:
     parser.add_argument("--rows", type=int, default=512)
     parser.add_argument("--w-z", type=float, nargs="+", default=[1.0],
                         help="classifier guidance weights to measure (sampling settings: no retraining)")
-    parser.add_argument("--classifier-chunks", nargs="+", choices=CLASSIFIER_CHUNKS, default=["demonstrations"],
-                        help="what the failure-set classifier learns from: one head per value, from the same base")
+    parser.add_argument("--classifier-chunks", nargs="*", choices=CLASSIFIER_CHUNKS, default=["demonstrations"],
+                        help="what the failure-set classifier learns from: one head per value, from the same base "
+                             "(none: no classifier)")
+    parser.add_argument("--set-denoiser", action="store_true",
+                        help="also train and measure the failure-set denoiser (recovery_head=set_denoiser)")
     parser.add_argument("--classifier-query", nargs="+", choices=CLASSIFIER_QUERIES, default=["each"],
                         help="how sampling asks the classifier: each failure, or the whole failure set (no retraining)")
     parser.add_argument("--redraws", type=int, nargs="+", default=[0],
@@ -245,7 +296,8 @@ def main() -> None:
         task = ReachingTask.family_member(seed)
         print(f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, bend "
               f"{task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}", flush=True)
-        heads = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes, args.classifier_chunks)
+        heads = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes, args.classifier_chunks,
+                               args.set_denoiser)
         root, repo = member_dataset(seed, args.out)
         demos = LeRobotDataset(repo, root=root)
         for k, (chunks, checkpoint) in enumerate(heads.items()):
@@ -263,10 +315,12 @@ def main() -> None:
     print(text)
     (args.out / "preferences.md").write_text(
         f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base {args.base_steps} "
-        f"steps, classifier {args.head_steps} steps on {args.classifier_chunks}, queries {args.classifier_query}, "
+        f"steps, heads {args.head_steps} steps (classifiers on {args.classifier_chunks}, set denoiser "
+        f"{args.set_denoiser}), queries {args.classifier_query}, "
         f"guidance weights {args.w_z}, redraws {args.redraws}.\n\n"
         f"{text}\n")
-    shown = ccdp_name(args.classifier_chunks[0], args.classifier_query[0], args.w_z[0], args.redraws[0])
+    shown = (ccdp_name(args.classifier_chunks[0], args.classifier_query[0], args.w_z[0], args.redraws[0])
+             if args.classifier_chunks else "CCDP set denoiser")
     panel_grid(chosen, args.out / "preferences.png", shown)
 
 
