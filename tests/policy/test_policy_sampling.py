@@ -236,7 +236,7 @@ def test_failure_step_share_keeps_the_option_choice_and_lands_on_the_base_modes(
 
 @pytest.mark.parametrize("w_z", [1.0, 3.0])
 @pytest.mark.parametrize("z_reference", ["eps_a", "eps_z_null"])
-def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_preference(z_reference, w_z):
+def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_preference_order(z_reference, w_z):
     """With exact noise estimates, what is left is the sampler's own error: eq. (4) is the score of a product
     only at zero noise. The shares are printed (`pytest -s -k exact_mixtures`): the exact answer after mode 0
     failed is 0 / 0.50 / 0.33 / 0.17; only the paper's form at w_z = 1 gives it (eps_z_null over-weights the
@@ -256,7 +256,8 @@ def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_p
 
 
 @pytest.mark.parametrize("mode, head", [("ccdp", {}), ("dp", {}), ("ccdp", {"recovery_head": "classifier"}),
-                                        ("ccdp", {"recovery_head": "classifier", "classifier_query": "each"})])
+                                        ("ccdp", {"recovery_head": "classifier", "classifier_query": "each"}),
+                                        ("ccdp", {"recovery_head": "set_denoiser"})])
 def test_network_calls_per_step_do_not_grow_with_failures(mode, head):
     policy = make_policy(recovery_mode=mode, w_h=0.5, max_failures=8, **head)
     policy.recovery_trained.fill_(True)
