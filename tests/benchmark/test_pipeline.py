@@ -224,10 +224,12 @@ def test_method_settings_name_known_methods(tmp_path):
         files.method_flags("dp_star")
 
 
-def test_the_compute_matched_baseline_is_dp_star_with_few_candidates(settings, tmp_path):
+def test_the_compute_matched_baseline_is_dp_star_with_few_candidates(tmp_path):
     """`dp_star_matched` evaluates recovery_mode=dp_star with 2 candidates and 1 round unless methods.json names its
     own, beside (not instead of) DP*'s tuned settings."""
-    files = TaskFiles.locate(TASK, *settings, tmp_path)
+    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG)
+    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32}}))
+    files = TaskFiles.locate(TASK, configs, recipes, tmp_path)
     command = files.eval_command(Path("ck"), "dp_star_matched", 1000, tmp_path, files.method_flags("dp_star_matched"))
     assert "--policy.recovery_mode=dp_star" in command
     assert {"--policy.dp_star_candidates=2", "--policy.dp_star_rounds=1"} <= set(command)
