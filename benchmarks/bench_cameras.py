@@ -66,7 +66,7 @@ def planning_latency(size: int, repeats: int, warmup: int, recovery_head: str) -
     calls = {"diffusion": lambda: diffusion.predict_action_chunk(dict(stacked))}
     for n in (0, 4):
         policy = make_ccdp(size, recovery_head=recovery_head).eval()
-        policy.recovery_trained.fill_(True)
+        policy.model.recovery_trained.fill_(True)
         policy.select_action(dict(obs))
         for _ in range(n):
             policy.report_failure(rows=[0], z=torch.randn(1, policy.config.failure_feature_dim))

@@ -103,10 +103,10 @@ def option_shares(args: argparse.Namespace) -> str:
     batch = preprocessor({k: torch.as_tensor(v)[None].repeat(args.rows, 1) for k, v in raw.items()})
     batch = {k: v for k, v in batch.items() if k.startswith("observation.")}
     k = policy.config.num_primitives
-    ccdp = policy.weights
+    ccdp = policy.model.weights
 
     def shares(weights: CompositionWeights, failed: int | None) -> str:
-        policy.weights = weights
+        policy.model.weights = weights
         _, options = options_after_failures(policy, batch, [] if failed is None else [failed])
         return " / ".join(f"{v:.2f}" for v in (torch.bincount(options, minlength=k).float() / args.rows).tolist())
 

@@ -74,7 +74,7 @@ def make_ccdp(env_dim: int, **overrides) -> CCDPPolicy:
     settings = {"failure_feature": "primitive", "num_primitives": OPTIONS, **SHARED, **overrides}
     policy = CCDPPolicy(CCDPConfig(input_features=inputs, output_features=outputs, device="cpu", **settings))
     chunk = policy.config.horizon * policy.config.action_dim
-    policy.outcomes.fill(torch.rand(OUTCOME_ROWS, chunk) * 2 - 1, torch.zeros(OUTCOME_ROWS, 2),
+    policy.model.outcomes.fill(torch.rand(OUTCOME_ROWS, chunk) * 2 - 1, torch.zeros(OUTCOME_ROWS, 2),
                          torch.randint(0, OPTIONS, (OUTCOME_ROWS,)))
     return policy
 
@@ -140,7 +140,7 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Nam
 
     def with_failures(policy: CCDPPolicy, n: int) -> CCDPPolicy:
         policy.load_state_dict(state_dict)
-        policy.recovery_trained.fill_(True)
+        policy.model.recovery_trained.fill_(True)
         policy.eval().reset()
         policy.select_action(dict(obs))
         for _ in range(n):
@@ -183,8 +183,8 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Nam
     rows[-2]["ratio_vs_diffusion"] = 1.0
     return {
         "rows": rows,
-        "params": {"diffusion": n_params(diffusion), "ccdp_base_unet": n_params(ccdp.base),
-                   "ccdp_recovery_head": n_params(ccdp.recovery)},
+        "params": {"diffusion": n_params(diffusion), "ccdp_base_unet": n_params(ccdp.model.base),
+                   "ccdp_recovery_head": n_params(ccdp.model.recovery)},
         "ratio_at_n4": medians["ccdp N=4"] / base,
     }
 

@@ -43,8 +43,8 @@ class ExactStartClassifier(torch.nn.Module):
         horizon = policy.config.horizon
         raw = torch.from_numpy(np.stack([actions[s : s + horizon] for s in starts]))
         self.chunks = preprocessor({"observation.state": torch.zeros(len(raw), 2), "action": raw})["action"]
-        self.z = policy.feature.from_chunk(self.chunks, policy.outcomes)
-        self.alphas_cumprod = policy.noise_scheduler.alphas_cumprod
+        self.z = policy.model.feature.from_chunk(self.chunks, policy.model.outcomes)
+        self.alphas_cumprod = policy.model.noise_scheduler.alphas_cumprod
         self.delta_z = policy.config.delta_z
 
     def forward(self, noisy, timestep, state, z, z_mask, keep_s=None):
@@ -61,9 +61,9 @@ class ExactStartClassifier(torch.nn.Module):
 def failure_z(policy: CCDPPolicy, preprocessor, task: ReachingTask, goal: int, rows: int) -> torch.Tensor:
     """z of a failed reach to `goal` as the policy computes it: the goal's one-hot label, or where it ended."""
     if task.labelled:
-        return policy.feature.one_hot(torch.full((rows,), goal))
+        return policy.model.feature.one_hot(torch.full((rows,), goal))
     end = torch.from_numpy(task.goals[goal]).expand(rows, 2)
-    return policy.feature.from_frame(preprocessor({"observation.state": end.clone()})["observation.state"])
+    return policy.model.feature.from_frame(preprocessor({"observation.state": end.clone()})["observation.state"])
 
 
 def planned_positions(policy: CCDPPolicy, pre, post, task: ReachingTask, failed: list[int], rows: int,
@@ -131,7 +131,7 @@ def measure(task: ReachingTask, checkpoint, methods: dict[str, Method], rows: in
     for name, method in methods.items():
         policy, pre, post = load(checkpoint, recovery_mode=method.mode, **method.fields)
         if method.exact_classifier_of is not None:
-            policy.recovery = ExactStartClassifier(policy, pre, method.exact_classifier_of)
+            policy.model.recovery = ExactStartClassifier(policy, pre, method.exact_classifier_of)
         for count, failed in failure_sets(task).items():
             planned = planned_positions(policy, pre, post, task, failed, rows, seed=2)
             share = goal_shares(task, planned)

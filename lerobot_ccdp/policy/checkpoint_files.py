@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from huggingface_hub import hf_hub_download
+from huggingface_hub.constants import SAFETENSORS_SINGLE_FILE
 from huggingface_hub.errors import HFValidationError
 from huggingface_hub.utils import validate_repo_id
 from lerobot.configs.parser import get_cli_overrides
@@ -200,3 +201,28 @@ def ignore_saved_signal_file(config: Any, saved: dict) -> None:
 def _named_on_command_line(value: str) -> bool:
     overrides = get_cli_overrides("policy") or []
     return f"--failure_signal_file={value}" in overrides
+
+
+def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, **hub: Any) -> None:
+    """Refuse a checkpoint whose saved weights do not match the policy's `state` dict. LeRobot loads non-strictly and
+    would leave such weights at their random start. Only an untrained recovery head may differ: a base checkpoint
+    can start the recovery stage with another head (`--policy.recovery_head`)."""
+    folder = Path(path)
+    file = folder / SAFETENSORS_SINGLE_FILE if folder.is_dir() else Path(hf_hub_download(str(path), SAFETENSORS_SINGLE_FILE, **hub))
+    with safe_open(file, framework="pt") as saved:
+        saved_keys = set(saved.keys())
+    missing, unexpected = sorted(set(state) - saved_keys), sorted(saved_keys - set(state))
+    if not recovery_trained:
+        missing, unexpected = ([k for k in keys if not k.startswith("model.recovery.")] for keys in (missing, unexpected))
+    if missing or unexpected:
+        raise ValueError(
+            f"The weights in {path} do not fit the ccdp policy its config describes: {_listed(missing, 'missing')}, "
+            f"{_listed(unexpected, 'unexpected')}. A checkpoint saved before the networks moved under `model.` "
+            "(lerobot_ccdp before the policy/model split) or with other network settings cannot be loaded: retrain "
+            "it, or load it with the lerobot_ccdp version that saved it."
+        )
+
+
+def _listed(keys: list[str], kind: str, shown: int = 3) -> str:
+    more = ", ..." if len(keys) > shown else ""
+    return f"{len(keys)} {kind} ({', '.join(keys[:shown])}{more})"

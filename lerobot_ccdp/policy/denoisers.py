@@ -87,7 +87,7 @@ class FailureSetClassifier(nn.Module):
     """logit of P(a_0 repeats a failure in F | a_t, s, k): a noisy-chunk classifier for the whole failure set F.
 
     Trained on the demonstrations with F drawn independently of each row (the label says whether the row's own z
-    lies within delta_z of a failure in F; `CCDPPolicy._failure_set_loss`), its gradient turns eps_s into the noise
+    lies within delta_z of a failure in F; `CCDPModel._failure_set_loss`), its gradient turns eps_s into the noise
     estimate of p_s restricted to the chunks outside F (`composition.guide_away_from_failures`). A residual MLP over
     the flattened chunk, FiLM-conditioned on the diffusion step, the state (droppable) and the set's embedding (a
     max over an MLP of each z_i, so neither F's order nor a repeated failure changes it).
@@ -125,7 +125,7 @@ class FailureSetDenoiser(nn.Module):
     followed by an embedding of F (a max over an MLP of each z_i, so neither F's order nor a repeated failure changes
     it). `start_from` copies the base with the set's condition weights zeroed, so training starts from eps_s exactly.
     Trained on the demonstrations with F drawn independently of each row and the rows whose own outcome lies in F left
-    out (`CCDPPolicy._set_denoiser_loss`): p(a | s, F) is then proportional to p_s(a | s) 1[z(a) outside F], the
+    out (`CCDPModel._set_denoiser_loss`): p(a | s, F) is then proportional to p_s(a | s) 1[z(a) outside F], the
     demonstrated proportions over the options left, learnt by one network that sampling calls once per step.
     """
 

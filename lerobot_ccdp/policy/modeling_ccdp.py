@@ -1,4 +1,10 @@
-"""CCDPPolicy: LeRobot's diffusion policy composed at every denoising step with failure-recovery heads."""
+"""CCDPPolicy and CCDPModel: LeRobot's diffusion policy composed at every denoising step with failure-recovery heads.
+
+Split as LeRobot splits DiffusionPolicy and DiffusionModel. `CCDPPolicy` keeps what a rollout needs (observation
+windows, plans, every row's failures, the failure signals) and hands each plan to the recovery mode's sampler
+(`samplers.py`). `CCDPModel` holds the networks, the losses of both stages and the one reverse diffusion the samplers
+call; eq. (4) itself, and which of its terms run, live in `recovery/composition.py`.
+"""
 
 import logging
 from pathlib import Path
@@ -10,7 +16,7 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION
-from torch import Tensor
+from torch import Tensor, nn
 
 from lerobot_ccdp.policy.base_sample_pool import POOL_BATCHES, BaseSamplePool
 from lerobot_ccdp.policy.checkpoint_files import (
@@ -18,15 +24,15 @@ from lerobot_ccdp.policy.checkpoint_files import (
     checkpoint_loading,
     ignore_saved_signal_file,
     refuse_other_checkpoint,
+    refuse_unfit_weights,
     saved_config,
 )
 from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
 from lerobot_ccdp.policy.denoisers import BaseDenoiser, make_recovery_denoiser
-from lerobot_ccdp.policy.dp_star import nearest_failure_distance, reject_repeats
 from lerobot_ccdp.policy.failure_signal import FailureSignalFile
 from lerobot_ccdp.policy.image_encoder import ImageEncoder
 from lerobot_ccdp.policy.model_card import make_model_card
-from lerobot_ccdp.policy.noise_streams import draw_noise, first_candidates, row_generators
+from lerobot_ccdp.policy.noise_streams import row_generators
 from lerobot_ccdp.policy.observations import (
     ConstantInputs,
     observation_frames,
@@ -35,6 +41,7 @@ from lerobot_ccdp.policy.observations import (
     refuse_unknown_cameras,
 )
 from lerobot_ccdp.policy.rollout_memory import RolloutMemory
+from lerobot_ccdp.policy.samplers import SAMPLERS, PlanRows
 from lerobot_ccdp.policy.training_checks import refuse_fresh_training
 from lerobot_ccdp.recovery.composition import (
     CompositionWeights,
@@ -71,12 +78,224 @@ class CCDPPolicy(PreTrainedPolicy):
         if dataset_meta is not None:  # a fresh policy for a dataset: lerobot-train without --policy.path
             refuse_fresh_training(config, dataset_meta)
         self.config = config
+        self.model = CCDPModel(config, dataset_meta, dataset_stats)
+        self.failure_signal = FailureSignalFile(config.failure_signal_file) if config.failure_signal_file else None
+        # Whether anything could tell this policy about a failure (warned about once otherwise).
+        self._heard_failure_source = self.failure_signal is not None
+        self._warned_deaf = False
+        self._rollouts = 0  # rollouts begun since the policy was made: with row_noise_streams, part of each row's seed
+        self._streams: list[torch.Generator] | None = None
+        self.reset()
+
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "CCDPPolicy":
+        """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
+        metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
+        recording dataset without the label column); they are dropped so that loading never reads a dataset. A local
+        folder is checked first (`checkpoint_loading`): a wrong path or a damaged file is named with the fix; so is a
+        checkpoint of another policy type or action size, or whose weights do not fit (`refuse_unfit_weights`). A
+        `failure_signal_file` only the checkpoint names is dropped: a checkpoint never chooses a file to watch."""
+        for key in ("dataset_meta", "dataset_stats"):
+            kwargs.pop(key, None)
+        with checkpoint_loading(pretrained_name_or_path):
+            hub = {key: kwargs[key] for key in HUB_DOWNLOAD_KEYS if key in kwargs}
+            config = kwargs.pop("config", None) or PreTrainedConfig.from_pretrained(pretrained_name_or_path, **hub)
+            saved = saved_config(pretrained_name_or_path, **hub)
+            refuse_other_checkpoint(config, saved, pretrained_name_or_path)
+            ignore_saved_signal_file(config, saved)
+            policy = super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
+            refuse_unfit_weights(policy.state_dict(), bool(policy.model.recovery_trained), pretrained_name_or_path, **hub)
+            return policy
+
+    def generate_model_card(
+        self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
+    ) -> ModelCard:
+        """Called by push_model_to_hub (lerobot-train --policy.push_to_hub): LeRobot's template has no ccdp text."""
+        return make_model_card(self.config, dataset_repo_id, license, tags, bool(self.model.recovery_trained))
+
+    # ----- training -------------------------------------------------------------------------------------
+
+    def get_optim_params(self) -> list:
+        return [p for p in self.parameters() if p.requires_grad]
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """The model's loss for the stage the config names. A non-finite loss stops training (LeRobot would train on
+        to a NaN checkpoint and exit 0)."""
+        loss, info = self.model.compute_loss(batch)
+        if not bool(torch.isfinite(loss)):
+            refuse_non_finite_batch(batch, f"The {self.config.training_stage} loss is {loss.item()} although the "
+                                    "batch is finite: lower --policy.optimizer_lr, or resume from an earlier checkpoint.")
+        return loss, info
+
+    # ----- acting ---------------------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget everything about the rollout: windows, plans and every row's failures."""
+        if getattr(self, "_memory", None) is not None:
+            self._warn_if_deaf()
+        self._memory: RolloutMemory | None = None
+        self._failures: FailureBuffer | None = None
+        self._warned_untrained = False
+        self._planned_with_recovery = False  # whether this episode planned in a mode that uses failures
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """One action per row. Rows whose env flags `observation.failure` remember the failure and re-plan;
+        the other rows keep executing their current chunk."""
+        rows = self._observe(batch).needs_plan()
+        if rows.any():
+            self._memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
+        return self._memory.pop_action()
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures; it becomes
+        the rows' plan, as the chunk a client executes next."""
+        memory = self._observe(batch)
+        rows = torch.ones(memory.batch_size, dtype=torch.bool, device=memory.frames.device)
+        memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
+        return memory.plan.clone()
+
+    def report_failure(self, rows: int | list[int] | Tensor | None = None, z: Tensor | None = None) -> None:
+        """Record a failed attempt from a custom control loop (e.g. a real robot's failure detector).
+
+        `rows` are the batch rows that failed (all rows if None). z defaults to the failure feature of the
+        latest observation and the attempt's chunks; pass `z` (len(rows), z_dim), normalised, to override it.
+        Those rows re-plan from their next observation, which should be the attempt's restored start pose.
+        """
+        self._heard_failure_source = True
+        if self._memory is None:
+            raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
+        mask = self._failed_rows(rows)
+        if not mask.any():
+            return  # an empty list of rows: nothing failed
+        dim = self.config.failure_feature_dim
+        z = None if z is None else torch.as_tensor(z, dtype=torch.float32, device=mask.device)
+        if z is not None and (z.shape[-1:] != (dim,) or z.numel() != int(mask.sum()) * dim):
+            raise ValueError(
+                f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed row, "
+                f"({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out to use the "
+                "attempt's own failure feature."
+            )
+        if z is not None and not bool(torch.isfinite(z).all()):
+            raise ValueError(f"report_failure(z=...) holds NaN or inf ({z.tolist()}): a failure feature must be finite. "
+                             "Check the detector that computed it, or leave z out to use the attempt's own.")
+        self._record_failures(mask, z)
+
+    def _warn_if_deaf(self) -> None:
+        """An episode ended with recovery on and nothing that could report a failure: say so, once."""
+        if self._heard_failure_source or self._warned_deaf or not self._planned_with_recovery:
+            return
+        self._warned_deaf = True
+        logger.warning(
+            "ccdp ran an episode with recovery_mode=%s but nothing could tell it about a failure: no %s in its "
+            "inputs, no report_failure() call, no failure_signal_file. It acted as plain diffusion policy. In "
+            "lerobot-record, pass --policy.failure_signal_file=/tmp/ccdp_failed and create that file when an "
+            "attempt fails (docs/robot.md).", self.config.recovery_mode, FAILURE_FLAG_KEY,
+        )
+
+    def _failed_rows(self, rows: int | list[int] | Tensor | None) -> Tensor:
+        """Bool mask (B,) of the failed rows, refusing rows outside the batch the policy is acting on."""
+        b = self._memory.batch_size
+        mask = torch.zeros(b, dtype=torch.bool, device=self._memory.frames.device)
+        index = None if rows is None else torch.as_tensor(rows, device=mask.device)
+        if index is not None and index.numel() == 0:
+            return mask
+        try:
+            if index is not None and index.dtype != torch.bool and bool((index < 0).any()):
+                raise IndexError("negative row")  # -1 would name the last row: almost surely a bug in the loop
+            mask[slice(None) if index is None else index] = True
+        except (IndexError, RuntimeError) as error:
+            raise ValueError(
+                f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a bool mask of "
+                "that length). Pass the failed rows' indices, or None for every row."
+            ) from error
+        return mask
+
+    def failure_count(self) -> Tensor:
+        """How many failures each row currently remembers."""
+        return torch.zeros(0, dtype=torch.long) if self._failures is None else self._failures.count.clone()
+
+    def _observe(self, batch: dict[str, Tensor]) -> RolloutMemory:
+        """Take in one observation per row: remember flagged failures, then push the frame."""
+        frame = self.model.frames(batch)
+        if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
+            frame = frame[:, -1]
+        fresh = self._memory is None or self._memory.batch_size != frame.shape[0]
+        if fresh:
+            if self._failures is not None and bool((self._failures.count > 0).any()):
+                logger.warning("The batch went from %d to %d rows without reset(): the %d remembered failure(s) "
+                               "are dropped, as rows cannot be matched. Call policy.reset() between rollouts.",
+                               self._memory.batch_size, frame.shape[0], int(self._failures.count.sum()))
+            cfg = self.config
+            self._memory = RolloutMemory(cfg, frame.shape[0], frame.device)
+            self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, cfg.max_failures, frame.device)
+            self._streams = row_generators(self._rollouts, frame.shape[0]) if cfg.row_noise_streams else None
+            self._rollouts += 1
+        flag = batch.get(FAILURE_FLAG_KEY)
+        if flag is not None:
+            self._heard_failure_source = True
+            failed = flag.reshape(frame.shape[0], -1)[:, 0] > 0.5
+            if failed.any():
+                self._record_failures(failed)
+        if self.failure_signal is not None and self.failure_signal.poll():
+            if fresh:
+                logger.warning("%s appeared before any action since reset(): no attempt to remember, ignored.",
+                               self.failure_signal.path)
+            else:
+                self._record_failures(torch.ones(frame.shape[0], dtype=torch.bool, device=frame.device))
+        self._memory.push_frame(frame)
+        return self._memory
+
+    def _record_failures(self, failed: Tensor, z: Tensor | None = None) -> None:
+        """Remember z_f for the failed rows and restart them at their next observation."""
+        memory, rows = self._memory, failed
+        if z is None:
+            unplanned = failed & ~memory.attempt_planned
+            if not self.model.feature.reads_failure_frame and unplanned.any():
+                logger.warning("Row(s) %s failed before planning any chunk: no chunk to remember.",
+                               unplanned.nonzero().flatten().tolist())
+                rows = failed & memory.attempt_planned
+            z = self.model.feature.of_failure(memory.last_frame, memory.attempt_chunk, memory.latest_chunk,
+                                                self.model.outcomes)
+        else:
+            z_full = torch.zeros(memory.batch_size, self.config.failure_feature_dim, device=z.device)
+            z_full[rows] = z.reshape(-1, self.config.failure_feature_dim).to(z_full.dtype)
+            z = z_full
+        self._failures.add(rows, z)
+        memory.restart(failed)
+
+    def _sample(self, rows: Tensor, noise: Tensor | None) -> Tensor:
+        """Chunks (R, horizon, A) for the selected rows, from the configured recovery mode's sampler."""
+        memory, mode = self._memory, self.config.recovery_mode
+        z, z_mask = self._failures.padded(rows)
+        self._planned_with_recovery |= mode != "dp"
+        if mode == "ccdp" and z_mask.any() and not bool(self.model.recovery_trained):
+            if not self._warned_untrained:
+                logger.warning("recovery_mode=ccdp but the recovery head is untrained (base-stage checkpoint): "
+                               "sampling as plain DP. Train the recovery stage to use failures.")
+                self._warned_untrained = True
+            mode = "dp"
+        streams = None if self._streams is None else [self._streams[i] for i in rows.nonzero().flatten().tolist()]
+        plan = PlanRows(memory.state_condition(rows), memory.history_condition(rows), z, z_mask,
+                        None if noise is None else noise[rows], streams)
+        return SAMPLERS[mode](self.model, plan)
+
+
+class CCDPModel(nn.Module):
+    """The base denoiser (eps_a, eps_s, eps_h in one network), the recovery head, the camera encoder, the outcome table
+    and the noise schedule. `compute_loss` trains the stage the config names; `denoise` runs the reverse diffusion
+    with eq. (4) (or the head's own composition) at every step."""
+
+    def __init__(self, config: CCDPConfig, dataset_meta=None, dataset_stats=None):
+        super().__init__()
+        self.config = config
         self.base = BaseDenoiser(config)
         self.images = ImageEncoder(config) if config.image_features else None
         self.recovery = make_recovery_denoiser(config)
         self.outcomes = OutcomeIndex()
         self.constant_inputs = ConstantInputs(config)
-        # Whether eps_z has been trained; a base-only checkpoint composes nothing for failures.
+        # Whether the recovery head has been trained; a base-only checkpoint composes nothing for failures.
         self.register_buffer("recovery_trained", torch.zeros((), dtype=torch.bool))
         self.noise_scheduler = _make_noise_scheduler(
             config.noise_scheduler_type,
@@ -95,39 +314,8 @@ class CCDPPolicy(PreTrainedPolicy):
             self.constant_inputs.fill(config, dataset_stats)
         if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
-        self.failure_signal = FailureSignalFile(config.failure_signal_file) if config.failure_signal_file else None
-        # Whether anything could tell this policy about a failure (warned about once otherwise).
-        self._heard_failure_source = self.failure_signal is not None
-        self._warned_deaf = False
         self._sample_pool: BaseSamplePool | None = None  # classifier_chunks=base_samples, while training
-        self._rollouts = 0  # rollouts begun since the policy was made: with row_noise_streams, part of each row's seed
-        self._streams: list[torch.Generator] | None = None
         self._set_trainable()
-        self.reset()
-
-    @classmethod
-    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "CCDPPolicy":
-        """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
-        metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
-        recording dataset without the label column); they are dropped so that loading never reads a dataset. A local
-        folder is checked first (`checkpoint_loading`): a wrong path or a damaged file is named with the fix; so is a
-        checkpoint of another policy type or action size. A `failure_signal_file` only the checkpoint names is
-        dropped: a checkpoint never chooses a file for the policy to watch."""
-        for key in ("dataset_meta", "dataset_stats"):
-            kwargs.pop(key, None)
-        with checkpoint_loading(pretrained_name_or_path):
-            hub = {key: kwargs[key] for key in HUB_DOWNLOAD_KEYS if key in kwargs}
-            config = kwargs.pop("config", None) or PreTrainedConfig.from_pretrained(pretrained_name_or_path, **hub)
-            saved = saved_config(pretrained_name_or_path, **hub)
-            refuse_other_checkpoint(config, saved, pretrained_name_or_path)
-            ignore_saved_signal_file(config, saved)
-            return super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
-
-    def generate_model_card(
-        self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
-    ) -> ModelCard:
-        """Called by push_model_to_hub (lerobot-train --policy.push_to_hub): LeRobot's template has no ccdp text."""
-        return make_model_card(self.config, dataset_repo_id, license, tags, bool(self.recovery_trained))
 
     # ----- training -------------------------------------------------------------------------------------
 
@@ -139,24 +327,15 @@ class CCDPPolicy(PreTrainedPolicy):
             self.images.requires_grad_(base_stage)
         self.recovery.requires_grad_(not base_stage)
 
-    def get_optim_params(self) -> list:
-        return [p for p in self.parameters() if p.requires_grad]
-
-    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """Loss of the stage the config names: the base denoiser on demos, or eps_z on a recovery dataset.
-        A non-finite loss stops training (LeRobot would train on to a NaN checkpoint and exit 0)."""
+    def compute_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """Loss of the stage the config names: the base denoiser on demos, or the recovery head on its dataset."""
         if self.config.training_stage == "base":
-            loss, info = self._base_loss(batch)
-        elif self.config.recovery_head == "classifier":
-            loss, info = self._failure_set_loss(batch)
-        elif self.config.recovery_head == "set_denoiser":
-            loss, info = self._set_denoiser_loss(batch)
-        else:
-            loss, info = self._recovery_loss(batch)
-        if not bool(torch.isfinite(loss)):
-            refuse_non_finite_batch(batch, f"The {self.config.training_stage} loss is {loss.item()} although the "
-                                    "batch is finite: lower --policy.optimizer_lr, or resume from an earlier checkpoint.")
-        return loss, info
+            return self._base_loss(batch)
+        if self.config.recovery_head == "classifier":
+            return self._failure_set_loss(batch)
+        if self.config.recovery_head == "set_denoiser":
+            return self._set_denoiser_loss(batch)
+        return self._recovery_loss(batch)
 
     def _base_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config
@@ -251,7 +430,7 @@ class CCDPPolicy(PreTrainedPolicy):
         if self._pool_step % cfg.classifier_resample_every == 0:
             noise = torch.randn(rows, cfg.horizon, cfg.action_dim, device=state.device)
             no_failures = torch.zeros(rows, 0, cfg.failure_feature_dim, device=state.device)
-            self._sample_pool.add(state, self._denoise(noise, state, history, no_failures, no_failures[..., 0].bool()))
+            self._sample_pool.add(state, self.denoise(noise, state, history, no_failures, no_failures[..., 0].bool()))
         self._pool_step += 1
         return self._sample_pool.draw(rows)
 
@@ -284,171 +463,7 @@ class CCDPPolicy(PreTrainedPolicy):
         )
         return noise, timesteps, self.noise_scheduler.add_noise(chunk, noise, timesteps)
 
-    # ----- acting ---------------------------------------------------------------------------------------
-
-    def reset(self) -> None:
-        """Forget everything about the rollout: windows, plans and every row's failures."""
-        if getattr(self, "_memory", None) is not None:
-            self._warn_if_deaf()
-        self._memory: RolloutMemory | None = None
-        self._failures: FailureBuffer | None = None
-        self._warned_untrained = False
-        self._planned_with_recovery = False  # whether this episode planned in a mode that uses failures
-
-    @torch.no_grad()
-    def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
-        """One action per row. Rows whose env flags `observation.failure` remember the failure and re-plan;
-        the other rows keep executing their current chunk."""
-        rows = self._observe(batch).needs_plan()
-        if rows.any():
-            self._memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
-        return self._memory.pop_action()
-
-    @torch.no_grad()
-    def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
-        """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures; it becomes
-        the rows' plan, as the chunk a client executes next."""
-        memory = self._observe(batch)
-        rows = torch.ones(memory.batch_size, dtype=torch.bool, device=memory.frames.device)
-        memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
-        return memory.plan.clone()
-
-    def report_failure(self, rows: int | list[int] | Tensor | None = None, z: Tensor | None = None) -> None:
-        """Record a failed attempt from a custom control loop (e.g. a real robot's failure detector).
-
-        `rows` are the batch rows that failed (all rows if None). z defaults to the failure feature of the
-        latest observation and the attempt's chunks; pass `z` (len(rows), z_dim), normalised, to override it.
-        Those rows re-plan from their next observation, which should be the attempt's restored start pose.
-        """
-        self._heard_failure_source = True
-        if self._memory is None:
-            raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
-        mask = self._failed_rows(rows)
-        if not mask.any():
-            return  # an empty list of rows: nothing failed
-        dim = self.config.failure_feature_dim
-        z = None if z is None else torch.as_tensor(z, dtype=torch.float32, device=mask.device)
-        if z is not None and (z.shape[-1:] != (dim,) or z.numel() != int(mask.sum()) * dim):
-            raise ValueError(
-                f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed row, "
-                f"({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out to use the "
-                "attempt's own failure feature."
-            )
-        if z is not None and not bool(torch.isfinite(z).all()):
-            raise ValueError(f"report_failure(z=...) holds NaN or inf ({z.tolist()}): a failure feature must be finite. "
-                             "Check the detector that computed it, or leave z out to use the attempt's own.")
-        self._record_failures(mask, z)
-
-    def _warn_if_deaf(self) -> None:
-        """An episode ended with recovery on and nothing that could report a failure: say so, once."""
-        if self._heard_failure_source or self._warned_deaf or not self._planned_with_recovery:
-            return
-        self._warned_deaf = True
-        logger.warning(
-            "ccdp ran an episode with recovery_mode=%s but nothing could tell it about a failure: no %s in its "
-            "inputs, no report_failure() call, no failure_signal_file. It acted as plain diffusion policy. In "
-            "lerobot-record, pass --policy.failure_signal_file=/tmp/ccdp_failed and create that file when an "
-            "attempt fails (docs/robot.md).", self.config.recovery_mode, FAILURE_FLAG_KEY,
-        )
-
-    def _failed_rows(self, rows: int | list[int] | Tensor | None) -> Tensor:
-        """Bool mask (B,) of the failed rows, refusing rows outside the batch the policy is acting on."""
-        b = self._memory.batch_size
-        mask = torch.zeros(b, dtype=torch.bool, device=self._memory.frames.device)
-        index = None if rows is None else torch.as_tensor(rows, device=mask.device)
-        if index is not None and index.numel() == 0:
-            return mask
-        try:
-            if index is not None and index.dtype != torch.bool and bool((index < 0).any()):
-                raise IndexError("negative row")  # -1 would name the last row: almost surely a bug in the loop
-            mask[slice(None) if index is None else index] = True
-        except (IndexError, RuntimeError) as error:
-            raise ValueError(
-                f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a bool mask of "
-                "that length). Pass the failed rows' indices, or None for every row."
-            ) from error
-        return mask
-
-    def failure_count(self) -> Tensor:
-        """How many failures each row currently remembers."""
-        return torch.zeros(0, dtype=torch.long) if self._failures is None else self._failures.count.clone()
-
-    def _observe(self, batch: dict[str, Tensor]) -> RolloutMemory:
-        """Take in one observation per row: remember flagged failures, then push the frame."""
-        frame = self.frames(batch)
-        if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
-            frame = frame[:, -1]
-        fresh = self._memory is None or self._memory.batch_size != frame.shape[0]
-        if fresh:
-            if self._failures is not None and bool((self._failures.count > 0).any()):
-                logger.warning("The batch went from %d to %d rows without reset(): the %d remembered failure(s) "
-                               "are dropped, as rows cannot be matched. Call policy.reset() between rollouts.",
-                               self._memory.batch_size, frame.shape[0], int(self._failures.count.sum()))
-            cfg = self.config
-            self._memory = RolloutMemory(cfg, frame.shape[0], frame.device)
-            self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, cfg.max_failures, frame.device)
-            self._streams = row_generators(self._rollouts, frame.shape[0]) if cfg.row_noise_streams else None
-            self._rollouts += 1
-        flag = batch.get(FAILURE_FLAG_KEY)
-        if flag is not None:
-            self._heard_failure_source = True
-            failed = flag.reshape(frame.shape[0], -1)[:, 0] > 0.5
-            if failed.any():
-                self._record_failures(failed)
-        if self.failure_signal is not None and self.failure_signal.poll():
-            if fresh:
-                logger.warning("%s appeared before any action since reset(): no attempt to remember, ignored.",
-                               self.failure_signal.path)
-            else:
-                self._record_failures(torch.ones(frame.shape[0], dtype=torch.bool, device=frame.device))
-        self._memory.push_frame(frame)
-        return self._memory
-
-    def _record_failures(self, failed: Tensor, z: Tensor | None = None) -> None:
-        """Remember z_f for the failed rows and restart them at their next observation."""
-        memory, rows = self._memory, failed
-        if z is None:
-            unplanned = failed & ~memory.attempt_planned
-            if not self.feature.reads_failure_frame and unplanned.any():
-                logger.warning("Row(s) %s failed before planning any chunk: no chunk to remember.",
-                               unplanned.nonzero().flatten().tolist())
-                rows = failed & memory.attempt_planned
-            z = self.feature.of_failure(memory.last_frame, memory.attempt_chunk, memory.latest_chunk,
-                                          self.outcomes)
-        else:
-            z_full = torch.zeros(memory.batch_size, self.config.failure_feature_dim, device=z.device)
-            z_full[rows] = z.reshape(-1, self.config.failure_feature_dim).to(z_full.dtype)
-            z = z_full
-        self._failures.add(rows, z)
-        memory.restart(failed)
-
-    # ----- sampling -------------------------------------------------------------------------------------
-
-    def _sample(self, rows: Tensor, noise: Tensor | None) -> Tensor:
-        """Chunks (R, horizon, A) for the selected rows, by the configured recovery mode."""
-        memory, cfg = self._memory, self.config
-        state, history = memory.state_condition(rows), memory.history_condition(rows)
-        z, z_mask = self._failures.padded(rows)
-        mode = cfg.recovery_mode
-        self._planned_with_recovery |= mode != "dp"
-        if mode == "ccdp" and z_mask.any() and not bool(self.recovery_trained):
-            if not self._warned_untrained:
-                logger.warning("recovery_mode=ccdp but eps_z is untrained (base-stage checkpoint): "
-                               "sampling as plain DP. Train the recovery stage to use failures.")
-                self._warned_untrained = True
-            mode = "dp"
-        streams = None if self._streams is None else [self._streams[i] for i in rows.nonzero().flatten().tolist()]
-        if mode == "dp_star" and z_mask.any():  # DP*: the base's candidates, failures ignored, repeats rejected
-            return self._sample_without_repeats(state, history, z, z_mask, cfg.dp_star_candidates,
-                                                cfg.dp_star_rounds, guided=False, streams=streams)
-        if mode != "ccdp":
-            z, z_mask = z[:, :0], z_mask[:, :0]
-        shape = (state.shape[0], cfg.horizon, cfg.action_dim)
-        sample = noise[rows] if noise is not None else draw_noise(shape, streams, state.device)
-        if mode == "ccdp" and cfg.ccdp_redraws and z_mask.any():  # a plan that still repeats is drawn again
-            return self._sample_without_repeats(state, history, z, z_mask, 1, 1 + cfg.ccdp_redraws, guided=True,
-                                                first_noise=sample, streams=streams)
-        return self._denoise(sample, state, history, z, z_mask, generators=streams)
+    # ----- the reverse diffusion ------------------------------------------------------------------------
 
     @torch.no_grad()
     def sample_exploratory(self, state: Tensor, w_s: float, noise: Tensor | None = None) -> Tensor:
@@ -460,10 +475,10 @@ class CCDPPolicy(PreTrainedPolicy):
             noise = torch.randn(r, cfg.horizon, cfg.action_dim, device=state.device)
         history = torch.zeros(r, self.base.history_cond_dim, device=state.device)
         no_failures = torch.zeros(r, 0, cfg.failure_feature_dim, device=state.device)
-        return self._denoise(noise, state, history, no_failures, no_failures[..., 0].bool(),
+        return self.denoise(noise, state, history, no_failures, no_failures[..., 0].bool(),
                              CompositionWeights.exploration(w_s))
 
-    def _denoise(
+    def denoise(
         self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor,
         weights: CompositionWeights | None = None, generators: list[torch.Generator] | None = None,
     ) -> Tensor:
@@ -589,36 +604,6 @@ class CCDPPolicy(PreTrainedPolicy):
                 log_outside = log_no_repeat(logits.view(rows, n), distinct_failures(z, z_mask, self.config.delta_z))
             (gradient,) = torch.autograd.grad(log_outside.sum(), noisy)
         return gradient
-
-    def _sample_without_repeats(self, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor, candidates: int,
-                                rounds: int, guided: bool, first_noise: Tensor | None = None,
-                                streams: list[torch.Generator] | None = None) -> Tensor:
-        """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round draws
-        `candidates` chunks per pending row, from CCDP's guided composition (`guided`: `ccdp_redraws`, one candidate,
-        the first round from the caller's `first_noise`) or from the base composition with failures ignored (DP*),
-        and labels them with the outcome of the nearest demonstrated chunk. With row `streams`, each row's first
-        candidate of the first round draws from its row's stream, later draws from torch's global generator."""
-        cfg, failures = self.config, slice(None) if guided else slice(0)
-        first_round = iter([(first_noise, first_candidates(streams, candidates))])
-
-        def draw(rows: Tensor) -> tuple[Tensor, Tensor]:
-            r = rows.shape[0]
-            noise, generators = next(first_round, (None, None))
-            if noise is None:
-                noise = draw_noise((r * candidates, cfg.horizon, cfg.action_dim), generators, state.device)
-            chunks = self._denoise(
-                noise,
-                state[rows].repeat_interleave(candidates, dim=0),
-                history[rows].repeat_interleave(candidates, dim=0),
-                z[rows][:, failures].repeat_interleave(candidates, dim=0),
-                z_mask[rows][:, failures].repeat_interleave(candidates, dim=0),
-                generators=generators,
-            )
-            z_candidates = self.feature.from_chunk(chunks, self.outcomes).view(r, candidates, -1)
-            distance = nearest_failure_distance(z_candidates, z[rows], z_mask[rows])
-            return chunks.view(r, candidates, cfg.horizon, cfg.action_dim), distance
-
-        return reject_repeats(draw, state.shape[0], rounds, cfg.delta_z, state.device)
 
     # ----- inputs ---------------------------------------------------------------------------------------
 

@@ -62,10 +62,10 @@ def options_after_failures(policy, batch: dict[str, Tensor], failed_options: lis
     policy.select_action(batch)
     rows = batch["observation.state"].shape[0]
     for option in failed_options:
-        policy.report_failure(z=policy.feature.one_hot(torch.full((rows,), option)))
+        policy.report_failure(z=policy.model.feature.one_hot(torch.full((rows,), option)))
     policy.select_action(batch)
     chunks = policy._memory.attempt_chunk
-    return chunks, policy.outcomes.primitives[policy.outcomes.nearest(chunks)]
+    return chunks, policy.model.outcomes.primitives[policy.model.outcomes.nearest(chunks)]
 
 
 def demo_chunks(episode_index: np.ndarray, actions: np.ndarray, start: int, horizon: int) -> np.ndarray:

@@ -210,11 +210,11 @@ def synthesised_samples(
         condition = x if images is None else torch.cat([x, images(batch).repeat_interleave(k, dim=0)], dim=-1)
         noise = torch.randn(len(x), cfg.horizon, cfg.action_dim, generator=generator)
         condition, noise = condition.flatten(start_dim=1).to(device), noise.to(device)
-        chunks = policy.sample_exploratory(condition, recipe.w_s, noise)  # eq. (7), on the policy's device
+        chunks = policy.model.sample_exploratory(condition, recipe.w_s, noise)  # eq. (7), on the policy's device
         if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
-            near = policy.outcomes.rms_distance(chunks) <= recipe.outcome_radius
+            near = policy.model.outcomes.rms_distance(chunks) <= recipe.outcome_radius
             x, chunks = x[near.cpu()], chunks[near]
-        z = policy.feature.from_chunk(chunks, policy.outcomes)
+        z = policy.model.feature.from_chunk(chunks, policy.model.outcomes)
         parts.append(Samples(x, chunks.cpu(), z.cpu(), torch.full((len(x),), SYNTHESISED)))
     return Samples.cat(parts)
 
@@ -227,7 +227,7 @@ def camera_encoder(policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata
     def encode(frames: Tensor) -> Tensor:
         images = normalize_batch(policy.config, stats, windows(frames))
         with torch.no_grad():
-            return policy.images([images[key].to(policy.config.device) for key in cameras]).cpu()
+            return policy.model.images([images[key].to(policy.config.device) for key in cameras]).cpu()
 
     return encode
 
@@ -239,7 +239,7 @@ def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, gener
     among = torch.arange(len(demos.windows)) if among is None else among
     pick = among[torch.randperm(len(among), generator=generator)[: recipe.demo_frames]]
     chunks = demos.chunks[pick]
-    z = policy.feature.from_chunk(chunks.to(policy.config.device), policy.outcomes).cpu()
+    z = policy.model.feature.from_chunk(chunks.to(policy.config.device), policy.model.outcomes).cpu()
     return Samples(demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS))
 
 
@@ -290,7 +290,7 @@ def synthesize_recovery_dataset(
     policy, stats = load_checkpoint(policy_path, device)
     config = policy.config
     check_recipe_matches(recipe, config, recipe_source)
-    if config.failure_feature != "action" and len(policy.outcomes) == 0:
+    if config.failure_feature != "action" and len(policy.model.outcomes) == 0:
         raise ValueError(f"{policy_path} holds no demonstrated outcomes, so z of a sampled chunk is unknown; "
                          "train the base stage from the demo dataset with lerobot-train.")
     meta = LeRobotDatasetMetadata(demo_repo_id, root=demo_root)

@@ -100,7 +100,7 @@ def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
     assert demos.meta.total_episodes == N_DEMOS
 
     base = CCDPPolicy.from_pretrained(task_out / "base" / CHECKPOINT)
-    assert base.config.training_stage == "base" and not bool(base.recovery_trained)
+    assert base.config.training_stage == "base" and not bool(base.model.recovery_trained)
     assert base.config.failure_feature == "primitive" and base.config.num_primitives == 2
 
     recovery_data = LeRobotDataset(f"local/{SLUG}_recovery", root=task_out / "recovery_data")
@@ -111,9 +111,9 @@ def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
     assert source["source"]["policy_path"] == str(task_out / "base" / CHECKPOINT)  # made from this base
 
     recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
-    assert bool(recovery.recovery_trained)
-    for name, weight in base.base.state_dict().items():  # the recovery stage starts from the base and freezes it
-        assert torch.equal(weight, recovery.base.state_dict()[name]), name
+    assert bool(recovery.model.recovery_trained)
+    for name, weight in base.model.base.state_dict().items():  # the recovery stage starts from the base and freezes it
+        assert torch.equal(weight, recovery.model.base.state_dict()[name]), name
 
     for method in METHODS:
         episodes = Episodes.from_eval_info(task_out / "eval" / method / "eval_info.json")
@@ -328,7 +328,7 @@ def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
     demos = LeRobotDataset(f"local/{slug}", root=task_out / "demos", video_backend=video_backend())
     assert demos.meta.video_keys == [f"{OBS_IMAGES}.front"]
     recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
-    assert bool(recovery.recovery_trained) and list(recovery.config.image_features) == [f"{OBS_IMAGES}.front"]
+    assert bool(recovery.model.recovery_trained) and list(recovery.config.image_features) == [f"{OBS_IMAGES}.front"]
     recovery_meta = LeRobotDataset(f"local/{slug}_recovery", root=task_out / "recovery_data").meta
     assert not recovery_meta.video_keys and f"{OBS_IMAGES}.front" in recovery_meta.stats
     assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
@@ -360,7 +360,7 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     assert not (task_out / "recovery_data").exists()
     assert "synthesize" not in json.loads((task_out / "timings.json").read_text())
     recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
-    assert recovery.config.recovery_head == "classifier" and bool(recovery.recovery_trained)
+    assert recovery.config.recovery_head == "classifier" and bool(recovery.model.recovery_trained)
     assert f"--dataset.root={task_out / 'demos'} --output_dir={task_out / 'recovery'}" in stdout
     assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
     assert "--policy.classifier_query=each --policy.ccdp_redraws=2" in stdout

@@ -19,7 +19,7 @@ from lerobot_ccdp.datasets.record import record_dataset
 from lerobot_ccdp.envs import gym_id
 from lerobot_ccdp.envs.scripted import Expert, run_episode
 from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
-from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.modeling_ccdp import CCDPModel, CCDPPolicy
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch
 from lerobot_ccdp.recovery.synthesize import FAILURE_ACTION, RECIPE_COPY, synthesize_recovery_dataset
 
@@ -77,7 +77,7 @@ def synthesised(request, pixel_root, tmp_path_factory):
     tmp = tmp_path_factory.mktemp(f"pixel_synth_{request.param}")
     checkpoint = untrained_checkpoint(pixel_root, tmp / "base", repo_id=REPO_ID, **ENCODER, **settings)
     conditions, frames = [], []
-    sample, windows = CCDPPolicy.sample_exploratory, CameraWindows.__call__
+    sample, windows = CCDPModel.sample_exploratory, CameraWindows.__call__
 
     def recording_sample(self, state, w_s, noise=None):
         conditions.append(state.clone())
@@ -88,7 +88,7 @@ def synthesised(request, pixel_root, tmp_path_factory):
         return windows(self, picked)
 
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(CCDPPolicy, "sample_exploratory", recording_sample)
+        patch.setattr(CCDPModel, "sample_exploratory", recording_sample)
         patch.setattr(CameraWindows, "__call__", recording_windows)
         root = synthesize_recovery_dataset(RecoveryRecipe.from_dict({**settings, **SMALL}), REPO_ID, pixel_root,
                                            checkpoint, "local/recovery", tmp / "recovery", progress=False)
@@ -112,7 +112,7 @@ def test_stored_z_is_the_policys_z_of_the_failed_chunk(synthesised):
     rows = dataset.hf_dataset.with_format("torch")[:]
     normalized = normalize_batch(policy.config, dataset.meta.stats,
                                  {FAILURE_FEATURE_KEY: rows[FAILURE_FEATURE_KEY], ACTION: rows[FAILURE_ACTION]})
-    expected = policy.feature.from_chunk(normalized[ACTION], policy.outcomes)
+    expected = policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes)
     torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], expected, atol=1e-4, rtol=1e-4)
 
 
@@ -125,7 +125,7 @@ def test_eq7_conditions_perturb_the_state_and_reuse_the_frames_images(synthesise
     demo = pre({OBS_STATE: torch.stack([dataset[int(i)][OBS_STATE] for i in frames]),
                 CAMERA: torch.stack([dataset[int(i)][CAMERA] for i in frames])})
     with torch.no_grad():
-        encoded = policy.images([demo[CAMERA]])
+        encoded = policy.model.images([demo[CAMERA]])
     state_dim = policy.config.state_dim
     assert conditions.shape == (len(frames), state_dim + encoded.shape[1])
     # The image part is the recorded frame's encoding (to the round-off of encoding in batches of another size).

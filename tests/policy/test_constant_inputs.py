@@ -50,7 +50,7 @@ def test_lerobots_normaliser_blows_up_a_constant_dimension_that_changes():
 
 def test_a_changed_constant_dimension_plans_as_at_its_training_value_and_is_logged_once(caplog):
     policy = _policy()
-    assert policy.constant_inputs.held.tolist() == [False, False, False, True]
+    assert policy.model.constant_inputs.held.tolist() == [False, False, False, True]
     at_training_value = _first_action(policy, 0.0)
     with caplog.at_level(logging.WARNING):
         changed = _first_action(policy, 1.0)
@@ -63,19 +63,19 @@ def test_a_changed_constant_dimension_plans_as_at_its_training_value_and_is_logg
 
 def test_without_the_hold_the_same_input_changes_the_plan():
     policy = _policy()
-    policy.constant_inputs.held.zero_()
+    policy.model.constant_inputs.held.zero_()
     assert not torch.allclose(_first_action(policy, 1.0), _first_action(policy, 0.0), atol=1e-3)
 
 
 def test_mean_std_holds_a_zero_std_dimension():
     policy = _policy(NormalizationMode.MEAN_STD)
-    assert policy.constant_inputs.held.tolist() == [False, False, False, True]
-    assert policy.constant_inputs.value[3] == 0.0
+    assert policy.model.constant_inputs.held.tolist() == [False, False, False, True]
+    assert policy.model.constant_inputs.value[3] == 0.0
     torch.testing.assert_close(_first_action(policy, 1.0), _first_action(policy, 0.0))
 
 
 def test_the_mask_travels_with_the_checkpoint(tmp_path):
     _policy().save_pretrained(tmp_path)
     loaded = CCDPPolicy.from_pretrained(tmp_path).eval()
-    assert loaded.constant_inputs.held.tolist() == [False, False, False, True]
+    assert loaded.model.constant_inputs.held.tolist() == [False, False, False, True]
     torch.testing.assert_close(_first_action(loaded, 1.0), _first_action(loaded, 0.0))

@@ -38,8 +38,8 @@ def test_stored_z_normalises_onto_runtime_z(kind, action_dims, mode):
         raw_z = chunk[:, [0, 7]][:, :, action_dims or [0, 1]].flatten(start_dim=1)
     out = pre({"observation.state": state, "action": chunk, "observation.failure_feature": raw_z})
     runtime_z = (
-        policy.feature.from_frame(out["observation.state"])
+        policy.model.feature.from_frame(out["observation.state"])
         if kind == "final_state"
-        else policy.feature.from_chunk(out["action"], OutcomeIndex())
+        else policy.model.feature.from_chunk(out["action"], OutcomeIndex())
     )
     torch.testing.assert_close(out["observation.failure_feature"], runtime_z, atol=1e-5, rtol=1e-5)

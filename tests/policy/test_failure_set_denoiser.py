@@ -17,10 +17,10 @@ def test_start_from_copies_the_base_so_the_head_begins_as_eps_s_whatever_the_fai
     noisy, step, state = torch.randn(5, 16, 2), torch.randint(0, 100, (5,)), torch.randn(5, 2)
     z, z_mask = torch.eye(3)[torch.randint(0, 3, (5, 2))], torch.tensor([[True, False]] * 3 + [[True, True]] * 2)
     ones, no_history = torch.ones(5, 1), torch.zeros(5, 0)
-    eps_s = policy.base(noisy, step, state, ones, no_history, 0 * ones)
-    assert not torch.allclose(policy.recovery(noisy, step, state, z, z_mask), eps_s, atol=1e-3)
-    policy.recovery.start_from(policy.base)
-    torch.testing.assert_close(policy.recovery(noisy, step, state, z, z_mask), eps_s)
+    eps_s = policy.model.base(noisy, step, state, ones, no_history, 0 * ones)
+    assert not torch.allclose(policy.model.recovery(noisy, step, state, z, z_mask), eps_s, atol=1e-3)
+    policy.model.recovery.start_from(policy.model.base)
+    torch.testing.assert_close(policy.model.recovery(noisy, step, state, z, z_mask), eps_s)
 
 
 def test_failure_sets_come_from_other_rows_and_flag_the_rows_whose_outcome_they_hold():
@@ -36,11 +36,11 @@ def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set():
     """With a single option, every drawn failure set holds each row's own outcome: no row is kept, so no gradient."""
     torch.manual_seed(0)
     policy = make_policy(**{**SETTINGS, "training_stage": "recovery"}).train()
-    policy.outcomes.fill(torch.zeros(4, 16 * 2), torch.zeros(4, 2), torch.zeros(4, dtype=torch.long))
+    policy.model.outcomes.fill(torch.zeros(4, 16 * 2), torch.zeros(4, 2), torch.zeros(4, dtype=torch.long))
     batch = {"observation.state": torch.randn(8, 2), "action": torch.randn(8, 16, 2)}  # synthesised rows
     loss, info = policy.forward(batch)
     assert info["kept_rows"] == 0.0 and loss.item() == 0.0
-    assert bool(policy.recovery_trained)  # the first step copied the base into the head
+    assert bool(policy.model.recovery_trained)  # the first step copied the base into the head
 
 
 def count_calls(module: torch.nn.Module) -> list[int]:
@@ -54,8 +54,8 @@ def test_a_plan_after_failures_calls_only_the_set_denoiser_once_per_step():
     costs, one call per reverse step (here with 4 failures), while rows without failures keep using the base."""
     torch.manual_seed(0)
     policy = make_policy(**SETTINGS)
-    policy.recovery_trained.fill_(True)
-    base_rows, head_rows = count_calls(policy.base), count_calls(policy.recovery)
+    policy.model.recovery_trained.fill_(True)
+    base_rows, head_rows = count_calls(policy.model.base), count_calls(policy.model.recovery)
     with torch.inference_mode():
         policy.select_action({"observation.state": torch.zeros(3, 2)})
         for option in (0, 1, 0, 1):

@@ -173,8 +173,8 @@ def _make_policy_and_processors():
     policy = CCDPPolicy(config)
     # A checkpoint as after both stages: an outcome table (kept in the state dict) and a trained eps_z.
     n, chunk = 50, config.horizon * config.action_dim
-    policy.outcomes.fill(torch.randn(n, chunk), torch.randn(n, 2), torch.randint(0, 4, (n,)))
-    policy.recovery_trained.fill_(True)
+    policy.model.outcomes.fill(torch.randn(n, chunk), torch.randn(n, 2), torch.randint(0, 4, (n,)))
+    policy.model.recovery_trained.fill_(True)
     stats = {
         "observation.state": {"min": torch.tensor([-1.1, -1.2]), "max": torch.tensor([1.3, 1.4]),
                               "mean": torch.tensor([0.1, 0.2]), "std": torch.tensor([0.5, 0.6])},
@@ -220,7 +220,7 @@ def _reload(repo_id: str, work: Path) -> None:
         assert sorted(state) == sorted(ref_state), set(state) ^ set(ref_state)
         for key, value in ref_state.items():
             assert state[key].shape == value.shape and torch.equal(state[key], value), key
-        assert bool(policy.recovery_trained) and len(policy.outcomes) == 50
+        assert bool(policy.model.recovery_trained) and len(policy.model.outcomes) == 50
         policy.config.save_pretrained(work / "reloaded")
         assert json.loads((work / "reloaded" / "config.json").read_text()) == ref_config
 

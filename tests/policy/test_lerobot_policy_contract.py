@@ -67,7 +67,7 @@ def test_get_policy_and_config_classes():
 
 def test_policy_defaults(dummy_dataset_metadata):
     policy = get_policy_class("ccdp")(_default_config_for(dummy_dataset_metadata))
-    assert (policy.images is not None) == bool(dummy_dataset_metadata.camera_keys)
+    assert (policy.model.images is not None) == bool(dummy_dataset_metadata.camera_keys)
 
 
 def test_save_and_load_pretrained(dummy_dataset_metadata, tmp_path):
@@ -103,7 +103,7 @@ def test_policy(demos, n_obs_steps):
                              video_backend=video_backend())
     policy = make_policy(config, ds_meta=meta)
     assert isinstance(policy, PreTrainedPolicy)
-    assert (policy.images is not None) == (obs_type == "pixels_agent_pos")
+    assert (policy.model.images is not None) == (obs_type == "pixels_agent_pos")
     preprocessor, postprocessor = make_pre_post_processors(config, dataset_stats=meta.stats)
 
     loader = torch.utils.data.DataLoader(dataset, batch_size=2, shuffle=True, drop_last=True, num_workers=0)
@@ -121,9 +121,9 @@ def test_policy(demos, n_obs_steps):
                    for k in batch), "Batch values are not the same after a forward pass."
     after = [p for p in policy.parameters() if p.requires_grad]
     assert any(not torch.equal(a, b) for a, b in zip(after, before, strict=True)), "training updated nothing"
-    if policy.images is not None:
+    if policy.model.images is not None:
         encoder = dict(policy.named_parameters())
-        assert any(k.startswith("images.") for k in encoder), "the camera encoder trains with the base stage"
+        assert any(k.startswith("model.images.") for k in encoder), "the camera encoder trains with the base stage"
 
     policy.eval()
     policy.reset()

@@ -17,7 +17,7 @@ def rollouts(mode: str, streams: bool) -> dict[str, torch.Tensor]:
     torch.manual_seed(7)
     policy = make_policy(recovery_mode=mode, row_noise_streams=streams, dp_star_candidates=4, ccdp_redraws=2,
                          delta_z=1e9)  # every candidate repeats the failure: DP* and CCDP draw all their rounds
-    policy.recovery_trained.fill_(True)
+    policy.model.recovery_trained.fill_(True)
     obs = {"observation.state": torch.zeros(ROWS, 2)}
     with torch.inference_mode():
         first = policy.predict_action_chunk(obs)

@@ -43,9 +43,9 @@ def test_sampling_with_analytic_denoisers_reaches_the_composed_mean():
     torch.manual_seed(0)
     policy = make_policy(w_s=1.0, w_h=0.5, w_z=0.5, clip_sample=False, history_length=2, z_reference="eps_a")
     means = torch.rand(3, HORIZON, ACTION_DIM) * 0.6 - 0.3
-    policy.base = GaussianBase(policy.noise_scheduler, means)
-    policy.recovery = GaussianRecovery(policy.noise_scheduler)
-    policy.recovery_trained.fill_(True)
+    policy.model.base = GaussianBase(policy.model.noise_scheduler, means)
+    policy.model.recovery = GaussianRecovery(policy.model.noise_scheduler)
+    policy.model.recovery_trained.fill_(True)
     rows = 256
     obs = {"observation.state": torch.zeros(rows, 2)}
     policy.predict_action_chunk(obs)
@@ -134,10 +134,10 @@ def mixture_policy(**overrides):
     policy = make_policy(failure_feature="primitive", num_primitives=4, clip_sample=False, **overrides)
     modes = torch.randn(4, HORIZON, ACTION_DIM)
     modes = 0.3 * modes / modes.pow(2).mean(dim=(1, 2), keepdim=True).sqrt()  # RMS 0.3, ~2.4 apart
-    policy.base = MixtureBase(policy.noise_scheduler, modes)
+    policy.model.base = MixtureBase(policy.model.noise_scheduler, modes)
     recovery = MixtureClassifier if policy.config.recovery_head == "classifier" else MixtureRecovery
-    policy.recovery = recovery(policy.noise_scheduler, modes)
-    policy.recovery_trained.fill_(True)
+    policy.model.recovery = recovery(policy.model.noise_scheduler, modes)
+    policy.model.recovery_trained.fill_(True)
     return policy, modes
 
 
@@ -147,7 +147,7 @@ def mode_shares(policy, modes, failed: list[int], rows: int = 1024) -> torch.Ten
     policy.reset()
     policy.predict_action_chunk(obs)
     for mode in failed:
-        policy.report_failure(z=policy.feature.one_hot(torch.full((rows,), mode)))
+        policy.report_failure(z=policy.model.feature.one_hot(torch.full((rows,), mode)))
     chunks = policy.predict_action_chunk(obs)  # (rows, n_action_steps, A): the chunk's first steps
     steps = chunks.shape[1]
     nearest = ((chunks[:, None] - modes[None, :, :steps]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
@@ -174,7 +174,7 @@ def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_faile
     obs = {"observation.state": torch.zeros(rows, 2)}
     policy.reset()
     policy.predict_action_chunk(obs)
-    policy.report_failure(rows=list(range(rows // 2)), z=policy.feature.one_hot(torch.zeros(rows // 2)))
+    policy.report_failure(rows=list(range(rows // 2)), z=policy.model.feature.one_hot(torch.zeros(rows // 2)))
     chunks = policy.predict_action_chunk(obs)
     nearest = ((chunks[:, None] - modes[None, :, : chunks.shape[1]]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
     failed_rows, fresh_rows = (torch.bincount(part, minlength=4) / (rows // 2) for part in nearest.split(rows // 2))
@@ -188,7 +188,7 @@ def test_ccdp_redraws_drop_repeats_and_keep_the_remaining_shares():
     shares = {}
     for redraws in (0, 3):
         policy, modes = mixture_policy(recovery_head="classifier", w_z=0.0, ccdp_redraws=redraws)
-        policy.outcomes.fill(modes, torch.zeros(4, 2), torch.arange(4))
+        policy.model.outcomes.fill(modes, torch.zeros(4, 2), torch.arange(4))
         torch.manual_seed(2)
         with torch.inference_mode():
             shares[redraws] = mode_shares(policy, modes, [0])
@@ -221,7 +221,7 @@ def test_failure_step_share_keeps_the_option_choice_and_lands_on_the_base_modes(
     rows, found = 1024, {}
     for share in (1.0, 0.8):
         policy, modes = mixture_policy(failure_step_share=share)
-        policy.recovery = OffsetRecovery(policy.noise_scheduler, modes, 0.1)
+        policy.model.recovery = OffsetRecovery(policy.model.noise_scheduler, modes, 0.1)
         torch.manual_seed(1)
         with torch.inference_mode():
             shares = mode_shares(policy, modes, [0], rows)
@@ -260,10 +260,10 @@ def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_p
                                         ("ccdp", {"recovery_head": "set_denoiser"})])
 def test_network_calls_per_step_do_not_grow_with_failures(mode, head):
     policy = make_policy(recovery_mode=mode, w_h=0.5, max_failures=8, **head)
-    policy.recovery_trained.fill_(True)
+    policy.model.recovery_trained.fill_(True)
     calls = {"base": 0, "recovery": 0}
-    policy.base.register_forward_hook(lambda *_: calls.__setitem__("base", calls["base"] + 1))
-    policy.recovery.register_forward_hook(lambda *_: calls.__setitem__("recovery", calls["recovery"] + 1))
+    policy.model.base.register_forward_hook(lambda *_: calls.__setitem__("base", calls["base"] + 1))
+    policy.model.recovery.register_forward_hook(lambda *_: calls.__setitem__("recovery", calls["recovery"] + 1))
     obs = {"observation.state": torch.zeros(2, 2)}
     steps = policy.config.num_inference_steps
     counts = {}
@@ -318,7 +318,7 @@ def test_demonstrated_end_z_is_where_the_followed_demonstration_ended_not_where_
     policy = make_policy(failure_feature="final_state", failure_state_dims=[1], n_action_steps=2,
                          failure_state_at="demonstrated_end")
     towards = torch.stack([torch.full((HORIZON, ACTION_DIM), -1.0), torch.full((HORIZON, ACTION_DIM), 1.0)])
-    policy.outcomes.fill(towards, torch.tensor([[-0.8], [0.6]]), torch.tensor([0, 0]))
+    policy.model.outcomes.fill(towards, torch.tensor([[-0.8], [0.6]]), torch.tensor([0, 0]))
     planned = iter([towards[:1] * 0.9, towards[1:] * 0.9, towards[:1] * 0.9])  # the last one after the failure
     monkeypatch.setattr(policy, "_sample", lambda rows, noise: next(planned))
     obs = {"observation.state": torch.tensor([[0.0, 0.3]])}
@@ -335,7 +335,7 @@ def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_
     option 1: `primitive` z names option 1, while `action` z stays the chunk that chose the option."""
     policy = make_policy(failure_feature=feature, primitive_key="primitive", num_primitives=2, n_action_steps=2)
     towards = torch.stack([torch.full((HORIZON, ACTION_DIM), -1.0), torch.full((HORIZON, ACTION_DIM), 1.0)])
-    policy.outcomes.fill(towards, torch.zeros(2, 1), torch.tensor([0, 1]))
+    policy.model.outcomes.fill(towards, torch.zeros(2, 1), torch.tensor([0, 1]))
     planned = iter([towards[:1] * 0.9, towards[1:] * 0.9])
     monkeypatch.setattr(policy, "_sample", lambda rows, noise: next(planned))
     obs = {"observation.state": torch.zeros(1, 2)}
@@ -343,7 +343,7 @@ def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_
         policy.select_action(obs)
     policy.report_failure()
     z, mask = policy._failures.padded()
-    expected = policy.feature.one_hot(torch.tensor([1])) if feature == "primitive" else towards[0].flatten()[None] * 0.9
+    expected = policy.model.feature.one_hot(torch.tensor([1])) if feature == "primitive" else towards[0].flatten()[None] * 0.9
     assert mask.all()
     torch.testing.assert_close(z[:, 0], expected)
 

@@ -14,14 +14,14 @@ MODES = {"inference_mode": torch.inference_mode, "no_grad": torch.no_grad, "grad
 def recovery_z_seen(policy) -> list[torch.Tensor]:
     """Record the z rows every recovery call receives (the failures eq. (4) composes)."""
     seen = []
-    policy.recovery.register_forward_hook(lambda _m, args, _out: seen.append(args[2].clone()))
+    policy.model.recovery.register_forward_hook(lambda _m, args, _out: seen.append(args[2].clone()))
     return seen
 
 
 @pytest.mark.parametrize("acting", ["inference_mode", "no_grad"])
 def test_failure_reported_outside_the_acting_mode_changes_the_next_plan(acting):
     policy = make_policy(n_action_steps=8, max_failures=4)
-    policy.recovery_trained.fill_(True)
+    policy.model.recovery_trained.fill_(True)
     seen = recovery_z_seen(policy)
     obs = {"observation.state": torch.randn(2, 2)}
     z_f = torch.tensor([[0.5] * policy.config.failure_feature_dim])

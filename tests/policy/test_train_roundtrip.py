@@ -20,8 +20,8 @@ def test_checkpoint_holds_config_weights_processors_and_outcome_table(trained_ch
     assert config["type"] == "ccdp" and config["failure_feature"] == "primitive"
     policy = CCDPPolicy.from_pretrained(trained_checkpoint)
     # The table of demonstrated outcomes travelled with the weights: one entry per demo frame, all 4 goals.
-    assert len(policy.outcomes) == 60 * 32
-    assert policy.outcomes.primitives.unique().tolist() == [0, 1, 2, 3]
+    assert len(policy.model.outcomes) == 60 * 32
+    assert policy.model.outcomes.primitives.unique().tolist() == [0, 1, 2, 3]
     assert "observation.failure_feature" in policy.config.input_features
 
 

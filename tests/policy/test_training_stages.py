@@ -14,15 +14,15 @@ def test_base_stage_trains_the_base_network_only():
     }
     loss, _ = policy.forward(batch)
     loss.backward()
-    assert all(p.grad is not None for p in policy.base.parameters())
-    assert all(p.grad is None for p in policy.recovery.parameters())
-    assert {id(p) for p in policy.get_optim_params()} == {id(p) for p in policy.base.parameters()}
+    assert all(p.grad is not None for p in policy.model.base.parameters())
+    assert all(p.grad is None for p in policy.model.recovery.parameters())
+    assert {id(p) for p in policy.get_optim_params()} == {id(p) for p in policy.model.base.parameters()}
 
 
 def test_recovery_stage_freezes_the_base_and_learns_eps_z():
     torch.manual_seed(0)
     policy = make_policy(training_stage="recovery", failure_feature="action", failure_action_steps=[15]).train()
-    base_before = {k: v.clone() for k, v in policy.base.state_dict().items()}
+    base_before = {k: v.clone() for k, v in policy.model.base.state_dict().items()}
     optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
     # Two failure features, each paired with its own chunk: eps_z must learn the pairing.
     chunks = torch.stack([torch.full((16, 2), 0.5), torch.full((16, 2), -0.5)])
@@ -35,11 +35,11 @@ def test_recovery_stage_freezes_the_base_and_learns_eps_z():
         loss.backward()
         optimizer.step()
         losses.append(loss.item())
-    assert bool(policy.recovery_trained)
+    assert bool(policy.model.recovery_trained)
     assert sum(losses[-20:]) / 20 < 0.5 * sum(losses[:20]) / 20
-    for key, value in policy.base.state_dict().items():
+    for key, value in policy.model.base.state_dict().items():
         torch.testing.assert_close(value, base_before[key], msg=key)
-    assert all(not p.requires_grad for p in policy.base.parameters())
+    assert all(not p.requires_grad for p in policy.model.base.parameters())
 
 
 def test_classifier_stage_learns_from_demo_windows_which_chunks_repeat_a_failure_set():
@@ -50,7 +50,7 @@ def test_classifier_stage_learns_from_demo_windows_which_chunks_repeat_a_failure
     policy = make_policy(training_stage="recovery", recovery_head="classifier", failure_feature="action",
                          failure_action_steps=[15], history_length=0).train()
     assert policy.config.observation_delta_indices == [0] and policy.config.action_delta_indices is not None
-    base_before = {k: v.clone() for k, v in policy.base.state_dict().items()}
+    base_before = {k: v.clone() for k, v in policy.model.base.state_dict().items()}
     optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
     chunks = torch.stack([torch.full((16, 2), 0.5), torch.full((16, 2), -0.5)])
     for _ in range(200):
@@ -59,15 +59,15 @@ def test_classifier_stage_learns_from_demo_windows_which_chunks_repeat_a_failure
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-    assert bool(policy.recovery_trained)
+    assert bool(policy.model.recovery_trained)
     policy.eval()
     with torch.no_grad():
-        noisy = policy.noise_scheduler.add_noise(chunks, torch.randn_like(chunks) * 0.1, torch.tensor([5, 5]))
+        noisy = policy.model.noise_scheduler.add_noise(chunks, torch.randn_like(chunks) * 0.1, torch.tensor([5, 5]))
         failed_first = chunks[0, 15][None, None].expand(2, 1, 2)  # action z of option 0
-        logits = policy.recovery(noisy, torch.tensor([5, 5]), torch.zeros(2, 2), failed_first,
+        logits = policy.model.recovery(noisy, torch.tensor([5, 5]), torch.zeros(2, 2), failed_first,
                                  torch.ones(2, 1, dtype=torch.bool))
     assert logits[0] > 2 and logits[1] < -2, logits
-    for key, value in policy.base.state_dict().items():
+    for key, value in policy.model.base.state_dict().items():
         torch.testing.assert_close(value, base_before[key], msg=key)
 
 
@@ -84,7 +84,7 @@ def test_classifier_on_base_samples_learns_the_options_the_base_draws_not_only_t
                          clip_sample=False).train()
     modes = torch.randn(4, 16, 2)
     modes = 0.3 * modes / modes.pow(2).mean(dim=(1, 2), keepdim=True).sqrt()
-    policy.base = MixtureBase(policy.noise_scheduler, modes).requires_grad_(False)
+    policy.model.base = MixtureBase(policy.model.noise_scheduler, modes).requires_grad_(False)
     optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
     demo = {"observation.state": torch.zeros(32, 1, 2), "action": modes[0].expand(32, 16, 2)}
     for _ in range(300):
@@ -92,14 +92,14 @@ def test_classifier_on_base_samples_learns_the_options_the_base_draws_not_only_t
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-    pooled = policy._sample_pool.chunk[: policy._sample_pool.size]
+    pooled = policy.model._sample_pool.chunk[: policy.model._sample_pool.size]
     nearest = ((pooled[:, None] - modes[None]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
     shares = torch.bincount(nearest, minlength=4) / len(nearest)
-    assert policy._sample_pool.size == 16 * 32 and (shares - DEMONSTRATED).abs().max() < 0.06, shares
+    assert policy.model._sample_pool.size == 16 * 32 and (shares - DEMONSTRATED).abs().max() < 0.06, shares
     policy.eval()
     with torch.no_grad():
         t = torch.tensor([5, 5])
-        noisy = policy.noise_scheduler.add_noise(modes[[2, 1]], torch.randn(2, 16, 2) * 0.1, t)
-        logits = policy.recovery(noisy, t, torch.zeros(2, 2), modes[2].flatten().expand(2, 1, 32),
+        noisy = policy.model.noise_scheduler.add_noise(modes[[2, 1]], torch.randn(2, 16, 2) * 0.1, t)
+        logits = policy.model.recovery(noisy, t, torch.zeros(2, 2), modes[2].flatten().expand(2, 1, 32),
                                  torch.ones(2, 1, dtype=torch.bool))
     assert logits[0] > 2 and logits[1] < -2, logits

@@ -113,7 +113,7 @@ def test_the_policy_gives_each_demonstrated_chunk_the_state_where_its_gripper_le
     policy = CCDPPolicy(config, dataset_meta=meta, dataset_stats=meta.stats)
     low, high = POSITION.min(), POSITION.max()
     expected = 2 * (segment_final_states(POSITION[:, None], segment_ends("releases", EPISODES, ACTIONS)) - low) / (high - low) - 1
-    torch.testing.assert_close(policy.outcomes.final_states, torch.tensor(expected, dtype=torch.float32))
+    torch.testing.assert_close(policy.model.outcomes.final_states, torch.tensor(expected, dtype=torch.float32))
 
 
 def test_bench_segments_scores_the_frames_whose_label_free_end_misses_their_labelled_one():

@@ -83,7 +83,7 @@ def test_stored_z_is_the_policys_z_of_the_failed_chunk(synthesised):
     """z of every row, normalised by LeRobot with the dataset's stats, equals what the policy computes at run time
     for the failed chunk (FailureFeature.from_chunk, the code behind report_failure and the env flag)."""
     policy, normalized = normalized_rows(*synthesised[:2], chunk_column=FAILURE_ACTION)
-    expected = policy.feature.from_chunk(normalized[ACTION], policy.outcomes)
+    expected = policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes)
     torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], expected, atol=1e-4, rtol=1e-4)
 
 
@@ -91,7 +91,7 @@ def test_every_row_satisfies_eq5(synthesised):
     """The recovery chunk's z differs from the failure's by more than delta_z (the state condition is checked
     between perturbed windows inside the recipe; here the stored z and chunks are re-read from disk)."""
     policy, normalized = normalized_rows(*synthesised[:2], chunk_column=ACTION)
-    z_recovery = policy.feature.from_chunk(normalized[ACTION], policy.outcomes)
+    z_recovery = policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes)
     distance = ((z_recovery - normalized[FAILURE_FEATURE_KEY]) ** 2).sum(dim=-1)
     assert (distance > synthesised[2].delta_z - 1e-4).all()
 
@@ -107,13 +107,13 @@ def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tm
             "--wandb.enable=false", "--log_freq=10")
     trained = out / "checkpoints" / "last" / "pretrained_model"
     before, after = load_file(checkpoint / "model.safetensors"), load_file(trained / "model.safetensors")
-    assert bool(after["recovery_trained"]) and not bool(before["recovery_trained"])
+    assert bool(after["model.recovery_trained"]) and not bool(before["model.recovery_trained"])
     for key, value in before.items():
-        if key.startswith("base."):
+        if key.startswith("model.base."):
             torch.testing.assert_close(after[key], value, msg=f"{key} changed: the base must stay frozen")
-        if key.startswith("outcomes."):
+        if key.startswith("model.outcomes."):
             torch.testing.assert_close(after[key], value, msg=f"{key}: the outcome table must travel along")
-    assert any(not torch.equal(after[k], before[k]) for k in before if k.startswith("recovery."))
+    assert any(not torch.equal(after[k], before[k]) for k in before if k.startswith("model.recovery."))
     policy = CCDPPolicy.from_pretrained(trained)
     assert policy.config.training_stage == "recovery" and policy.config.input_features == CCDPPolicy.from_pretrained(checkpoint).config.input_features
 
@@ -153,7 +153,7 @@ def test_outcome_radius_keeps_only_sampled_chunks_near_a_demonstration(reaching_
         chunks = normalize_batch(policy.config, LeRobotDatasetMetadata("local/r", root=root).stats,
                                  {ACTION: rows[ACTION]})[ACTION][rows[PAIR_SOURCE].flatten() == 0]
         result = yaml.safe_load((root / RECIPE_COPY).read_text())["result"]
-        return policy.outcomes.rms_distance(chunks), result
+        return policy.model.outcomes.rms_distance(chunks), result
 
     gaps, unfiltered = synthesised_gaps(0.0, "all")
     radius = float(gaps.median())
@@ -252,8 +252,8 @@ def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_thr
     states = rows.hf_dataset.with_format("torch")[:][OBS_STATE]
     assert torch.cdist(states, starts).min(dim=1).values.max() < 1e-4  # sigma 0: exactly the episodes' first states
     policy, normalized = normalized_rows(checkpoint, root, chunk_column=ACTION)
-    torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], policy.feature.from_chunk(normalized[ACTION],
-                                                                                          policy.outcomes))
+    torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], policy.model.feature.from_chunk(normalized[ACTION],
+                                                                                          policy.model.outcomes))
     out = tmp_path / "set_run"
     run_cli("lerobot-train", f"--policy.path={checkpoint}", "--policy.training_stage=recovery",
             "--dataset.repo_id=local/recovery", f"--dataset.root={root}", f"--output_dir={out}", "--steps=10",
@@ -261,7 +261,7 @@ def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_thr
             "--wandb.enable=false", "--log_freq=5")
     before = load_file(checkpoint / "model.safetensors")
     after = load_file(out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors")
-    assert bool(after["recovery_trained"])
-    assert all(torch.equal(after[k], v) for k, v in before.items() if k.startswith("base."))
-    unet = "recovery.unet.mid_modules.0.conv1.block.0.weight"  # the head started as a copy of the base ...
-    assert not torch.equal(after[unet], after[unet.replace("recovery.", "base.")])  # ... and trained away from it
+    assert bool(after["model.recovery_trained"])
+    assert all(torch.equal(after[k], v) for k, v in before.items() if k.startswith("model.base."))
+    unet = "model.recovery.unet.mid_modules.0.conv1.block.0.weight"  # the head started as a copy of the base ...
+    assert not torch.equal(after[unet], after[unet.replace("model.recovery.", "model.base.")])  # ... and trained away from it

@@ -1,0 +1,103 @@
+"""The recovery modes: how one plan per row is drawn from the model, given the row's recorded failures.
+
+Each mode is a function `(model, PlanRows) -> chunks (R, horizon, A)` in `SAMPLERS`, so a new method is one
+function here. All of them run the model's one reverse diffusion (`CCDPModel.denoise`):
+- dp: the base policy, failures ignored;
+- dp_star: the paper's baseline, the base's candidates with those that would repeat a failure rejected;
+- ccdp: eq. (4) with the recovery head, one sample per plan (`ccdp_redraws` adds DP*'s rejection on top, a
+  hybrid reported under its own name).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+from lerobot_ccdp.policy.dp_star import nearest_failure_distance, reject_repeats
+from lerobot_ccdp.policy.noise_streams import draw_noise, first_candidates
+
+if TYPE_CHECKING:  # the model module imports this one
+    from lerobot_ccdp.policy.modeling_ccdp import CCDPModel
+
+
+@dataclass
+class PlanRows:
+    """The rows that need a plan: their conditions, their failures (`z` (R, N, z_dim), `z_mask` (R, N)), the
+    caller's initial noise for them (or None: drawn) and one noise stream per row (`noise_streams`, or None)."""
+
+    state: Tensor
+    history: Tensor
+    z: Tensor
+    z_mask: Tensor
+    noise: Tensor | None = None
+    streams: list[torch.Generator] | None = None
+
+    def initial_noise(self, model: CCDPModel) -> Tensor:
+        shape = (self.state.shape[0], model.config.horizon, model.config.action_dim)
+        return self.noise if self.noise is not None else draw_noise(shape, self.streams, self.state.device)
+
+
+def plan_dp(model: CCDPModel, rows: PlanRows) -> Tensor:
+    """The base policy's plan: what was recorded as failed plays no part."""
+    no_failures = rows.z[:, :0], rows.z_mask[:, :0]
+    return model.denoise(rows.initial_noise(model), rows.state, rows.history, *no_failures, generators=rows.streams)
+
+
+def plan_dp_star(model: CCDPModel, rows: PlanRows) -> Tensor:
+    """DP*: `dp_star_candidates` base plans per round for up to `dp_star_rounds` rounds, the first whose outcome
+    repeats no failure kept. Rows without failures plan as DP."""
+    if not rows.z_mask.any():
+        return plan_dp(model, rows)
+    cfg = model.config
+    return sample_without_repeats(model, rows, cfg.dp_star_candidates, cfg.dp_star_rounds, guided=False)
+
+
+def plan_ccdp(model: CCDPModel, rows: PlanRows) -> Tensor:
+    """CCDP: one sample from eq. (4) with every recorded failure. With `ccdp_redraws`, a plan whose outcome still
+    repeats a failure is drawn again (DP*'s lookup: the hybrid "CCDP + k redraws")."""
+    sample = rows.initial_noise(model)
+    if model.config.ccdp_redraws and rows.z_mask.any():
+        return sample_without_repeats(model, rows, 1, 1 + model.config.ccdp_redraws, guided=True, first_noise=sample)
+    return model.denoise(sample, rows.state, rows.history, rows.z, rows.z_mask, generators=rows.streams)
+
+
+SAMPLERS: dict[str, Callable[[CCDPModel, PlanRows], Tensor]] = {
+    "dp": plan_dp,
+    "dp_star": plan_dp_star,
+    "ccdp": plan_ccdp,
+}
+
+
+def sample_without_repeats(model: CCDPModel, rows: PlanRows, candidates: int, rounds: int, guided: bool,
+                           first_noise: Tensor | None = None) -> Tensor:
+    """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round draws
+    `candidates` chunks per pending row, from CCDP's composition (`guided`, the first round from `first_noise`) or
+    from the base with failures ignored (DP*), and labels them with the outcome of the nearest demonstrated chunk.
+    With row streams, each row's first candidate of the first round draws from its row's stream, later draws from
+    torch's global generator."""
+    cfg, failures = model.config, slice(None) if guided else slice(0)
+    state, history, z, z_mask = rows.state, rows.history, rows.z, rows.z_mask
+    first_round = iter([(first_noise, first_candidates(rows.streams, candidates))])
+
+    def draw(pending: Tensor) -> tuple[Tensor, Tensor]:
+        r = pending.shape[0]
+        noise, generators = next(first_round, (None, None))
+        if noise is None:
+            noise = draw_noise((r * candidates, cfg.horizon, cfg.action_dim), generators, state.device)
+        chunks = model.denoise(
+            noise,
+            state[pending].repeat_interleave(candidates, dim=0),
+            history[pending].repeat_interleave(candidates, dim=0),
+            z[pending][:, failures].repeat_interleave(candidates, dim=0),
+            z_mask[pending][:, failures].repeat_interleave(candidates, dim=0),
+            generators=generators,
+        )
+        z_candidates = model.feature.from_chunk(chunks, model.outcomes).view(r, candidates, -1)
+        distance = nearest_failure_distance(z_candidates, z[pending], z_mask[pending])
+        return chunks.view(r, candidates, cfg.horizon, cfg.action_dim), distance
+
+    return reject_repeats(draw, state.shape[0], rounds, cfg.delta_z, state.device)
