@@ -54,17 +54,14 @@ benchmark-pixels: install
 	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks DoorOpening-lite-v0 ButtonSearch-lite-v0 --obs-type pixels_agent_pos \
 		--out outputs/benchmark_pixels --publish docs/benchmark_pixels_report.md
 
-# The same comparison without labels (z = where an option ends, `final_state`): the Panda tasks whose episodes hold
-# one decision, then packing, whose options end once the gripper has let go, then the Bartender, whose options end
-# where the arm holds still to pour; benchmarks/label_free_inputs.py writes the settings it changes.
+# The same comparison without labels (z = where an option ends, `final_state`), from each task's
+# configs/<task>_label_free/ and datasets_recipes/<task>_label_free.yaml: the Panda tasks whose episodes hold one
+# decision, then packing, whose options end once the gripper has let go, then the Bartender, whose options end
+# where the arm holds still to pour.
 benchmark-label-free: install
-	$(PY) benchmarks/label_free_inputs.py --out outputs/label_free_inputs
-	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks DoorOpening-v0 ObjectManipulation-v0 ButtonSearch-v0 \
-		--configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks DoorOpening-v0 ObjectManipulation-v0 ButtonSearch-v0 \
 		--out outputs/label_free --publish docs/benchmark_label_free_report.md
-	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks ObjectPacking-v0 \
-		--configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks ObjectPacking-v0 \
 		--out outputs/label_free_packing --publish docs/benchmark_label_free_packing_report.md
-	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks Bartender-v0 \
-		--configs outputs/label_free_inputs/configs --recipes outputs/label_free_inputs/recipes \
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks Bartender-v0 \
 		--out outputs/label_free_bartender --publish docs/benchmark_label_free_bartender_report.md

@@ -7,7 +7,8 @@ with 95% intervals (`lerobot_ccdp.benchmark.comparison`) as markdown, JSON and a
 
 Settings live in files a user can run by hand: `configs/<task>/{train_base,train_recovery,eval}.json` and
 `datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from `configs/<task>_pixels/`
-and `datasets_recipes/<task>_pixels.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
+and `datasets_recipes/<task>_pixels.yaml`, `--label-free` the variant without labels (z where an option ends) from
+`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
 checkpoints, eval_info.json, logs). A stage whose output exists is skipped, so an interrupted run resumes;
 `--fresh` starts over. The pipeline writes only into a folder it created or adopted, marked as its own
 (`lerobot_ccdp.datasets.ownership`), and deletes nothing else.
@@ -73,6 +74,7 @@ TASK_GROUPS = {
 }
 # Observation type -> suffix of the settings folder and recipe that hold its configs.
 OBS_VARIANTS = {"state": "", "pixels_agent_pos": "_pixels"}
+LABEL_FREE = "_label_free"  # the settings folders of the variant without option labels
 BIN = Path(sys.executable).parent
 CHECKPOINT = Path("checkpoints/last/pretrained_model")
 # lerobot-train's periodic log line: seconds per step spent updating and waiting for data.
@@ -119,10 +121,11 @@ class TaskFiles:
     out: Path
 
     @classmethod
-    def locate(cls, task: str, configs: Path, recipes: Path, out: Path, obs_type: str = "state") -> TaskFiles:
+    def locate(cls, task: str, configs: Path, recipes: Path, out: Path, obs_type: str = "state",
+               label_free: bool = False) -> TaskFiles:
         if task not in TASKS:
             raise ValueError(f"Unknown task {task!r}; choose among {', '.join(TASKS)}")
-        slug = task_slug(task) + OBS_VARIANTS[obs_type]
+        slug = task_slug(task) + OBS_VARIANTS[obs_type] + (LABEL_FREE if label_free else "")
         files = cls(task, recipes / f"{slug}.yaml", configs / slug / "train_base.json",
                     configs / slug / "train_recovery.json", configs / slug / "eval.json", out / slug)
         settings = (files.recipe, files.train_base, files.train_recovery, files.eval)
@@ -487,6 +490,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="folder of <task>.yaml recipes")
     parser.add_argument("--obs-type", choices=list(OBS_VARIANTS), default="state",
                         help="policy inputs: state vectors, or rendered cameras plus the robot state")
+    parser.add_argument("--label-free", action="store_true",
+                        help="run each task's <task>_label_free settings: z where an option ends, no labels read")
     parser.add_argument("--no-chart", action="store_true", help="skip the PNG bar chart (needs matplotlib)")
     parser.add_argument("--fresh", action="store_true",
                         help="delete --out first instead of resuming (only a folder this pipeline made)")
@@ -507,7 +512,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.train_only:
         args.methods = []
     tasks = expand_tasks(args.tasks)
-    files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type) for t in tasks]
+    files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type, args.label_free) for t in tasks]
     if args.fresh and args.report_only:
         parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")
     if args.train_only and args.report_only:

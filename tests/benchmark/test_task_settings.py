@@ -1,8 +1,8 @@
 """The shipped settings files as the pipeline finds them: every task has its state settings, and each camera variant
 (`configs/<task>_pixels/`, `datasets_recipes/<task>_pixels.yaml`) is its state twin with only the camera fields
-changed, so a setting tuned on the state task cannot silently drift from its pixel copy."""
+changed, so a setting tuned on the state task cannot silently drift from its pixel copy; each label-free variant
+(`configs/<task>_label_free/`) likewise differs from its labelled twin only in how z is defined and read."""
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -17,6 +17,7 @@ from lerobot_ccdp.policy.configuration_ccdp import FAILURE_STATES_AT, CCDPConfig
 REPO = Path(__file__).resolve().parents[2]
 CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
 PIXEL_TASKS = [t for t in TASKS if (CONFIGS / f"{task_slug(t)}_pixels").is_dir()]
+LABEL_FREE_TASKS = [t for t in TASKS if (CONFIGS / f"{task_slug(t)}_label_free").is_dir()]
 
 
 def _without(config: dict, *paths: str) -> dict:
@@ -35,6 +36,10 @@ def _without(config: dict, *paths: str) -> dict:
 def test_every_task_has_its_state_settings(task, tmp_path):
     files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path)
     assert yaml.safe_load(files.recipe.read_text())["record"]["task"] == task
+
+
+def test_the_five_panda_tasks_have_label_free_variants():
+    assert set(LABEL_FREE_TASKS) == {t for t in TASKS if "lite" not in t}
 
 
 def test_the_physics_door_and_buttons_have_camera_variants():
@@ -68,34 +73,39 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
     assert recipe == state_recipe
 
 
-def test_label_free_inputs_define_z_alike_in_the_recipe_and_the_policy_and_change_nothing_else(tmp_path):
-    """benchmarks/label_free_inputs.py: the synthesis stage refuses a recipe whose z differs from the base
-    checkpoint's, and every file it does not edit must stay the benchmark's own."""
-    spec = importlib.util.spec_from_file_location("label_free_inputs", REPO / "benchmarks" / "label_free_inputs.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
-    label_free = script.TASKS
+@pytest.mark.parametrize("task", LABEL_FREE_TASKS)
+def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp_path):
+    """`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`: z where an option ends, defined
+    alike in the recipe and the policy (synthesis refuses a base checkpoint whose z differs), no label read, and
+    nothing else different from the labelled settings but the files' own paths."""
+    labelled = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path)
+    files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path, label_free=True)
+    slug = task_slug(task) + "_label_free"
 
-    script.write_inputs(tmp_path)
-    for task in TASKS:
-        slug = task_slug(task)
-        files = TaskFiles.locate(task, tmp_path / "configs", tmp_path / "recipes", tmp_path / "out")
-        shipped = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path / "out")
-        if slug not in label_free:
-            assert files.train_base.read_bytes() == shipped.train_base.read_bytes()
-            assert files.recipe.read_bytes() == shipped.recipe.read_bytes()
-            continue
-        policy = json.loads(files.train_base.read_text())["policy"]
-        wanted = RecoveryRecipe.load(files.recipe).failure_settings()
-        assert wanted["failure_feature"] == "final_state"
-        assert {k: policy.get(k, CCDPConfig.failure_state_key) for k in wanted} == wanted  # the key: its default
-        assert "num_primitives" not in policy
-        assert policy.get("failure_segments", CCDPConfig.failure_segments) == label_free[slug].segments
-        for method in ("dp_star", "ccdp"):
-            settings = files.method_settings(method)
-            assert settings["failure_state_at"] in FAILURE_STATES_AT
-            delta_z = label_free[slug].eval_delta_z
-            assert settings.get("delta_z", CCDPConfig.delta_z) == (CCDPConfig.delta_z if delta_z is None else delta_z)
-        w_z = shipped.method_settings("ccdp").get("w_z") if label_free[slug].w_z is None else label_free[slug].w_z
-        assert files.method_settings("ccdp").get("w_z") == w_z  # the label-free runs' own weight where it differs
-        assert files.train_recovery.read_bytes() == shipped.train_recovery.read_bytes()
+    base = json.loads(files.train_base.read_text())
+    assert base["dataset"] == {"repo_id": f"local/{slug}", "root": f"data/{slug}"}
+    policy = base["policy"]
+    wanted = RecoveryRecipe.load(files.recipe).failure_settings()
+    assert wanted["failure_feature"] == "final_state"
+    assert {k: policy.get(k, CCDPConfig.failure_state_key) for k in wanted} == wanted  # the key: its default
+    assert "num_primitives" not in policy and policy["primitive_key"] == "no_labels"  # names no dataset column
+    z_fields = ("dataset", "output_dir", "policy.failure_feature", "policy.primitive_key", "policy.num_primitives",
+                "policy.failure_state_dims", "policy.failure_segments")
+    assert _without(base, *z_fields) == _without(json.loads(labelled.train_base.read_text()), *z_fields)
+
+    recovery = json.loads(files.train_recovery.read_text())
+    assert recovery["dataset"]["repo_id"] == f"local/{slug}_recovery"
+    assert _without(recovery, "dataset", "output_dir") == _without(
+        json.loads(labelled.train_recovery.read_text()), "dataset", "output_dir")
+    assert files.eval_config() == labelled.eval_config()
+
+    for method in ("dp_star", "ccdp"):
+        settings = files.method_settings(method)
+        assert settings["failure_state_at"] in FAILURE_STATES_AT
+        read_z = ("failure_state_at", "delta_z", "w_z")
+        assert _without(settings, *read_z) == _without(labelled.method_settings(method), *read_z)
+
+    recipe, labelled_recipe = (yaml.safe_load(f.read_text()) for f in (files.recipe, labelled.recipe))
+    z_keys = ("failure_feature", "num_primitives", "failure_state_dims", "delta_z")
+    assert _without(recipe, *(f"recovery.{k}" for k in z_keys)) == _without(
+        labelled_recipe, *(f"recovery.{k}" for k in z_keys))

@@ -47,19 +47,6 @@ def test_another_commands_folder_is_not_claimed(tmp_path):
     assert (folder / "result.json").exists()
 
 
-def test_label_free_inputs_refuses_to_clear_a_users_folder_and_rewrites_its_own(tmp_path):
-    label_free = script("label_free_inputs")
-    mine = users_folder(tmp_path / "mine")
-    with pytest.raises(SystemExit, match="Nothing was deleted"):
-        label_free.main(["--out", str(mine)])
-    assert sorted(p.name for p in mine.iterdir()) == ["thesis.tex"]
-    out = tmp_path / "inputs"
-    label_free.main(["--out", str(out)])
-    (out / "stale.json").write_text("{}")
-    label_free.main(["--out", str(out)])  # its own folder: cleared, so no stale setting survives
-    assert not (out / "stale.json").exists() and (out / "configs").is_dir()
-
-
 def test_tune_methods_writes_only_into_a_pipeline_output_folder(tmp_path):
     mine = users_folder(tmp_path / "mine")
     with pytest.raises(SystemExit, match="not an output folder of the pipeline.*--adopt"):
