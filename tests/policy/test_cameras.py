@@ -18,13 +18,12 @@ from lerobot_ccdp.datasets.recipe_file import RecordRecipe, RecoveryRecipe
 from lerobot_ccdp.datasets.record import record_dataset
 from lerobot_ccdp.envs import gym_id
 from lerobot_ccdp.envs.scripted import Expert, run_episode
-from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
 from lerobot_ccdp.policy.modeling_ccdp import CCDPModel, CCDPPolicy
-from lerobot_ccdp.policy.processor_ccdp import normalize_batch
-from lerobot_ccdp.recovery.synthesize import FAILURE_ACTION, RECIPE_COPY, synthesize_recovery_dataset
+from lerobot_ccdp.recovery.synthesize import RECIPE_COPY, synthesize_recovery_dataset
 
 from fixtures.policy_factory import untrained_checkpoint
 from fixtures.reaching import REACHING_REPO_ID
+from fixtures.recovery_rows import assert_rows_store_the_policys_z
 
 REPO_ID, TASK, SIZE = "local/door_pixels", "DoorOpening-lite-v0", 48
 CAMERA = f"{OBS_IMAGES}.front"
@@ -105,15 +104,9 @@ def test_recovery_rows_carry_no_images_but_the_camera_stats(synthesised, pixel_r
                                    torch.as_tensor(demo_stats[CAMERA][stat]))
 
 
-def test_stored_z_is_the_policys_z_of_the_failed_chunk(synthesised):
+def test_camera_rows_store_the_policys_z_of_the_failed_chunk(synthesised):
     checkpoint, root, *_ = synthesised
-    policy = CCDPPolicy.from_pretrained(checkpoint)
-    dataset = LeRobotDataset("local/recovery", root=root)
-    rows = dataset.hf_dataset.with_format("torch")[:]
-    normalized = normalize_batch(policy.config, dataset.meta.stats,
-                                 {FAILURE_FEATURE_KEY: rows[FAILURE_FEATURE_KEY], ACTION: rows[FAILURE_ACTION]})
-    expected = policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes)
-    torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], expected, atol=1e-4, rtol=1e-4)
+    assert_rows_store_the_policys_z(checkpoint, root)
 
 
 def test_eq7_conditions_perturb_the_state_and_reuse_the_frames_images(synthesised, pixel_root):

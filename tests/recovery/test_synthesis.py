@@ -25,6 +25,7 @@ from lerobot_ccdp.recovery.synthesize import (
 
 from fixtures.policy_factory import untrained_checkpoint
 from fixtures.reaching import REACHING_REPO_ID, run_cli
+from fixtures.recovery_rows import assert_rows_store_the_policys_z, normalized_rows
 
 FEATURE_SETTINGS = {
     "primitive": {"failure_feature": "primitive", "num_primitives": 4},
@@ -36,15 +37,6 @@ FEATURE_SETTINGS = {
 # Small and loose enough that an untrained base (near-random chunks) still yields pairs quickly.
 SMALL = {"n_states": 16, "chunks_per_state": 6, "batch_states": 8, "pairs_per_failure": 2, "demo_frames": 200,
          "delta_x": 0.05, "delta_z": 0.1}
-
-
-def normalized_rows(checkpoint: Path, root: Path, chunk_column: str) -> tuple[CCDPPolicy, dict]:
-    """The policy, and every row's z and chunk `chunk_column` normalised by LeRobot with the dataset's stats."""
-    policy = CCDPPolicy.from_pretrained(checkpoint)
-    dataset = LeRobotDataset("local/recovery", root=root)
-    rows = dataset.hf_dataset.with_format("torch")[:]
-    z = rows[FAILURE_FEATURE_KEY].reshape(len(rows[ACTION]), -1)  # (N,) for a one-dim z
-    return policy, normalize_batch(policy.config, dataset.meta.stats, {FAILURE_FEATURE_KEY: z, ACTION: rows[chunk_column]})
 
 
 @pytest.fixture(scope="module", params=list(FEATURE_SETTINGS))
@@ -80,11 +72,7 @@ def test_recovery_dataset_loads_with_its_stats_and_recipe_record(synthesised, re
 
 
 def test_stored_z_is_the_policys_z_of_the_failed_chunk(synthesised):
-    """z of every row, normalised by LeRobot with the dataset's stats, equals what the policy computes at run time
-    for the failed chunk (FailureFeature.from_chunk, the code behind report_failure and the env flag)."""
-    policy, normalized = normalized_rows(*synthesised[:2], chunk_column=FAILURE_ACTION)
-    expected = policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes)
-    torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], expected, atol=1e-4, rtol=1e-4)
+    assert_rows_store_the_policys_z(*synthesised[:2])
 
 
 def test_every_row_satisfies_eq5(synthesised):
@@ -230,7 +218,7 @@ def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
 
 def test_every_task_recipe_has_a_valid_recovery_section():
     recipes = sorted(Path(__file__).parents[2].joinpath("datasets_recipes").glob("*.yaml"))
-    assert len(recipes) == len(TASKS) + 5  # every task, four of them also with cameras, and the 2-D task
+    assert len(recipes) == len(TASKS) + 10  # every task, four also with cameras, five without labels, the 2-D task
     for path in recipes:
         RecoveryRecipe.load(path)
 
