@@ -156,7 +156,8 @@ def test_every_lerobot_eval_in_the_readme_chooses_its_seeds():
 
 
 def test_pipeline_flags_in_the_readme_are_in_its_help():
-    commands = _shell_lines() + [span.replace("\n", " ") for span in re.findall(r"`([^`]+)`", README)]
+    prose = re.sub(r"```.*?```", "", README, flags=re.S)  # inline commands, outside the fenced blocks
+    commands = _shell_lines() + [span.replace("\n", " ") for span in re.findall(r"`([^`]+)`", prose)]
     given = {f for line in commands for part in line.split("-m lerobot_ccdp.benchmark.pipeline")[1:]
              for f in re.findall(r"(?<![\w-])(--[a-z][\w-]*)", part)}
     assert given
