@@ -59,10 +59,12 @@ METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp")
 # CCDP - matched DP* shows what composition buys over rejection at equal compute.
 RECOVERY_MODE = {"dp": "dp", "dp_star": "dp_star", "dp_star_matched": "dp_star", "ccdp": "ccdp"}
 MATCHED_DP_STAR = {"dp_star_candidates": 2, "dp_star_rounds": 1}
-# lerobot-eval saves videos of its first 10 episodes: kept for DP and CCDP, the pair `lerobot_ccdp.benchmark.watch` shows
-# side by side. DP* runs with `--env.render_mode=null`: on the Panda each frame costs about 40 ms and LeRobot
-# renders 10 envs at every step of the first batch, so its videos alone cost minutes of the benchmark's 2 hours.
+# Every method's evaluation runs with `--env.render_mode=null`, so its wall time measures the method alone (on the
+# Panda each rendered frame costs about 40 ms, and LeRobot renders 10 envs at every step of the first batch). The
+# pair `lerobot_ccdp.benchmark.watch` shows side by side, DP and CCDP, is rendered in a stage of its own: the first
+# VIDEO_EPISODES episodes again, on the same seeds and noise streams, under `<task>/videos/<method>/`.
 VIDEO_METHODS = ("dp", "ccdp")
+VIDEO_EPISODES = 10
 # Every method is evaluated on common random numbers: each episode's plans draw from the same per-row noise streams
 # (`lerobot_ccdp.policy.noise_streams`), so DP, DP* and CCDP act alike until an episode's first failure and the paired
 # differences measure recovery, not the luck of the plans before it.
@@ -163,12 +165,17 @@ class TaskFiles:
         settings = {**self.method_settings(method), **(overrides or {})}
         return [f"--policy.{key}={value}" for key, value in settings.items()]
 
-    def eval_command(self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str]) -> list[str]:
+    def eval_command(self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str],
+                     videos: bool = False) -> list[str]:
         """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`, on common
-        random numbers (`COMMON_NOISE`)."""
-        videos = [] if method in VIDEO_METHODS else ["--env.render_mode=null"]
+        random numbers (`COMMON_NOISE`): unrendered, or (`videos`) the first VIDEO_EPISODES episodes (at most the
+        config's) rendered as the eval config says, in one batch. Episode i has seed `seed + i` and its row's noise
+        stream whatever the batch size, so the rendered episodes are the evaluated ones (up to the floating-point
+        differences of other batch sizes)."""
+        n = min(VIDEO_EPISODES, self.eval_config()["eval"]["n_episodes"])
+        render = [f"--eval.n_episodes={n}", f"--eval.batch_size={n}"] if videos else ["--env.render_mode=null"]
         return ["lerobot-eval", f"--config_path={self.eval}", f"--policy.path={checkpoint}",
-                f"--policy.recovery_mode={RECOVERY_MODE[method]}", COMMON_NOISE, *flags, *videos, f"--seed={seed}",
+                f"--policy.recovery_mode={RECOVERY_MODE[method]}", COMMON_NOISE, *flags, *render, f"--seed={seed}",
                 f"--output_dir={out}"]
 
     @property
@@ -181,6 +188,9 @@ class TaskFiles:
 
     def eval_dir(self, method: str) -> Path:
         return self.out / "eval" / method
+
+    def video_dir(self, method: str) -> Path:
+        return self.out / "videos" / method
 
 
 class TaskRun:
@@ -219,6 +229,11 @@ class TaskRun:
             out = f.eval_dir(method)
             self._stage(f"eval_{method}", out / "eval_info.json",
                         f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method)),
+                        upstream=recovery_stamp, clear=out)
+        for method in (m for m in methods if m in VIDEO_METHODS):
+            out = f.video_dir(method)
+            self._stage(f"videos_{method}", out / "eval_info.json",
+                        f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method), videos=True),
                         upstream=recovery_stamp, clear=out)
         return self.episodes(methods) if methods else {}
 

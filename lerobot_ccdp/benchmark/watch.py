@@ -1,7 +1,7 @@
 """`python -m lerobot_ccdp.benchmark.watch`: a GIF of DP repeating a failed option beside CCDP recovering, on one seed.
 
-It reads what `lerobot-eval` already wrote for two methods evaluated on the same seeds (the pipeline's
-`<task>/eval/<method>/`): the per-episode outcomes in `eval_info.json` and the videos of the first rendered
+It reads what `lerobot-eval` already wrote for two methods evaluated on the same seeds (the pipeline's rendered runs,
+`<task>/videos/<method>/`): the per-episode outcomes in `eval_info.json` and the videos of the first rendered
 episodes (`videos/**/eval_episode_<i>.mp4`, episode i of both runs has the same seed). Without `--episode` it
 picks the rendered episode where DP repeated a failure most while CCDP succeeded after a failure.
 """
@@ -86,7 +86,8 @@ def write_gif(images: list[Image.Image], path: Path, fps: float) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--eval-root", type=Path, required=True,
-                        help="a task's eval folder holding one folder per method, e.g. outputs/quickstart/DoorOpening-v0/door_opening/eval")
+                        help="a folder holding one lerobot-eval output folder per method, e.g. the pipeline's "
+                             "outputs/quickstart/DoorOpening-v0/door_opening/videos")
     parser.add_argument("--out", type=Path, required=True, help="GIF to write, e.g. docs/watch_door.gif")
     parser.add_argument("--methods", nargs=2, default=["dp", "ccdp"], metavar=("BASELINE", "RECOVERING"))
     parser.add_argument("--episode", type=int, default=None, help="rendered episode to show (default: picked)")

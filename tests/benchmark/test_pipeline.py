@@ -120,8 +120,12 @@ def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
         assert len(episodes) == N_EPISODES
         # One-stage task: every attempt after the first follows a failure (the env's count reached eval_info.json).
         assert (episodes.attempts_after_failure == np.maximum(episodes.attempts - 1, 0)).all()
-        videos = list((task_out / "eval" / method).rglob("eval_episode_*.mp4"))
-        assert len(videos) == (N_EPISODES if method in VIDEO_METHODS else 0)  # what lerobot_ccdp.benchmark.watch shows
+        assert not list((task_out / "eval" / method).rglob("*.mp4"))  # timed evaluations render nothing
+        rendered = task_out / "videos" / method  # what lerobot_ccdp.benchmark.watch shows, made apart
+        assert len(list(rendered.rglob("eval_episode_*.mp4"))) == (N_EPISODES if method in VIDEO_METHODS else 0)
+        if method in VIDEO_METHODS:  # the same episodes as the evaluation's: seeds and noise streams
+            again = Episodes.from_eval_info(rendered / "eval_info.json")
+            assert (again.success == episodes.success).all() and (again.attempts == episodes.attempts).all()
     oracle = Episodes.from_infos(json.loads((task_out / "oracle.json").read_text()))
     assert len(oracle) == N_EPISODES and oracle.success.all() and not oracle.repeated_failures.any()
 
@@ -152,13 +156,14 @@ def test_report_table_chart_and_timings(pipeline_run):
     for method in METHODS:  # lerobot-eval logs its config: the seed it was given
         assert f"'seed': {EVAL_SEED}," in (out / SLUG / "logs" / f"eval_{method}.log").read_text()
     timings = json.loads((out / SLUG / "timings.json").read_text())
-    assert set(timings) == {"record", "train_base", "synthesize", "train_recovery", *(f"eval_{m}" for m in METHODS)}
+    assert set(timings) == {"record", "train_base", "synthesize", "train_recovery", *(f"eval_{m}" for m in METHODS),
+                            *(f"videos_{m}" for m in METHODS)}  # both test methods are watched
 
 
 def test_watch_shows_both_methods_on_the_same_rendered_episode(pipeline_run, tmp_path):
     out, _ = pipeline_run
     gif = tmp_path / "watch.gif"
-    subprocess.run([sys.executable, "-m", "lerobot_ccdp.benchmark.watch", "--eval-root", str(out / SLUG / "eval"),
+    subprocess.run([sys.executable, "-m", "lerobot_ccdp.benchmark.watch", "--eval-root", str(out / SLUG / "videos"),
                     "--episode", "1", "--out", str(gif)], check=True, cwd=REPO)
     with Image.open(gif) as image:
         assert image.n_frames > 5 and image.width > 2 * 160 and image.height > 120  # two 160x120 panels, titled
@@ -169,7 +174,7 @@ def test_a_second_run_resumes_every_stage_however_the_folder_is_spelled(settings
     summary = (out / "summary.json").read_text()
     (tmp_path / "link").symlink_to(out)  # the stages' commands name the folder's real path, as the first run did
     stdout = _run_pipeline(*settings, tmp_path / "link")
-    assert stdout.count("done already") == 4 + len(METHODS)
+    assert stdout.count("done already") == 4 + 2 * len(METHODS)  # and each watched method's video run
     assert (out / "summary.json").read_text() == summary
 
 
@@ -195,7 +200,7 @@ def test_a_changed_config_reruns_its_stage_and_those_after_it(settings, pipeline
     base_weights = (out / SLUG / "base" / CHECKPOINT / "model.safetensors").read_bytes()
     stdout = _run_pipeline(configs, settings[1], out)
     assert stdout.count("done already") == 3  # record, base, synthesis
-    assert stdout.count("its inputs changed") == 1 + len(METHODS)  # the recovery stage and every evaluation
+    assert stdout.count("its inputs changed") == 1 + 2 * len(METHODS)  # recovery, every evaluation and video run
     assert (out / SLUG / "base" / CHECKPOINT / "model.safetensors").read_bytes() == base_weights
     step = json.loads((out / SLUG / "recovery" / "checkpoints" / "last" / "training_state" / "training_step.json")
                       .read_text())
@@ -236,14 +241,17 @@ def test_the_compute_matched_baseline_is_dp_star_with_few_candidates(tmp_path):
     assert "--policy.dp_star_candidates=32" in files.method_flags("dp_star")
 
 
-def test_only_the_watched_methods_render_videos(settings, tmp_path):
-    """DP* runs with rendering off (videos of the Panda scene cost minutes); DP and CCDP keep lerobot-eval's."""
+def test_every_timed_evaluation_is_unrendered_and_videos_are_a_run_of_their_own(settings, tmp_path):
+    """Evaluation times compare methods, so none renders (videos of the Panda scene cost minutes); the videos
+    `watch` shows come from a short rendered run of the same first episodes."""
     files = TaskFiles.locate(TASK, *settings, tmp_path)
     for method in ("dp", "dp_star", "ccdp"):
         command = files.eval_command(Path("checkpoint"), method, 0, tmp_path / method, [])
-        assert ("--env.render_mode=null" in command) == (method not in VIDEO_METHODS), method
+        assert "--env.render_mode=null" in command, method
         assert COMMON_NOISE in command  # every method on the same noise streams
         assert command[-2:] == ["--seed=0", f"--output_dir={tmp_path / method}"]
+        videos = files.eval_command(Path("checkpoint"), method, 0, tmp_path / method, [], videos=True)
+        assert "--env.render_mode=null" not in videos and f"--eval.n_episodes={N_EPISODES}" in videos
 
 
 def test_stamps_follow_settings_files_and_upstream_stages(tmp_path):
