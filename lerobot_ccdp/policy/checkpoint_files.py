@@ -157,10 +157,13 @@ HUB_DOWNLOAD_KEYS = ("force_download", "resume_download", "proxies", "token", "c
 def saved_config(path: str | Path, **hub: Any) -> dict:
     """The checkpoint's config.json as saved, before any command-line override: from the local folder, or the Hub
     file LeRobot has just downloaded for the same checkpoint (cached)."""
+    return _read_json(_checkpoint_file(path, CONFIG_FILE, **hub))
+
+
+def _checkpoint_file(path: str | Path, filename: str, **hub: Any) -> Path:
+    """`filename` of the checkpoint: in the local folder, or the Hub file LeRobot has just downloaded (cached)."""
     folder = Path(path)
-    if folder.is_dir():
-        return _read_json(folder / CONFIG_FILE)
-    return _read_json(Path(hf_hub_download(repo_id=str(path), filename=CONFIG_FILE, **hub)))
+    return folder / filename if folder.is_dir() else Path(hf_hub_download(repo_id=str(path), filename=filename, **hub))
 
 
 def refuse_other_checkpoint(config: Any, saved: dict, path: str | Path) -> None:
@@ -207,9 +210,7 @@ def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, 
     """Refuse a checkpoint whose saved weights do not match the policy's `state` dict. LeRobot loads non-strictly and
     would leave such weights at their random start. Only an untrained recovery head may differ: a base checkpoint
     can start the recovery stage with another head (`--policy.recovery_head`)."""
-    folder = Path(path)
-    file = folder / SAFETENSORS_SINGLE_FILE if folder.is_dir() else Path(hf_hub_download(str(path), SAFETENSORS_SINGLE_FILE, **hub))
-    with safe_open(file, framework="pt") as saved:
+    with safe_open(_checkpoint_file(path, SAFETENSORS_SINGLE_FILE, **hub), framework="pt") as saved:
         saved_keys = set(saved.keys())
     missing, unexpected = sorted(set(state) - saved_keys), sorted(saved_keys - set(state))
     if not recovery_trained:
