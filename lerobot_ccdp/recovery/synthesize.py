@@ -59,6 +59,7 @@ from lerobot_ccdp.policy.checkpoint_files import checkpoint_loading
 from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch, unnormalize_batch
+from lerobot_ccdp.recovery.demo_segments import segment_ends
 from lerobot_ccdp.recovery.failure_features import failure_feature_stats
 from lerobot_ccdp.recovery.outcome_index import demo_chunks
 from lerobot_ccdp.recovery.outcome_table import read_columns
@@ -97,7 +98,7 @@ class Demos:
 
     windows: Tensor  # (N, n_obs_steps, state_dim): the observation window ending at each frame
     chunks: Tensor  # (N, horizon, A): the chunk each frame starts (as in training)
-    starts: Tensor  # (E,): the first frame of each episode, where an attempt starts
+    starts: Tensor  # the first frame of each demonstrated option, where an attempt starts (`option_starts`)
 
 
 def synthesis_device(saved: str | None, requested: str | None) -> str:
@@ -178,7 +179,7 @@ def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) ->
     required = [*keys, ACTION, config.failure_state_key]
     if config.failure_feature == "primitive":
         required.append(config.primitive_key)
-    columns = read_columns(meta, required)
+    columns = read_columns(meta, required, optional=[config.primitive_key])
     normalized = normalize_batch(config, stats, {k: torch.from_numpy(columns[k]) for k in [*keys, ACTION]})
     frames = torch.cat([normalized[k] for k in keys], dim=-1).numpy()
     episodes = columns["episode_index"]
@@ -186,8 +187,18 @@ def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) ->
     return Demos(
         windows=torch.from_numpy(demo_chunks(episodes, frames, start, config.n_obs_steps)),
         chunks=torch.from_numpy(demo_chunks(episodes, normalized[ACTION].numpy(), start, config.horizon)),
-        starts=torch.from_numpy(np.flatnonzero(np.r_[True, np.diff(episodes.reshape(-1)) != 0])),
+        starts=torch.from_numpy(option_starts(config, episodes, normalized[ACTION].numpy(),
+                                              columns.get(config.primitive_key))),
     )
+
+
+def option_starts(config: CCDPConfig, episodes: np.ndarray, actions: np.ndarray, labels: np.ndarray | None) -> np.ndarray:
+    """The first frame of every demonstrated option: each episode's first frame and the frame after each end of an
+    option (`demo_segments.segment_ends` under `failure_segments`, the rule that gives z its final state). An attempt
+    starts at such a state, and after a failure the env puts the robot back there: on tasks with two decisions per
+    episode (packing, the Bartender) the second decision's start is one too."""
+    ends = segment_ends(config.failure_segments, episodes.reshape(-1), actions, labels)
+    return np.flatnonzero(np.r_[True, ends[:-1]])
 
 
 def synthesised_samples(

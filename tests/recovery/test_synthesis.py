@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
@@ -12,7 +13,7 @@ from torch import Tensor
 
 from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
 from lerobot_ccdp.envs import TASKS
-from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch
 from lerobot_ccdp.recovery import synthesize
@@ -225,8 +226,8 @@ def test_every_task_recipe_has_a_valid_recovery_section():
 
 def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_through_lerobot_train(reaching_root,
                                                                                                   tmp_path):
-    """With `recovery_head=set_denoiser` every row is one chunk of its own, sampled (or demonstrated) at an episode's
-    first state (perturbed by eq. 6), with its own z; lerobot-train's recovery stage then trains eps_{s,F} from the
+    """With `recovery_head=set_denoiser` every row is one chunk of its own, sampled (or demonstrated) where an option
+    starts (here one per episode: its first state), perturbed by eq. 6, with its own z; lerobot-train's recovery stage then trains eps_{s,F} from the
     copied base while the base stays frozen."""
     settings = {**FEATURE_SETTINGS["primitive"], "recovery_head": "set_denoiser", "history_length": 0}
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
@@ -253,3 +254,20 @@ def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_thr
     assert all(torch.equal(after[k], v) for k, v in before.items() if k.startswith("model.base."))
     unet = "model.recovery.unet.mid_modules.0.conv1.block.0.weight"  # the head started as a copy of the base ...
     assert not torch.equal(after[unet], after[unet.replace("model.recovery.", "model.base.")])  # ... and trained away from it
+
+
+def test_set_denoiser_rows_start_at_every_demonstrated_option_not_only_at_episode_starts():
+    """Packing and the Bartender decide twice per episode: after a failed second decision the env restores the robot
+    where that option began, so the set denoiser's rows are drawn there too. Options end where `failure_segments`
+    says (labels here, gripper drops without labels)."""
+    episodes = np.array([0, 0, 0, 0, 0, 1, 1, 1])
+    labels = np.array([3, 3, 1, 1, 1, 2, 2, 2])
+    labelled = CCDPConfig(failure_feature="primitive", num_primitives=4)
+    assert synthesize.option_starts(labelled, episodes, np.zeros((8, 2)), labels).tolist() == [0, 2, 5]
+    assert synthesize.option_starts(labelled, episodes, np.zeros((8, 2)), None).tolist() == [0, 5]
+    # Episode 0 closes the gripper, opens it at frame 3 (the drop's option ends there, with its opening command) and
+    # starts a second option at frame 4; episode 1 drops its object at its last frame.
+    gripper = np.array([-1, 1, 1, -1, 1, -1, 1, -1.0])
+    actions = np.stack([np.arange(8.0), gripper], axis=1)  # the arm never holds still
+    dropped = CCDPConfig(failure_feature="final_state", failure_segments="drops")
+    assert synthesize.option_starts(dropped, episodes, actions, None).tolist() == [0, 4, 5]
