@@ -1,8 +1,8 @@
 """CCDP versus LeRobot's stock DiffusionPolicy: planning latency and training speed, side by side.
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
-        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|mlp|classifier|set_denoiser]
-        [--classifier-query each|set] [--failure-step-share 1.0] [--plan-batch 1] [--horizon 16]
+        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|classifier|set_denoiser]
+        [--plan-batch 1] [--horizon 16]
         [--out outputs/bench_policy.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
@@ -50,7 +50,7 @@ from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
-from lerobot_ccdp.policy.configuration_ccdp import CLASSIFIER_QUERIES, RECOVERY_HEADS, CCDPConfig
+from lerobot_ccdp.policy.configuration_ccdp import RECOVERY_HEADS, CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 STATE, ENV, ACTION = "observation.state", "observation.environment_state", "action"
@@ -125,8 +125,7 @@ def interleaved_medians(calls: dict[str, callable], repeats: int, warmup: int) -
 
 def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Namespace) -> dict:
     torch.manual_seed(0)
-    make = functools.partial(make_ccdp, recovery_head=args.recovery_head, classifier_query=args.classifier_query,
-                             failure_step_share=args.failure_step_share, horizon=args.horizon)
+    make = functools.partial(make_ccdp, recovery_head=args.recovery_head, horizon=args.horizon)
     rows = args.plan_batch
     obs = {STATE: torch.randn(rows, 2), ENV: torch.randn(rows, env_dim)}
 
@@ -347,10 +346,6 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--horizon", type=int, default=16, help="chunk length (the Panda tasks: 32)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--recovery-head", choices=RECOVERY_HEADS, default="unet", help="recovery head")
-    parser.add_argument("--classifier-query", choices=CLASSIFIER_QUERIES, default="each",
-                        help="how the classifier head is asked about the failures (recovery head classifier)")
-    parser.add_argument("--failure-step-share", type=float, default=1.0,
-                        help="CCDP's failure_step_share: the share of reverse steps that add the failures")
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")
     parser.add_argument("--cli-log-freq", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")

@@ -1,30 +1,26 @@
 """Does recovery keep the demonstrated preferences? A seeded family of 2-D reaching tasks (issue 17).
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_preferences.py [--members 0 1 ... 11] [--w-z 1 2 4] \
-        [--classifier-chunks demonstrations base_samples | --classifier-chunks] [--classifier-query each set] \
-        [--redraws 0 1] [--set-denoiser] [--out outputs/preferences]
+        [--no-classifier] [--redraws 0 1] [--set-denoiser] [--out outputs/preferences]
 
 Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences, bent
 paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a LeRobot
 dataset, its base is trained with lerobot-train, and the failure-set classifier (`--policy.recovery_head=classifier`)
-is trained from that base with lerobot-train as a user would, once per --classifier-chunks value (on the
-demonstrated chunks, or on chunks the base samples at their states). Failed share and preference error after one and after
-two failures (`lerobot_ccdp/benchmark/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
-rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z and each way of
-querying the classifier of --classifier-query, with each count of --redraws (sampling settings, set as lerobot-eval's
---policy.w_z, --policy.classifier_query and --policy.ccdp_redraws would: every combination runs on the same
-checkpoint and seeds). Prints the table,
+is trained from that base on the demonstrations with lerobot-train as a user would. Failed share and preference
+error after one and after two failures (`lerobot_ccdp/benchmark/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
+rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z with each count of
+--redraws (sampling settings, set as lerobot-eval's --policy.w_z and --policy.ccdp_redraws would: every combination
+runs on the same checkpoint and seeds). Prints the table,
 writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferences.png`
-under --out (CCDP with the first classifier, query, weight and redraw count). Members run side by side each with its own
+under --out (CCDP with the first weight and redraw count). Members run side by side each with its own
 --out are tabulated together with `--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
 family; settings are chosen on the development members 100-103 (`--members 100 101 102 103`).
 
-With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifiers, if any, train
-from it with their head named on the command line), lerobot-ccdp-synthesize writes its rows (SET_RECIPE: chunks the
+With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifier, unless
+--no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its rows (SET_RECIPE: chunks the
 base samples at the episodes' first states), lerobot-train trains the failure-set denoiser on them for --head-steps,
 and "CCDP set denoiser" (w_z = 1, one sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost"
-(`dp_star_matched`'s 2 candidates, 1 round) on the same base and seeds. `--classifier-chunks` with no value trains no
-classifier.
+(`dp_star_matched`'s 2 candidates, 1 round) on the same base and seeds.
 """
 
 from __future__ import annotations
@@ -48,7 +44,6 @@ from lerobot_ccdp.benchmark.reaching2d import ReachingTask
 from lerobot_ccdp.benchmark.reaching_preferences import Method, measure
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
-from lerobot_ccdp.policy.configuration_ccdp import CLASSIFIER_CHUNKS, CLASSIFIER_QUERIES
 
 TARGETS = {"failed_share": 0.03, "preference_error": 0.08}  # issue 17, on the family's mean
 
@@ -63,29 +58,21 @@ MATCHED = {"DP* at CCDP's cost": Method("dp_star", MATCHED_DP_STAR)}
 SET_RECIPE = {"n_states": 512, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0, "demo_frames": 4096}
 
 
-def methods(chunks: str, first: bool, sampling: argparse.Namespace, demos: LeRobotDataset) -> dict[str, Method]:
-    if chunks == "set_denoiser":  # one sample per plan; the baselines again on the same base when it is the only head
-        return {**(BASELINES if first else {}), **MATCHED, "CCDP set denoiser": Method("ccdp", {"w_z": 1.0})}
-    return classifier_methods(chunks, first, sampling, demos)
+def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobotDataset) -> dict[str, Method]:
+    """The methods measured on `head` ("classifier" or "set_denoiser"); DP and DP* on the first head only (the heads
+    share the base)."""
+    baselines = BASELINES if first else {}
+    if head == "set_denoiser":  # one sample per plan
+        return {**baselines, **MATCHED, "CCDP set denoiser": Method("ccdp", {"w_z": 1.0})}
+    ccdp = {ccdp_name(w, n): Method("ccdp", {"w_z": w, "ccdp_redraws": n}) for w in sampling.w_z
+            for n in sampling.redraws}
+    # The reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start chunks.
+    return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
-def classifier_methods(chunks: str, first: bool, sampling: argparse.Namespace,
-                       demos: LeRobotDataset) -> dict[str, Method]:
-    """The methods measured on the classifier trained on `chunks` (a `classifier_chunks` value): its guidance for
-    each query, weight w_z and redraw count of `sampling` (sampling settings: one checkpoint serves all) and, on the
-    first classifier only (they share the base), DP, DP* and the reference row: the same base guided at w_z = 1 by
-    the exact classifier of the demonstrated start chunks (asked about the whole set, as it was first measured)."""
-    ccdp = {ccdp_name(chunks, q, w, n): Method("ccdp", {"w_z": w, "classifier_query": q, "ccdp_redraws": n})
-            for q in sampling.classifier_query for w in sampling.w_z for n in sampling.redraws}
-    if not first:
-        return ccdp
-    return {**BASELINES, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0, "classifier_query": "set"}, demos)}
-
-
-def ccdp_name(chunks: str, query: str, w_z: float, redraws: int) -> str:
-    """The table's name of CCDP guided by the classifier trained on `chunks`, queried as `query`, at weight `w_z`,
-    redrawing repeats up to `redraws` times."""
-    return f"CCDP {chunks} {query} w_z={w_z:g}" + (f" +{redraws} redraws" if redraws else "")
+def ccdp_name(w_z: float, redraws: int) -> str:
+    """The table's name of CCDP guided by the classifier at weight `w_z`, redrawing repeats up to `redraws` times."""
+    return f"CCDP classifier w_z={w_z:g}" + (f" +{redraws} redraws" if redraws else "")
 
 
 def train(name: str, out: Path, args: list[str], upstream: str | None, book: StampBook) -> tuple[Path, str]:
@@ -112,9 +99,9 @@ def member_dataset(seed: int, out: Path) -> tuple[Path, str]:
 
 
 def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episodes: int,
-                   classifier_chunks: list[str], set_denoiser: bool) -> dict[str, Path]:
-    """Record member `seed`, train its base and, from it, one classifier head per `classifier_chunks` value and, with
-    `set_denoiser`, the failure-set denoiser; return the heads' checkpoints by that value ("set_denoiser")."""
+                   classifier: bool, set_denoiser: bool) -> dict[str, Path]:
+    """Record member `seed`, train its base and, from it, the classifier head (with `classifier`) and the
+    failure-set denoiser (with `set_denoiser`); return the heads' checkpoints by head name."""
     task = ReachingTask.family_member(seed)
     root = out / f"member_{seed}"
     root.mkdir(parents=True, exist_ok=True)
@@ -131,10 +118,11 @@ def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episo
     head = ["--policy.recovery_head=set_denoiser", "--policy.history_length=0"] if set_denoiser else []
     base, base_stamp = train("base", root / "base", ["--policy.type=ccdp", *z, *head, *dataset, f"--steps={base_steps}",
                                                      "--batch_size=64", f"--save_freq={base_steps}"], data_stamp, book)
-    heads = {chunks: train(f"classifier_{chunks}", root / f"classifier_{chunks}", [
-        f"--policy.path={base}", "--policy.training_stage=recovery", "--policy.recovery_head=classifier",
-        f"--policy.classifier_chunks={chunks}", *dataset, f"--steps={head_steps}", "--batch_size=64",
-        f"--save_freq={head_steps}"], base_stamp, book)[0] for chunks in classifier_chunks}
+    heads = {}
+    if classifier:
+        heads["classifier"] = train("classifier", root / "classifier", [
+            f"--policy.path={base}", "--policy.training_stage=recovery", "--policy.recovery_head=classifier",
+            *dataset, f"--steps={head_steps}", "--batch_size=64", f"--save_freq={head_steps}"], base_stamp, book)[0]
     if set_denoiser:
         heads["set_denoiser"] = train_set_denoiser(root, task, base, base_stamp, head_steps, book)
     return heads
@@ -264,13 +252,10 @@ def main() -> None:
     parser.add_argument("--rows", type=int, default=512)
     parser.add_argument("--w-z", type=float, nargs="+", default=[1.0],
                         help="classifier guidance weights to measure (sampling settings: no retraining)")
-    parser.add_argument("--classifier-chunks", nargs="*", choices=CLASSIFIER_CHUNKS, default=["demonstrations"],
-                        help="what the failure-set classifier learns from: one head per value, from the same base "
-                             "(none: no classifier)")
+    parser.add_argument("--no-classifier", dest="classifier", action="store_false",
+                        help="train and measure no failure-set classifier")
     parser.add_argument("--set-denoiser", action="store_true",
                         help="also train and measure the failure-set denoiser (recovery_head=set_denoiser)")
-    parser.add_argument("--classifier-query", nargs="+", choices=CLASSIFIER_QUERIES, default=["each"],
-                        help="how sampling asks the classifier: each failure, or the whole failure set (no retraining)")
     parser.add_argument("--redraws", type=int, nargs="+", default=[0],
                         help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)")
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
@@ -296,12 +281,12 @@ def main() -> None:
         task = ReachingTask.family_member(seed)
         print(f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, bend "
               f"{task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}", flush=True)
-        heads = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes, args.classifier_chunks,
+        heads = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes, args.classifier,
                                args.set_denoiser)
         root, repo = member_dataset(seed, args.out)
         demos = LeRobotDataset(repo, root=root)
-        for k, (chunks, checkpoint) in enumerate(heads.items()):
-            measured = measure(task, checkpoint, methods(chunks, k == 0, args, demos), args.rows)
+        for k, (head, checkpoint) in enumerate(heads.items()):
+            measured = measure(task, checkpoint, methods(head, k == 0, args, demos), args.rows)
             if k == 0:
                 results[seed] = measured
             else:
@@ -315,12 +300,10 @@ def main() -> None:
     print(text)
     (args.out / "preferences.md").write_text(
         f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base {args.base_steps} "
-        f"steps, heads {args.head_steps} steps (classifiers on {args.classifier_chunks}, set denoiser "
-        f"{args.set_denoiser}), queries {args.classifier_query}, "
+        f"steps, heads {args.head_steps} steps (classifier {args.classifier}, set denoiser {args.set_denoiser}), "
         f"guidance weights {args.w_z}, redraws {args.redraws}.\n\n"
         f"{text}\n")
-    shown = (ccdp_name(args.classifier_chunks[0], args.classifier_query[0], args.w_z[0], args.redraws[0])
-             if args.classifier_chunks else "CCDP set denoiser")
+    shown = ccdp_name(args.w_z[0], args.redraws[0]) if args.classifier else "CCDP set denoiser"
     panel_grid(chosen, args.out / "preferences.png", shown)
 
 

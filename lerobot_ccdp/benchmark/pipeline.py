@@ -51,7 +51,6 @@ from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 from lerobot_ccdp.envs.tasks import is_lite
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.recovery.composition import failure_steps
 
 METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp")
 # The recovery_mode each method evaluates with. "dp_star_matched" is the compute-matched baseline: DP* with the
@@ -384,8 +383,8 @@ def method_forms(runs: list[TaskRun]) -> str:
                    "delta_z": c["delta_z"], **r.files.method_settings("dp_star")}
         ccdp = {**c, **r.files.method_settings("ccdp")}  # the checkpoint's settings, as CCDP's flags changed them
         if ccdp.get("recovery_head") == "classifier":
-            form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance "
-                    f"({ccdp.get('classifier_query', CCDPConfig.classifier_query)} query), w_z {ccdp['w_z']:g}")
+            form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance, "
+                    f"w_z {ccdp['w_z']:g}")
             synthesis = "none (classifier learns from the demos)"
         elif ccdp.get("recovery_head") == "set_denoiser":
             form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by the failure-set denoiser eps_(s,F), "
@@ -395,10 +394,6 @@ def method_forms(runs: list[TaskRun]) -> str:
         else:
             form = f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}, w_z {ccdp['w_z']:g} against {ccdp['z_reference']}"
             synthesis = f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}"
-        share = ccdp.get("failure_step_share", CCDPConfig.failure_step_share)
-        if share < 1:
-            steps_with = failure_steps(c["num_inference_steps"], share)
-            form += f"; failures in the first {steps_with} of {c['num_inference_steps']} reverse steps"
         if ccdp.get("ccdp_redraws", 0):
             form += f"; a repeat redrawn up to {ccdp['ccdp_redraws']} times"
         lines.append(

@@ -3,6 +3,7 @@
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Literal
 
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
@@ -10,20 +11,26 @@ from lerobot.optim.optimizers import AdamConfig
 from lerobot.optim.schedulers import DiffuserSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
-RECOVERY_MODES = ("ccdp", "dp", "dp_star")
-FAILURE_FEATURES = ("final_state", "action", "primitive")
-FAILURE_STATES_AT = ("attempt_end", "demonstrated_end")
-FAILURE_SEGMENTS = ("labels", "releases", "drops", "pauses")
-TRAINING_STAGES = ("base", "recovery")
-RECOVERY_HEADS = ("unet", "mlp", "classifier", "set_denoiser")
-CLASSIFIER_CHUNKS = ("demonstrations", "base_samples")
-CLASSIFIER_QUERIES = ("set", "each")
-Z_REFERENCES = ("eps_a", "eps_z_null")
+from lerobot_ccdp.compat.literal_choices import choices
+
+RecoveryMode = Literal["ccdp", "dp", "dp_star"]
+FailureFeatureKind = Literal["final_state", "action", "primitive"]
+FailureStateAt = Literal["attempt_end", "demonstrated_end"]
+FailureSegments = Literal["labels", "drops", "pauses"]
+TrainingStage = Literal["base", "recovery"]
+RecoveryHead = Literal["unet", "classifier", "set_denoiser"]
+ZReference = Literal["eps_a", "eps_z_null"]
+RECOVERY_MODES = choices(RecoveryMode)
+FAILURE_FEATURES = choices(FailureFeatureKind)
+FAILURE_STATES_AT = choices(FailureStateAt)
+FAILURE_SEGMENTS = choices(FailureSegments)
+TRAINING_STAGES = choices(TrainingStage)
+RECOVERY_HEADS = choices(RecoveryHead)
+Z_REFERENCES = choices(ZReference)
 # Counts and sizes that must be >= 1, and those that must be >= 0 (`_check_numbers`).
 POSITIVE_FIELDS = ("n_obs_steps", "horizon", "n_action_steps", "num_train_timesteps", "num_inference_steps",
                    "kernel_size", "diffusion_step_embed_dim", "spatial_softmax_num_keypoints",
-                   "max_failures", "dp_star_candidates", "dp_star_rounds", "failure_set_train_size",
-                   "classifier_resample_every", "outcome_index_size", "recovery_hidden_dim", "recovery_num_blocks")
+                   "dp_star_candidates", "dp_star_rounds")
 NON_NEGATIVE_FIELDS = ("delta_z", "history_length", "ccdp_redraws", "scheduler_warmup_steps")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
@@ -34,17 +41,59 @@ FAILURE_FLAG_KEY = "observation.failure"
 @PreTrainedConfig.register_subclass("ccdp")
 @dataclass
 class CCDPConfig(PreTrainedConfig):
-    """CCDP = LeRobot's diffusion policy composed at sampling time with failure-conditioned recovery heads.
+    """CCDP = LeRobot's diffusion policy composed at sampling time with a recovery model of the failures.
 
-    The base UNet is trained once with condition dropout so that one network yields the unconditional
-    (eps_a), state-conditioned (eps_s) and history-conditioned (eps_h) noise estimates; the recovery head
-    (eps_z) is trained in a second stage on a synthesised recovery dataset. Both stages use this config:
-    `training_stage` selects what `forward()` trains.
+    The base UNet is trained once with condition dropout, so that one network yields the unconditional (eps_a),
+    state-conditioned (eps_s) and history-conditioned (eps_h) noise estimates; the recovery head is trained in a
+    second stage (`training_stage=recovery`) from the base's checkpoint. The diffusion, vision and optimizer fields
+    mean what they mean in LeRobot's DiffusionConfig; their defaults are sized for low-dimensional tasks on a 2-core
+    CPU (a 1.1 M-parameter UNet, 10 DDPM steps). The reverse step is DDPM's stochastic one, eq. (3) of the paper
+    (docs/method.md, "Reverse sampler").
 
-    Defaults are sized for low-dimensional tasks on a 2-core CPU (a 1.1 M-parameter UNet, 10 inference steps,
-    a learning rate and warm-up that converge in a few thousand steps). The reverse step is DDPM's stochastic
-    one, eq. (3) of the paper: deterministic DDIM follows eq. (4)'s summed estimates exactly and so keeps their
-    error, which lets remembered failures back in (README, "Reverse sampler").
+    Args:
+        w_s: Weight of the state term eps_s - eps_a in eq. (4). A zero weight skips that term's network rows.
+        w_h: Weight of the history term eps_h - eps_a in eq. (4); needs `history_length` > 0.
+        w_z: Weight of the failure terms of eq. (4), or of the failure-set term for the set denoiser and the
+            classifier's guidance.
+        z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
+            "eps_z_null" (the recovery head with z dropped, trained on the same rows). `unet` head only.
+        history_length: States and actions before the observation window that form the history condition h_t^H.
+            0 trains no history condition.
+        recovery_mode: How a plan is drawn after failures: "ccdp" (composition), "dp" (the base alone, failures
+            ignored) or "dp_star" (the base's candidates, those whose outcome repeats a failure rejected).
+        recovery_head: The recovery model: "unet" (eps_z(z), one term per failure, on a synthesised recovery
+            dataset), "set_denoiser" (eps_{s,F}: one term for the whole failure set, trained on the base's own
+            samples where attempts start) or "classifier" (a noisy-chunk classifier of "repeats a failure", trained on
+            the demonstrations, whose gradient guides eps_s).
+        training_stage: What lerobot-train trains: "base" (the diffusion UNet on demonstrations) or "recovery" (the
+            recovery head, from a base checkpoint given by --policy.path).
+        failure_feature: What z describes: "final_state" (where the option ends), "primitive" (a one-hot label
+            from the `primitive_key` dataset column) or "action" (the attempt's first chunk).
+        failure_state_key: final_state: the observation z is read from.
+        failure_state_dims: final_state: which of its dims form z (empty: all).
+        failure_state_at: final_state: where a failure's z is read: "attempt_end" (the state where the failed
+            attempt stopped) or "demonstrated_end" (where the demonstrated chunk nearest the failed one ends, i.e.
+            where the attempt was heading; needs the outcome table, as `primitive` does).
+        failure_segments: final_state: where a demonstrated option ends: "labels" (runs of one `primitive_key`
+            label, the whole episode without that column), "drops" (the gripper, the action's last dim, lets go
+            and the hand opens) or "pauses" (the action holds still for two frames).
+        failure_action_steps: action: which steps of the chunk form z (empty: all).
+        failure_action_dims: action: which action dims at each step (empty: all).
+        primitive_key: primitive: the dataset column holding the per-frame label.
+        num_primitives: primitive: how many labels exist.
+        failure_signal_file: A file whose appearance or touch reports a failure of every row, for loops such as
+            lerobot-record that pass no failure signal (policy/failure_signal.py). A setting of the machine the
+            policy acts on: never saved in a checkpoint.
+        delta_z: Squared distance in z under which an outcome repeats a failure (DP*'s rejection, the set
+            denoiser's training sets, redraws).
+        dp_star_candidates: DP*: candidates drawn per plan.
+        dp_star_rounds: DP*: rounds of fresh candidates for a row whose candidates were all rejected, before it
+            falls back to the candidate farthest from every failure (1: no redraw).
+        ccdp_redraws: CCDP: redraws of a plan whose looked-up outcome repeats a failure (DP*'s lookup). 0, the
+            method itself, is one sample per plan; above 0 it is the hybrid "CCDP + k redraws".
+        row_noise_streams: Each batch row of each rollout draws its noise from its own generator seeded from
+            lerobot-eval's --seed, so methods evaluated on the same seed act alike until the first failure (common
+            random numbers). False: torch's global generator, as LeRobot's diffusion policy.
     """
 
     # Diffusion (same meaning as in LeRobot's DiffusionConfig).
@@ -91,108 +140,30 @@ class CCDPConfig(PreTrainedConfig):
     clip_sample_range: float = 1.0
     do_mask_loss_for_padding: bool = False
 
-    # Composition weights of eq. (4). A zero weight skips that term's network rows.
+    # CCDP (see Args above).
     w_s: float = 1.0
     w_h: float = 0.0
     w_z: float = 1.0
-    # What each failure term of eq. (4) is measured against: "eps_a" (the paper) or "eps_z_null" (the recovery
-    # head with z dropped, trained on the same recovery data as eps_z; see compose_eps).
-    z_reference: str = "eps_z_null"
-    # Share of the reverse steps, counted from the noisiest, whose estimate includes the failures (eq. 4's failure
-    # terms, or the classifier's guidance). The noisy steps choose the option; in the remaining low-noise steps the
-    # base alone refines the chunk within it, so the recovery model's error does not move where the chunk ends.
-    # 1.0, the default, is the paper: failures at every step.
-    failure_step_share: float = 1.0
-    # History h_t^H: the H states and actions before the current observation window.
-    history_length: int = 2
-    # Condition dropout while training the base network (independent per condition): dropping both
-    # conditions trains eps_a, dropping one trains eps_s or eps_h.
-    p_drop_state: float = 0.3
-    p_drop_history: float = 0.5
-
-    # Recovery.
-    recovery_mode: str = "ccdp"
-    failure_feature: str = "final_state"
-    # final_state: which observation and which of its dims form z (empty = all dims).
+    z_reference: ZReference = "eps_z_null"
+    history_length: int = 0
+    recovery_mode: RecoveryMode = "ccdp"
+    recovery_head: RecoveryHead = "unet"
+    training_stage: TrainingStage = "base"
+    failure_feature: FailureFeatureKind = "final_state"
     failure_state_key: str = OBS_STATE
     failure_state_dims: list[int] = field(default_factory=list)
-    # final_state: where a failure's z is read. "attempt_end": the observed state where the failed attempt stopped.
-    # "demonstrated_end": the final state of the demonstration whose chunk is nearest the one executing when the
-    # failure was flagged, i.e. where the attempt was heading. The second matches the z the recovery head trained
-    # on when a failure is flagged mid-option (a pick that slips 4 cm above the box ends nowhere a pick is
-    # demonstrated to end); it needs the outcome table, as `primitive` does.
-    failure_state_at: str = "attempt_end"
-    # final_state: where a demonstrated option ends (lerobot_ccdp/recovery/demo_segments.py), which gives each demonstrated
-    # chunk its final state. "labels": runs of one `primitive_key` label, the whole episode without that column.
-    # Label-free: "releases" (the gripper command, action dim `gripper_action_dim`, lets go), "drops" (a release and
-    # the still frames after it, while the hand opens) or "pauses" (the action holds still, changing less than
-    # `pause_tolerance` in normalised units, for `pause_steps` frames).
-    failure_segments: str = "labels"
-    gripper_action_dim: int = -1
-    pause_steps: int = 2
-    pause_tolerance: float = 1e-3
-    # action: which steps of the attempt's first chunk, and which action dims at each, form z (empty = all). Dims
-    # that spread within an option (the box: where along it the hand goes) would hide which option it was.
+    failure_state_at: FailureStateAt = "attempt_end"
+    failure_segments: FailureSegments = "labels"
     failure_action_steps: list[int] = field(default_factory=list)
     failure_action_dims: list[int] = field(default_factory=list)
-    # primitive: the dataset column holding the per-frame primitive label, and how many labels exist.
     primitive_key: str = "primitive"
     num_primitives: int = 0
-    # A file whose appearance or touch reports a failure of every row, for LeRobot loops such as lerobot-record
-    # that pass the policy no failure signal (lerobot_ccdp/policy/failure_signal.py). A run-time setting of the machine
-    # the policy acts on: never saved in a checkpoint, and a loaded checkpoint's value is ignored.
     failure_signal_file: str | None = None
-    # Most failures remembered per batch row; the oldest is forgotten beyond it.
-    max_failures: int = 8
-    # DP*: candidates drawn per plan, and the squared distance in z under which a candidate repeats a failure.
     delta_z: float = 0.1
     dp_star_candidates: int = 16
-    # DP*: rounds of `dp_star_candidates` fresh candidates drawn for a row whose candidates were all rejected,
-    # before it falls back to the candidate farthest from every failure (1 = no redraw). A redraw costs time
-    # only where every candidate repeats a failure; with one round, one-hot z made the fallback a repeat.
     dp_star_rounds: int = 4
-    # CCDP: plans redrawn, at most this many times, where the chunk CCDP sampled still repeats a failure (its outcome
-    # looked up as DP* looks up its candidates'). 0, the default, is the method itself: one sample per plan. Above 0
-    # the kept chunks follow CCDP's distribution restricted to the options that did not fail, at the cost of one more
-    # denoising pass for the few rows that repeated (`dp_star.reject_repeats` with one candidate per round).
     ccdp_redraws: int = 0
-    # Where a plan's noise comes from. False, LeRobot's diffusion behaviour: torch's global generator. True: each
-    # batch row of each rollout has its own generator, seeded from torch's seed (lerobot-eval's --seed), the rollout's
-    # index and the row (`noise_streams`), for a plan's first sample (DP*'s first candidate, CCDP's first draw). DP,
-    # DP* and CCDP evaluated with the same --seed then draw the same noise for the same episode, so they act alike
-    # until its first failure (common random numbers); `make benchmark` evaluates every method so.
     row_noise_streams: bool = False
-    # Demonstrated chunks kept to look up the outcome (final state, primitive) of a sampled chunk.
-    outcome_index_size: int = 20000
-    # Recovery head: "unet" (eps_z, LeRobot's diffusion UNet conditioned on z, trained on a synthesised recovery
-    # dataset), "mlp" (eps_z as a residual MLP over the flattened chunk, FiLM-conditioned on z: cheaper, less sharp)
-    # or "classifier" (a noisy-chunk classifier of "repeats a failure of the set F" given the state, trained on the
-    # demonstrations themselves, whose gradient guides eps_s; composition.guide_away_from_failures) or "set_denoiser"
-    # (eps_{s,F}: a copy of the base UNet conditioned on the state and the whole failure set F, trained on chunks the
-    # base samples where attempts start (lerobot-ccdp-synthesize) with F drawn independently of each row and the rows
-    # whose own outcome lies in F left out: it learns p_s restricted to the options outside F, one network call per
-    # step whatever the number of failures; composition.compose_with_failure_set). The size of the MLP heads and of the set embedding, and the most
-    # failures drawn for one training row of the classifier and the set denoiser.
-    recovery_head: str = "unet"
-    recovery_hidden_dim: int = 128
-    recovery_num_blocks: int = 3
-    failure_set_train_size: int = 3
-    # What the failure-set classifier learns from: the demonstrated chunks ("demonstrations": guidance then keeps the
-    # demonstrations' proportions among the options left) or chunks the frozen base samples at the batch's states,
-    # labelled through the outcome table ("base_samples": it keeps the base policy's own proportions, what DP* keeps;
-    # from a pool refreshed with a batch of base samples every `classifier_resample_every` steps).
-    classifier_chunks: str = "demonstrations"
-    classifier_resample_every: int = 4
-    # How sampling asks the classifier about the failures: "each" (one query per distinct failure, P(outside F) =
-    # 1 - sum_i P(repeats z_i): exact for disjoint options, and it asks only about single failures, which every
-    # training row's set can be; composition.log_no_repeat) or "set" (one query with the whole set F). A sampling
-    # setting: the same trained classifier serves both. "each" kept the base's proportions better on the 2-D
-    # family's development members (docs/benchmarks.md).
-    classifier_query: str = "each"
-    # z dropout while training the recovery head, so that it also yields eps_z_null.
-    p_drop_failure: float = 0.1
-
-    training_stage: str = "base"
 
     # Training presets.
     optimizer_lr: float = 1e-3
@@ -213,21 +184,14 @@ class CCDPConfig(PreTrainedConfig):
         for name in ("w_s", "w_h", "w_z"):
             if getattr(self, name) < 0:
                 raise ValueError(f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(self, name)}.")
-        for name in ("p_drop_state", "p_drop_history", "p_drop_failure"):
-            if not 0.0 <= getattr(self, name) < 1.0:
-                raise ValueError(f"`{name}` must be in [0, 1); got {getattr(self, name)}.")
-        self._check_choice("recovery_mode", RECOVERY_MODES)
-        self._check_choice("failure_feature", FAILURE_FEATURES)
-        self._check_choice("failure_state_at", FAILURE_STATES_AT)
-        self._check_choice("failure_segments", FAILURE_SEGMENTS)
-        if self.pause_steps < 1 or self.pause_tolerance < 0:
-            raise ValueError(f"`pause_steps` must be >= 1 and `pause_tolerance` >= 0; got {self.pause_steps} and "
-                             f"{self.pause_tolerance}.")
-        self._check_choice("training_stage", TRAINING_STAGES)
-        self._check_choice("recovery_head", RECOVERY_HEADS)
-        self._check_choice("classifier_chunks", CLASSIFIER_CHUNKS)
-        self._check_choice("classifier_query", CLASSIFIER_QUERIES)
-        self._check_choice("z_reference", Z_REFERENCES)
+        if self.w_h > 0 and self.history_length == 0:
+            raise ValueError("`w_h` > 0 weighs the history term of eq. (4), which needs a history condition: set "
+                             "--policy.history_length to 1 or more, or --policy.w_h=0.")
+        for name, allowed in (("recovery_mode", RECOVERY_MODES), ("failure_feature", FAILURE_FEATURES),
+                              ("failure_state_at", FAILURE_STATES_AT), ("failure_segments", FAILURE_SEGMENTS),
+                              ("training_stage", TRAINING_STAGES), ("recovery_head", RECOVERY_HEADS),
+                              ("z_reference", Z_REFERENCES)):
+            self._check_choice(name, allowed)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
         self._check_vision()
         if self.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
@@ -242,9 +206,6 @@ class CCDPConfig(PreTrainedConfig):
         bad_steps = [s for s in self.failure_action_steps if not 0 <= s < self.horizon]
         if bad_steps:
             raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon}).")
-        if not 0.0 < self.failure_step_share <= 1.0:
-            raise ValueError(f"`failure_step_share` must be in (0, 1] (1: failures at every reverse step); got "
-                             f"{self.failure_step_share}. For no failures at all use --policy.recovery_mode=dp.")
         if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
             raise ValueError(f"recovery_head='set_denoiser' trains on one-frame rows of a synthesised dataset: it needs "
                              f"n_obs_steps=1; got {self.n_obs_steps}. Use --policy.recovery_head=unet.")
@@ -346,11 +307,6 @@ class CCDPConfig(PreTrainedConfig):
         bad = [d for d in self.failure_action_dims if not 0 <= d < action_dim]
         if self.failure_feature == "action" and bad:
             raise ValueError(f"`failure_action_dims` {bad} do not exist in the {action_dim}-dim action.")
-        if self.failure_segments in ("releases", "drops") and not -action_dim <= self.gripper_action_dim < action_dim:
-            raise ValueError(
-                f"`gripper_action_dim` {self.gripper_action_dim} does not exist in the {action_dim}-dim action; "
-                "set --policy.gripper_action_dim to the gripper command's index."
-            )
         self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(FeatureType.STATE, (self.failure_feature_dim,))
 
     def _validate_images(self) -> None:

@@ -11,6 +11,10 @@ from torch import Tensor, nn
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.policy.small_batch_convolutions import with_small_batch_convolutions
 
+# Width of the failure set's embedding and of the classifier's MLP, and the classifier's residual blocks.
+HIDDEN_WIDTH = 128
+CLASSIFIER_BLOCKS = 3
+
 
 class BaseDenoiser(nn.Module):
     """LeRobot's diffusion UNet with two droppable conditions, so one network gives eps_a, eps_s and eps_h.
@@ -35,8 +39,7 @@ class BaseDenoiser(nn.Module):
 
 def make_recovery_denoiser(config: CCDPConfig) -> nn.Module:
     """The recovery network `config.recovery_head` names: eps_z(a, z, k) per failure, or the failure-set classifier."""
-    heads = {"unet": RecoveryUnet, "mlp": RecoveryMLP, "classifier": FailureSetClassifier,
-             "set_denoiser": FailureSetDenoiser}
+    heads = {"unet": RecoveryUnet, "classifier": FailureSetClassifier, "set_denoiser": FailureSetDenoiser}
     return heads[config.recovery_head](config)
 
 
@@ -58,31 +61,6 @@ class RecoveryUnet(nn.Module):
         return self.unet(noisy, timestep, global_cond=_z_condition(z, keep_z))
 
 
-class RecoveryMLP(nn.Module):
-    """eps_z(a, z, k): a residual MLP over the flattened chunk, FiLM-conditioned on z and the diffusion step.
-
-    Several times cheaper than the UNet head, for latency-bound robots; it separates the modes of a
-    multimodal chunk distribution less sharply (see the README's recovery-head comparison).
-    """
-
-    def __init__(self, config: CCDPConfig):
-        super().__init__()
-        width, chunk = config.recovery_hidden_dim, config.horizon * config.action_dim
-        self.step_embedding = _step_embedding(config, width)
-        self.z_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim + 1, width), nn.Mish())
-        self.inp = nn.Linear(chunk, width)
-        self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(config.recovery_num_blocks))
-        self.out = nn.Linear(width, chunk)
-
-    def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor, keep_z: Tensor) -> Tensor:
-        """noisy (R, horizon, A); timestep (R,); z (R, z_dim); keep_z (R, 1) -> predicted noise (R, horizon, A)."""
-        cond = self.step_embedding(timestep) + self.z_embedding(_z_condition(z, keep_z))
-        h = self.inp(noisy.flatten(start_dim=1))
-        for block in self.blocks:
-            h = block(h, cond)
-        return self.out(h).view_as(noisy)
-
-
 class FailureSetClassifier(nn.Module):
     """logit of P(a_0 repeats a failure in F | a_t, s, k): a noisy-chunk classifier for the whole failure set F.
 
@@ -95,12 +73,12 @@ class FailureSetClassifier(nn.Module):
 
     def __init__(self, config: CCDPConfig):
         super().__init__()
-        width, chunk = config.recovery_hidden_dim, config.horizon * config.action_dim
+        width, chunk = HIDDEN_WIDTH, config.horizon * config.action_dim
         self.step_embedding = _step_embedding(config, width)
         self.state_embedding = nn.Linear(config.n_obs_steps * config.frame_dim + 1, width)
         self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
         self.inp = nn.Linear(chunk, width)
-        self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(config.recovery_num_blocks))
+        self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(CLASSIFIER_BLOCKS))
         self.logit = nn.Linear(width, 1)
 
     def forward(
@@ -124,14 +102,14 @@ class FailureSetDenoiser(nn.Module):
     A copy of the base UNet whose global condition is the base's own with the state kept and the history dropped,
     followed by an embedding of F (a max over an MLP of each z_i, so neither F's order nor a repeated failure changes
     it). `start_from` copies the base with the set's condition weights zeroed, so training starts from eps_s exactly.
-    Trained on the demonstrations with F drawn independently of each row and the rows whose own outcome lies in F left
-    out (`CCDPModel._set_denoiser_loss`): p(a | s, F) is then proportional to p_s(a | s) 1[z(a) outside F], the
-    demonstrated proportions over the options left, learnt by one network that sampling calls once per step.
+    Trained on chunks the base samples where attempts start, with F drawn independently of each row and the rows whose
+    own outcome lies in F left out (`CCDPModel._set_denoiser_loss`): p(a | s, F) is then proportional to
+    p_s(a | s) 1[z(a) outside F], the base's own proportions over the options left, learnt by one network that sampling calls once per step.
     """
 
     def __init__(self, config: CCDPConfig):
         super().__init__()
-        width = config.recovery_hidden_dim
+        width = HIDDEN_WIDTH
         self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
         base_cond_dim = config.n_obs_steps * config.frame_dim + self.history_cond_dim + 2
         self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
@@ -159,7 +137,7 @@ class FailureSetDenoiser(nn.Module):
 
 
 def _step_embedding(config: CCDPConfig, width: int) -> nn.Module:
-    """The diffusion step as a `width` vector, for the FiLM conditions of the MLP heads."""
+    """The diffusion step as a `width` vector, for the FiLM conditions of the classifier."""
     return nn.Sequential(
         DiffusionSinusoidalPosEmb(config.diffusion_step_embed_dim),
         nn.Linear(config.diffusion_step_embed_dim, width),

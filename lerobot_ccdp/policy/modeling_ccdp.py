@@ -18,7 +18,6 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION
 from torch import Tensor, nn
 
-from lerobot_ccdp.policy.base_sample_pool import POOL_BATCHES, BaseSamplePool
 from lerobot_ccdp.policy.checkpoint_files import (
     HUB_DOWNLOAD_KEYS,
     checkpoint_loading,
@@ -47,7 +46,6 @@ from lerobot_ccdp.recovery.composition import (
     CompositionWeights,
     compose_eps,
     compose_with_failure_set,
-    failure_steps,
     guide_away_from_failures,
     log_no_repeat,
     recovery_conditions,
@@ -58,6 +56,16 @@ from lerobot_ccdp.recovery.outcome_index import OutcomeIndex
 from lerobot_ccdp.recovery.outcome_table import build_outcome_table
 
 logger = logging.getLogger(__name__)
+
+# Condition dropout while training (independent per condition): dropping the state and the history trains eps_a,
+# dropping one trains eps_s or eps_h; dropping z trains the recovery head's eps_z_null.
+P_DROP_STATE = 0.3
+P_DROP_HISTORY = 0.5
+P_DROP_FAILURE = 0.1
+# Most failures remembered per batch row (the oldest is forgotten beyond it), and drawn for one training row of the
+# classifier and the set denoiser.
+MAX_FAILURES = 8
+FAILURE_SET_TRAIN_SIZE = 3
 
 
 class CCDPPolicy(PreTrainedPolicy):
@@ -229,7 +237,7 @@ class CCDPPolicy(PreTrainedPolicy):
                                self._memory.batch_size, frame.shape[0], int(self._failures.count.sum()))
             cfg = self.config
             self._memory = RolloutMemory(cfg, frame.shape[0], frame.device)
-            self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, cfg.max_failures, frame.device)
+            self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, MAX_FAILURES, frame.device)
             self._streams = row_generators(self._rollouts, frame.shape[0]) if cfg.row_noise_streams else None
             self._rollouts += 1
         flag = batch.get(FAILURE_FLAG_KEY)
@@ -314,7 +322,6 @@ class CCDPModel(nn.Module):
             self.constant_inputs.fill(config, dataset_stats)
         if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
-        self._sample_pool: BaseSamplePool | None = None  # classifier_chunks=base_samples, while training
         self._set_trainable()
 
     # ----- training -------------------------------------------------------------------------------------
@@ -341,8 +348,8 @@ class CCDPModel(nn.Module):
         cfg = self.config
         state, history, chunk, pad = self._windows(batch)
         b = chunk.shape[0]
-        keep_s = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_state).float()
-        keep_h = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_history).float() * float(cfg.history_length > 0)
+        keep_s = (torch.rand(b, 1, device=chunk.device) >= P_DROP_STATE).float()
+        keep_h = (torch.rand(b, 1, device=chunk.device) >= P_DROP_HISTORY).float() * float(cfg.history_length > 0)
         noise, timesteps, noisy = self._noised(chunk)
         loss = F.mse_loss(self.base(noisy, timesteps, state, keep_s, history, keep_h), noise, reduction="none")
         if cfg.do_mask_loss_for_padding and pad is not None:
@@ -355,7 +362,8 @@ class CCDPModel(nn.Module):
         cfg = self.config
         refuse_unknown_cameras(self.config, batch)
         frames = self.frames(batch)
-        if frames.ndim != 3 or batch[ACTION].ndim != 3:
+        windows = (cfg.history_length + cfg.n_obs_steps, cfg.history_length + cfg.horizon)
+        if frames.ndim != 3 or batch[ACTION].ndim != 3 or (frames.shape[1], batch[ACTION].shape[1]) != windows:
             raise ValueError(
                 f"This stage expects observation windows (B, {cfg.history_length + cfg.n_obs_steps}, D) and "
                 f"action chunks (B, {cfg.history_length + cfg.horizon}, A); got {tuple(frames.shape)} and "
@@ -370,29 +378,27 @@ class CCDPModel(nn.Module):
         return frames[:, h:].flatten(start_dim=1), history, actions[:, h:], pad
 
     def _failure_set_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """The failure-set classifier on the demonstrated chunks (or, with `classifier_chunks=base_samples`, on chunks
-        the base samples at the same states). Each row gets a failure set F of 1..failure_set_train_size z drawn from
-        other rows (so F is independent of the row's own chunk) and is a repeat when its own z lies
-        within delta_z of a failure in F; the classifier learns P(repeat | a_t, s) with the base's noise schedule.
+        """The failure-set classifier on the demonstrated chunks. Each row gets a failure set F of 1 to
+        FAILURE_SET_TRAIN_SIZE z drawn from other rows (so F is independent of the row's own chunk) and is a repeat
+        when its own z lies within delta_z of a failure in F; the classifier learns P(repeat | a_t, s) with the base's
+        noise schedule.
         The state is dropped as in the base: where it already names the option, a state-conditioned row says little
         about F, while state-free rows tie F to the chunks it excludes, in the same network."""
         cfg = self.config
-        state, history, chunk, _ = self._windows(batch)
-        if cfg.classifier_chunks == "base_samples":
-            state, chunk = self._base_samples(state, history)
-        b, n = chunk.shape[0], cfg.failure_set_train_size
+        state, _, chunk, _ = self._windows(batch)
+        b, n = chunk.shape[0], FAILURE_SET_TRAIN_SIZE
         if b < 2:
             raise ValueError("The classifier draws each row's failures from the other rows: use --batch_size >= 2.")
         self.recovery_trained.fill_(True)
         z_set, z_mask, repeats = draw_failure_sets(self.feature.from_chunk(chunk, self.outcomes), n, cfg.delta_z)
-        keep_s = (torch.rand(b, 1, device=chunk.device) >= cfg.p_drop_state).to(chunk.dtype)
+        keep_s = (torch.rand(b, 1, device=chunk.device) >= P_DROP_STATE).to(chunk.dtype)
         _, timesteps, noisy = self._noised(chunk)
         logits = self.recovery(noisy, timesteps, state, z_set, z_mask, keep_s)
         return F.binary_cross_entropy_with_logits(logits, repeats.to(logits.dtype)), {}
 
     def _set_denoiser_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """eps_{s,F} on the rows of a set-denoiser dataset: chunks the base samples where attempts start, with their
-        state (lerobot-ccdp-synthesize). Each row gets a failure set F of 1..failure_set_train_size z drawn from other
+        state (lerobot-ccdp-synthesize). Each row gets a failure set F of 1..FAILURE_SET_TRAIN_SIZE z drawn from other
         rows (so F is independent of the row's own chunk); rows whose own z lies within delta_z of a failure in F are
         left out. The rows kept are p_s(a | s) q(F) 1[z(a) outside F], whose conditional given (s, F) is p_s restricted
         to the options outside F in the base's proportions: DP*'s rejection, distilled. The first step copies the base
@@ -411,28 +417,12 @@ class CCDPModel(nn.Module):
             self.recovery.start_from(self.base)
             self.recovery_trained.fill_(True)
         z_set, z_mask, repeats = draw_failure_sets(self.feature.from_chunk(chunk, self.outcomes),
-                                                   cfg.failure_set_train_size, cfg.delta_z)
+                                                   FAILURE_SET_TRAIN_SIZE, cfg.delta_z)
         noise, timesteps, noisy = self._noised(chunk)
         loss = F.mse_loss(self.recovery(noisy, timesteps, state, z_set, z_mask), noise, reduction="none")
         kept = (~repeats).to(loss.dtype)
         loss = (loss.mean(dim=(1, 2)) * kept).sum() / kept.sum().clamp_min(1.0)
         return loss, {"kept_rows": float(kept.mean())}
-
-    @torch.no_grad()
-    def _base_samples(self, state: Tensor, history: Tensor) -> tuple[Tensor, Tensor]:
-        """(states, chunks) for `classifier_chunks=base_samples`: chunks the frozen base draws as DP plans (no
-        failures) at demonstrated states, from a pool refreshed with this batch's states every
-        `classifier_resample_every` steps (`base_sample_pool.py`). The classifier then learns P(repeat | a_t, s) under
-        the base's own chunk distribution, so its guidance keeps the base's proportions among the options left."""
-        cfg, rows = self.config, state.shape[0]
-        if self._sample_pool is None:
-            self._sample_pool, self._pool_step = BaseSamplePool(POOL_BATCHES * rows), 0
-        if self._pool_step % cfg.classifier_resample_every == 0:
-            noise = torch.randn(rows, cfg.horizon, cfg.action_dim, device=state.device)
-            no_failures = torch.zeros(rows, 0, cfg.failure_feature_dim, device=state.device)
-            self._sample_pool.add(state, self.denoise(noise, state, history, no_failures, no_failures[..., 0].bool()))
-        self._pool_step += 1
-        return self._sample_pool.draw(rows)
 
     def _recovery_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config
@@ -453,7 +443,7 @@ class CCDPModel(nn.Module):
             )
         self.recovery_trained.fill_(True)
         noise, timesteps, noisy = self._noised(chunk)
-        keep_z = (torch.rand(chunk.shape[0], 1, device=chunk.device) >= cfg.p_drop_failure).to(z.dtype)
+        keep_z = (torch.rand(chunk.shape[0], 1, device=chunk.device) >= P_DROP_FAILURE).to(z.dtype)
         return F.mse_loss(self.recovery(noisy, timesteps, z, keep_z), noise), {}
 
     def _noised(self, chunk: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -485,8 +475,7 @@ class CCDPModel(nn.Module):
         """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given): one base
         call and at most one recovery call per step, whatever the number of failures. With the classifier head the
         failures enter by guidance instead (`guide_away_from_failures`); with the set denoiser, by its single
-        failure-set term (`compose_with_failure_set`). Only the first `failure_step_share` of the steps add the
-        failures (`composition.failure_steps`). The reverse steps' noise comes from `generators` (one per row,
+        failure-set term (`compose_with_failure_set`). The reverse steps' noise comes from `generators` (one per row,
         `noise_streams`) when given, else from torch's global generator."""
         weights = weights or self.weights
         if z.shape[1] and self.config.recovery_head == "set_denoiser":
@@ -494,9 +483,8 @@ class CCDPModel(nn.Module):
         else:
             estimate = self._composed_estimate(weights, state, history, z, z_mask)
         self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
-        with_failures = failure_steps(len(self.noise_scheduler.timesteps), self.config.failure_step_share)
-        for i, t in enumerate(self.noise_scheduler.timesteps):
-            eps = estimate(sample, int(t), refining=i >= with_failures)
+        for t in self.noise_scheduler.timesteps:
+            eps = estimate(sample, int(t))
             sample = self.noise_scheduler.step(eps, t, sample, generator=generators).prev_sample
         return sample
 
@@ -522,21 +510,21 @@ class CCDPModel(nn.Module):
     def _composed_estimate(self, weights: CompositionWeights, state: Tensor, history: Tensor, z: Tensor,
                            z_mask: Tensor):
         """eq. (4) with one term per failure (eps_z heads), or the classifier's guidance, as a function of (noisy
-        sample, timestep, whether the step only refines)."""
+        sample, timestep)."""
         n = z.shape[1]
         guided = n > 0 and self.config.recovery_head == "classifier"
         base = self._base_estimates(weights.base_terms(z_mask.sum(dim=1) * (not guided)), state, history)
         z_rows, keep_z = recovery_conditions(z, weights.measures_against_z_null)
         failed = z_mask.any(dim=1)
 
-        def estimate(sample: Tensor, t: int, refining: bool) -> Tensor:
+        def estimate(sample: Tensor, t: int) -> Tensor:
             by_term = base(sample, t)
-            if not (refining or guided):  # eps_z of every failure slot: the failures enter eq. (4)
+            if not guided:  # eps_z of every failure slot: the failures enter eq. (4)
                 eps_z, eps_z_null = self._recovery_terms(sample, t, z_rows, keep_z, n) if n else (None, None)
                 return compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask,
                                    eps_z_null)
             composed = compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"))
-            if guided and not refining and failed.any():
+            if guided and failed.any():
                 step = torch.full((int(failed.sum()),), t, dtype=torch.long, device=sample.device)
                 gradient = torch.zeros_like(sample)
                 gradient[failed] = self._no_repeat_gradient(sample[failed], step, state[failed], z[failed],
@@ -551,21 +539,18 @@ class CCDPModel(nn.Module):
                               z_mask: Tensor):
         """`compose_with_failure_set` for the rows with failures (eps_{s,F} in one recovery call, plus the base terms
         whose coefficient is not zero: none at w_s = w_z = 1, w_h = 0) and the base composition for the other rows
-        and the refining steps, as a function of (noisy sample, timestep, whether the step only refines)."""
+        as a function of (noisy sample, timestep)."""
         failed = z_mask.any(dim=1)
         no_failures = z[:, :0], z_mask[:, :0]
-        plain = self._composed_estimate(weights, state, history, *no_failures)
         plain_rest = self._composed_estimate(weights, state[~failed], history[~failed], no_failures[0][~failed],
                                              no_failures[1][~failed])
         base = self._base_estimates(weights.failure_set_base_terms(), state[failed], history[failed])
         z_failed, mask_failed, state_failed = z[failed], z_mask[failed], state[failed]
 
-        def estimate(sample: Tensor, t: int, refining: bool) -> Tensor:
-            if refining:
-                return plain(sample, t, refining)
+        def estimate(sample: Tensor, t: int) -> Tensor:
             eps = torch.empty_like(sample)
             if not failed.all():
-                eps[~failed] = plain_rest(sample[~failed], t, refining)
+                eps[~failed] = plain_rest(sample[~failed], t)
             noisy = sample[failed]
             step = torch.full((noisy.shape[0],), t, dtype=torch.long, device=sample.device)
             estimates = base(noisy, t) | {"sF": self.recovery(noisy, step, state_failed, z_failed, mask_failed)}
@@ -594,14 +579,11 @@ class CCDPModel(nn.Module):
         with torch.inference_mode(False), torch.enable_grad():
             noisy = sample.clone().requires_grad_(True)
             step, state, z, z_mask = step.clone(), state.clone(), z.clone(), z_mask.clone()
-            if self.config.classifier_query == "set":
-                log_outside = log_no_repeat(self.recovery(noisy, step, state, z, z_mask))
-            else:  # one classifier call for every (row, failure) pair
-                rows, n = z_mask.shape
-                logits = self.recovery(noisy.repeat_interleave(n, dim=0), step.repeat_interleave(n, dim=0),
-                                       state.repeat_interleave(n, dim=0), z.reshape(rows * n, 1, -1),
-                                       z_mask.new_ones(rows * n, 1))
-                log_outside = log_no_repeat(logits.view(rows, n), distinct_failures(z, z_mask, self.config.delta_z))
+            rows, n = z_mask.shape  # one classifier call for every (row, failure) pair
+            logits = self.recovery(noisy.repeat_interleave(n, dim=0), step.repeat_interleave(n, dim=0),
+                                   state.repeat_interleave(n, dim=0), z.reshape(rows * n, 1, -1),
+                                   z_mask.new_ones(rows * n, 1))
+            log_outside = log_no_repeat(logits.view(rows, n), distinct_failures(z, z_mask, self.config.delta_z))
             (gradient,) = torch.autograd.grad(log_outside.sum(), noisy)
         return gradient
 

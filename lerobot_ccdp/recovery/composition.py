@@ -3,7 +3,6 @@
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F  # noqa: N812
 from torch import Tensor
 
 # Floor of P(a_0 outside F | a_t, s) in `log_no_repeat`: learnt per-failure probabilities may sum past 1.
@@ -144,31 +143,18 @@ def guide_away_from_failures(eps: Tensor, no_repeat_gradient: Tensor, alpha_bar:
     return eps - w_z * (1 - alpha_bar).sqrt() * no_repeat_gradient
 
 
-def log_no_repeat(logits: Tensor, distinct: Tensor | None = None) -> Tensor:
+def log_no_repeat(logits: Tensor, distinct: Tensor) -> Tensor:
     """log P(a_0 outside F | a_t, s), the quantity whose gradient `guide_away_from_failures` follows, from the
-    classifier's logits of "repeats a failure".
+    classifier's logits of "repeats a failure": (R, N) logits, one per failure z_i queried alone, with `distinct`
+    (R, N) marking each row's distinct failures.
 
-    `classifier_query="set"`: one logit per row, for the whole set F: log(1 - sigmoid(logit)) = -softplus(logit).
-    `classifier_query="each"`: (R, N) logits, one per failure z_i queried alone, with `distinct` (R, N) marking each
-    row's distinct failures. A chunk heads to one option, so "repeats z_i" and "repeats z_j" are disjoint events for
-    distinct failed options, and at every noise level P(a_0 outside F) = 1 - sum_i P(a_0 repeats z_i), exact
-    wherever the per-failure probabilities are, however many failures F holds.
+    A chunk heads to one option, so "repeats z_i" and "repeats z_j" are disjoint events for distinct failed options,
+    and at every noise level P(a_0 outside F) = 1 - sum_i P(a_0 repeats z_i), exact wherever the per-failure
+    probabilities are, however many failures F holds. (Querying the whole set F at once kept the base's proportions
+    no better on the 2-D family, docs/benchmarks.md.)
     """
-    if distinct is None:
-        return -F.softplus(logits)
     inside = (torch.sigmoid(logits) * distinct).sum(dim=1)
     return (1 - inside).clamp_min(MIN_OUTSIDE).log()
-
-
-def failure_steps(n_steps: int, share: float) -> int:
-    """How many of the `n_steps` reverse steps, from the noisiest, add the failures (`failure_step_share`).
-
-    The noisy steps decide which option a chunk heads to; the last steps refine it. A recovery estimate is
-    less exact than the base's (trained on fewer, synthesised rows), and in those last steps its error can only
-    move the chunk within the option, away from where the base would put it. At least one step keeps the
-    failures, so a share above 0 never turns CCDP into plain diffusion.
-    """
-    return max(1, round(share * n_steps))
 
 
 def _require(term: Tensor | None, name: str) -> Tensor:

@@ -11,6 +11,9 @@ from lerobot_ccdp.policy.processor_ccdp import normalize_batch
 from lerobot_ccdp.recovery.demo_segments import segment_ends, segment_final_states
 from lerobot_ccdp.recovery.outcome_index import demo_chunks
 
+# Demonstrated chunks kept to look up the outcome of a sampled chunk (a random subset beyond it).
+OUTCOME_TABLE_SIZE = 20000
+
 
 def build_outcome_table(
     config: CCDPConfig, meta: LeRobotDatasetMetadata, stats: dict | None
@@ -25,8 +28,7 @@ def build_outcome_table(
     })
     episodes, primitives = columns["episode_index"], columns.get(config.primitive_key)
     chunks = demo_chunks(episodes, normalized[ACTION].numpy(), 1 - config.n_obs_steps, config.horizon)
-    ends = segment_ends(config.failure_segments, episodes, normalized[ACTION].numpy(), primitives,
-                        config.gripper_action_dim, config.pause_steps, config.pause_tolerance)
+    ends = segment_ends(config.failure_segments, episodes, normalized[ACTION].numpy(), primitives)
     finals = segment_final_states(normalized[config.failure_state_key].numpy(), ends)
     finals = finals[:, config.failure_state_dims or slice(None)]
     labels = np.zeros(len(chunks), dtype=np.int64) if primitives is None else primitives.reshape(-1).astype(np.int64)
@@ -35,7 +37,7 @@ def build_outcome_table(
             f"Column {config.primitive_key!r} holds label {labels.max()}, but num_primitives is "
             f"{config.num_primitives}; set --policy.num_primitives={labels.max() + 1}."
         )
-    keep = np.sort(np.random.default_rng(0).permutation(len(chunks))[: config.outcome_index_size])
+    keep = np.sort(np.random.default_rng(0).permutation(len(chunks))[:OUTCOME_TABLE_SIZE])
     return torch.from_numpy(chunks[keep]), torch.from_numpy(finals[keep]), torch.from_numpy(labels[keep])
 
 

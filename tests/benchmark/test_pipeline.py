@@ -55,7 +55,9 @@ def _shrunk_settings(root: Path, slug: str, n_episodes: int = N_EPISODES) -> tup
     recipes.mkdir()
     train = {"steps": 10, "batch_size": 8, "save_freq": 10, "log_freq": 5}
     # Episodes of 50 steps, not 150: the oracle needs at most 37 here (two attempts); an untrained policy uses all.
-    evaluation = {"env": {"episode_length": 50}, "eval": {"n_episodes": n_episodes, "batch_size": 2}}
+    # One batch, as the video rerun's: a batch of another size differs in floating point, which can flip a close
+    # episode, and the rerun is compared episode by episode.
+    evaluation = {"env": {"episode_length": 50}, "eval": {"n_episodes": n_episodes, "batch_size": n_episodes}}
     for name, changes in {"train_base": train, "train_recovery": train, "eval": evaluation}.items():
         _shrink_json(REPO / "configs" / slug / f"{name}.json", configs / slug / f"{name}.json", changes)
     recipe = yaml.safe_load((REPO / "datasets_recipes" / f"{slug}.yaml").read_text())
@@ -72,7 +74,7 @@ def settings(tmp_path_factory) -> tuple[Path, Path]:
     # DP*'s own repeat threshold, which the report must name rather than the checkpoint's, and a CCDP sampling
     # setting that lerobot-eval must accept as a flag
     (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32, "delta_z": 0.3},
-                                                             "ccdp": {"failure_step_share": 0.8}}))
+                                                             "ccdp": {"w_z": 2.0}}))
     return configs, recipes
 
 
@@ -138,10 +140,10 @@ def test_report_table_chart_and_timings(pipeline_run):
         assert label in report, label
     assert report.split("## Targets")[0] in stdout  # the table is printed too
     form = report.split("## What ran")[1].split("## Targets")[0]  # the form of the method that ran, and the seeds
-    assert (f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 3 against eps_z_null; "
-            "failures in the first 8 of 10 reverse steps |") in form
+    assert (f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 2 against "
+            "eps_z_null |") in form
     assert "| 32 candidates, 4 round(s), delta_z 0.3 |" in form
-    assert "--policy.failure_step_share=0.8" in stdout
+    assert "--policy.w_z=2.0" in stdout
     lost = report.split("## Lost episodes")[1].split("## Time per stage")[0]  # each method's lost episodes, by cause
     for method in METHODS:
         episodes = Episodes.from_eval_info(out / SLUG / "eval" / method / "eval_info.json")
@@ -356,11 +358,11 @@ def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):
 def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     """A base config naming `recovery_head: classifier` makes the recovery stage learn from the demonstrations:
     no synthesis stage runs, the checkpoint holds a trained classifier, lerobot-eval runs CCDP with the sampling
-    settings of methods.json (each failure queried, repeats redrawn), and the report names that form."""
+    settings of methods.json (repeats redrawn), and the report names that form."""
     configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG, n_episodes=2)
     _shrink_json(configs / SLUG / "train_base.json", configs / SLUG / "train_base.json",
                  {"policy": {"recovery_head": "classifier", "w_z": 1.0}})
-    (configs / SLUG / "methods.json").write_text(json.dumps({"ccdp": {"classifier_query": "each", "ccdp_redraws": 2}}))
+    (configs / SLUG / "methods.json").write_text(json.dumps({"ccdp": {"ccdp_redraws": 2}}))
     out = tmp_path / "out"
     stdout = _run_pipeline(configs, recipes, out, "--no-chart", methods=["ccdp"])
     task_out = out / SLUG
@@ -371,9 +373,9 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     assert recovery.config.recovery_head == "classifier" and bool(recovery.model.recovery_trained)
     assert f"--dataset.root={task_out / 'demos'} --output_dir={task_out / 'recovery'}" in stdout
     assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
-    assert "--policy.classifier_query=each --policy.ccdp_redraws=2" in stdout
+    assert "--policy.ccdp_redraws=2" in stdout
     report = (out / "report.md").read_text()
-    assert "failures by classifier guidance (each query), w_z 1; a repeat redrawn up to 2 times" in report
+    assert "failures by classifier guidance, w_z 1; a repeat redrawn up to 2 times" in report
 
 
 def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_end():
@@ -383,5 +385,5 @@ def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_
     assert z_description({"failure_feature": "primitive"}) == "primitive"
     action = {"failure_feature": "action", "failure_action_steps": [23], "failure_action_dims": [1, 2]}
     assert z_description(action) == "action: steps [23] of the attempt's first chunk, dims [1, 2]"
-    released = {**settings, "failure_segments": "releases"}
-    assert z_description(released).endswith("demonstrated_end, demonstrated options end at releases")
+    dropped = {**settings, "failure_segments": "drops"}
+    assert z_description(dropped).endswith("demonstrated_end, demonstrated options end at drops")

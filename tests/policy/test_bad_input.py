@@ -29,12 +29,10 @@ from fixtures.policy_factory import make_policy
         ({"failure_feature": "primitive"}, "num_primitives"),
         ({"failure_action_steps": [0, 99]}, "failure_action_steps"),
         ({"horizon": 12}, "multiple"),
-        ({"classifier_chunks": "rollouts"}, "classifier_chunks"),
-        ({"classifier_query": "pairs"}, "classifier_query"),
+        ({"recovery_head": "mlp"}, "recovery_head"),
+        ({"failure_segments": "releases"}, "failure_segments"),
         ({"ccdp_redraws": -1}, "ccdp_redraws"),
-        ({"failure_step_share": 0.0}, "recovery_mode=dp"),
-        ({"failure_step_share": 1.5}, "failure_step_share"),
-        ({"classifier_resample_every": 0}, "classifier_resample_every"),
+        ({"w_h": 0.5}, "history_length"),
     ],
 )
 def test_invalid_config_is_rejected(overrides, message):
@@ -69,7 +67,7 @@ def test_missing_observation_in_a_batch_names_the_key():
 
 
 def test_nan_in_a_training_batch_is_reported():
-    policy = make_policy(history_length=0)
+    policy = make_policy()
     batch = {"observation.state": torch.zeros(4, 1, 2), "action": torch.zeros(4, 16, 2)}
     batch["observation.state"][2, 0, 1] = float("nan")
     with pytest.raises(ValueError, match="NaN"):
@@ -161,3 +159,12 @@ def test_a_z_of_the_wrong_shape_is_refused_even_with_the_right_size():
     with pytest.raises(ValueError, match=rf"got shape \(4, {dim // 4}\).*\(1, {dim}\)"):
         policy.report_failure(z=torch.zeros(4, dim // 4))
     assert policy.failure_count().tolist() == [0]
+
+
+def test_a_training_batch_with_other_windows_than_the_policys_is_refused_naming_them():
+    """A dataset loaded with another policy's delta timestamps (here history_length 2) is named, not a shape error
+    deep in the UNet."""
+    policy = make_policy().train()
+    batch = {"observation.state": torch.zeros(4, 3, 2), "action": torch.zeros(4, 18, 2)}
+    with pytest.raises(ValueError, match=r"observation windows \(B, 1, D\).*\(B, 16, A\).*delta timestamps"):
+        policy.forward(batch)

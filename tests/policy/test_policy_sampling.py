@@ -154,13 +154,12 @@ def mode_shares(policy, modes, failed: list[int], rows: int = 1024) -> torch.Ten
     return torch.bincount(nearest, minlength=4).float() / rows
 
 
-@pytest.mark.parametrize("query", ["set", "each"])
-def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_failed_in_proportion(query):
+def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_failed_in_proportion():
     """With the exact noisy-chunk classifier, guidance (under LeRobot's inference mode) draws the remaining modes in
     their demonstrated proportions after one and after two failures, unlike the per-failure sums of eq. (4) below,
-    whether it asks about the whole set at once or about each distinct failure (a repeated failure counts once);
-    in a batch where only some rows failed, the others keep the base's shares."""
-    policy, modes = mixture_policy(recovery_head="classifier", classifier_query=query)
+    asking about each distinct failure (a repeated failure counts once); in a batch where only some rows failed, the
+    others keep the base's shares."""
+    policy, modes = mixture_policy(recovery_head="classifier")
     torch.manual_seed(1)
     for failed in ([0], [0, 1], [2], [1, 3, 1]):
         expected = DEMONSTRATED.clone()
@@ -199,41 +198,6 @@ def test_ccdp_redraws_drop_repeats_and_keep_the_remaining_shares():
     assert (shares[3][1:] / shares[3][1:].sum() - remaining).abs().max() < 0.05
 
 
-class OffsetRecovery(MixtureRecovery):
-    """MixtureRecovery whose eps_z(z) errs: its modes sit `offset` away from the demonstrated ones (eps_z_null is
-    exact), as a recovery head trained on fewer, synthesised rows errs where the base does not."""
-
-    def __init__(self, scheduler, modes, offset: float):
-        super().__init__(scheduler, modes)
-        self.offset = offset
-
-    def forward(self, noisy, timestep, z, keep_z):
-        weights = torch.where(keep_z.bool(), recovery_shares(z), self.null_shares)
-        exact = mixture_eps(self.scheduler, noisy, timestep, self.modes, weights)
-        off = mixture_eps(self.scheduler, noisy, timestep, self.modes + self.offset, weights)
-        return torch.where(keep_z.bool().view(-1, 1, 1), off, exact)
-
-
-def test_failure_step_share_keeps_the_option_choice_and_lands_on_the_base_modes():
-    """failure_step_share: with the failures in the first 8 of 10 reverse steps only, the failed mode stays
-    avoided and the other modes keep the shares they get with failures at every step, while the chunks end on the
-    base's modes instead of carrying the recovery estimate's error into the chunk."""
-    rows, found = 1024, {}
-    for share in (1.0, 0.8):
-        policy, modes = mixture_policy(failure_step_share=share)
-        policy.model.recovery = OffsetRecovery(policy.model.noise_scheduler, modes, 0.1)
-        torch.manual_seed(1)
-        with torch.inference_mode():
-            shares = mode_shares(policy, modes, [0], rows)
-            chunks = policy._memory.attempt_chunk[:, : policy.config.n_action_steps]
-        off_mode = ((chunks[:, None] - modes[None, :, : chunks.shape[1]]) ** 2).mean(dim=(2, 3)).amin(dim=1).sqrt()
-        found[share] = (shares, off_mode.mean().item())
-    print("failure_step_share: (mode shares after mode 0 failed, RMS distance to the nearest mode)", found)
-    (every_step, off_every), (early, off_early) = found[1.0], found[0.8]
-    assert early[0] < 0.02 and (early - every_step).abs().max() < 0.03
-    assert off_every > 0.08 and off_early < 0.04
-
-
 @pytest.mark.parametrize("w_z", [1.0, 3.0])
 @pytest.mark.parametrize("z_reference", ["eps_a", "eps_z_null"])
 def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_preference_order(z_reference, w_z):
@@ -256,10 +220,9 @@ def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_p
 
 
 @pytest.mark.parametrize("mode, head", [("ccdp", {}), ("dp", {}), ("ccdp", {"recovery_head": "classifier"}),
-                                        ("ccdp", {"recovery_head": "classifier", "classifier_query": "each"}),
                                         ("ccdp", {"recovery_head": "set_denoiser"})])
 def test_network_calls_per_step_do_not_grow_with_failures(mode, head):
-    policy = make_policy(recovery_mode=mode, w_h=0.5, max_failures=8, **head)
+    policy = make_policy(recovery_mode=mode, w_h=0.5, history_length=2, **head)
     policy.model.recovery_trained.fill_(True)
     calls = {"base": 0, "recovery": 0}
     policy.model.base.register_forward_hook(lambda *_: calls.__setitem__("base", calls["base"] + 1))

@@ -6,6 +6,8 @@ import contextlib
 import pytest
 import torch
 
+from lerobot_ccdp.policy.modeling_ccdp import MAX_FAILURES
+
 from fixtures.policy_factory import make_policy
 
 MODES = {"inference_mode": torch.inference_mode, "no_grad": torch.no_grad, "grad": contextlib.nullcontext}
@@ -20,7 +22,7 @@ def recovery_z_seen(policy) -> list[torch.Tensor]:
 
 @pytest.mark.parametrize("acting", ["inference_mode", "no_grad"])
 def test_failure_reported_outside_the_acting_mode_changes_the_next_plan(acting):
-    policy = make_policy(n_action_steps=8, max_failures=4)
+    policy = make_policy(n_action_steps=8)
     policy.model.recovery_trained.fill_(True)
     seen = recovery_z_seen(policy)
     obs = {"observation.state": torch.randn(2, 2)}
@@ -40,14 +42,14 @@ def test_failure_reported_outside_the_acting_mode_changes_the_next_plan(acting):
 
 @pytest.mark.parametrize("acting", ["inference_mode", "no_grad"])
 def test_failure_buffer_stays_bounded_when_reporting_outside_the_acting_mode(acting):
-    policy = make_policy(max_failures=3)
+    policy = make_policy()
     obs = {"observation.state": torch.zeros(1, 2)}
-    for _ in range(7):
+    for _ in range(MAX_FAILURES + 4):
         with MODES[acting]():
             policy.select_action(obs)
         policy.report_failure()
-    assert policy.failure_count().tolist() == [3]
-    assert policy._failures.z.shape[1] == 3
+    assert policy.failure_count().tolist() == [MAX_FAILURES]
+    assert policy._failures.z.shape[1] == MAX_FAILURES
 
 
 def test_switching_modes_between_steps_keeps_acting():

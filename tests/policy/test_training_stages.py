@@ -48,7 +48,7 @@ def test_classifier_stage_learns_from_demo_windows_which_chunks_repeat_a_failure
     chunks above the other's. The base stays frozen."""
     torch.manual_seed(0)
     policy = make_policy(training_stage="recovery", recovery_head="classifier", failure_feature="action",
-                         failure_action_steps=[15], history_length=0).train()
+                         failure_action_steps=[15]).train()
     assert policy.config.observation_delta_indices == [0] and policy.config.action_delta_indices is not None
     base_before = {k: v.clone() for k, v in policy.model.base.state_dict().items()}
     optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
@@ -69,37 +69,3 @@ def test_classifier_stage_learns_from_demo_windows_which_chunks_repeat_a_failure
     assert logits[0] > 2 and logits[1] < -2, logits
     for key, value in policy.model.base.state_dict().items():
         torch.testing.assert_close(value, base_before[key], msg=key)
-
-
-def test_classifier_on_base_samples_learns_the_options_the_base_draws_not_only_the_demonstrated_rows():
-    """classifier_chunks=base_samples trains on chunks the frozen base draws at the batch's states (a pool refreshed
-    every `classifier_resample_every` steps): here the batches hold only mode 0, yet the pool holds the base's four
-    modes in its proportions, and the classifier tells a chunk of the failed mode 2 from one of mode 1, which no
-    demonstrated row showed."""
-    from test_policy_sampling import DEMONSTRATED, MixtureBase
-
-    torch.manual_seed(0)
-    policy = make_policy(training_stage="recovery", recovery_head="classifier", classifier_chunks="base_samples",
-                         classifier_resample_every=2, failure_feature="action", delta_z=1.0, history_length=0,
-                         clip_sample=False).train()
-    modes = torch.randn(4, 16, 2)
-    modes = 0.3 * modes / modes.pow(2).mean(dim=(1, 2), keepdim=True).sqrt()
-    policy.model.base = MixtureBase(policy.model.noise_scheduler, modes).requires_grad_(False)
-    optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
-    demo = {"observation.state": torch.zeros(32, 1, 2), "action": modes[0].expand(32, 16, 2)}
-    for _ in range(300):
-        loss, _ = policy.forward(demo)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-    pooled = policy.model._sample_pool.chunk[: policy.model._sample_pool.size]
-    nearest = ((pooled[:, None] - modes[None]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
-    shares = torch.bincount(nearest, minlength=4) / len(nearest)
-    assert policy.model._sample_pool.size == 16 * 32 and (shares - DEMONSTRATED).abs().max() < 0.06, shares
-    policy.eval()
-    with torch.no_grad():
-        t = torch.tensor([5, 5])
-        noisy = policy.model.noise_scheduler.add_noise(modes[[2, 1]], torch.randn(2, 16, 2) * 0.1, t)
-        logits = policy.model.recovery(noisy, t, torch.zeros(2, 2), modes[2].flatten().expand(2, 1, 32),
-                                 torch.ones(2, 1, dtype=torch.bool))
-    assert logits[0] > 2 and logits[1] < -2, logits

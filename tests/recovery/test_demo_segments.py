@@ -13,8 +13,6 @@ from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.recovery.demo_segments import segment_ends, segment_final_states
 
-from fixtures.policy_factory import make_policy
-
 REPO = Path(__file__).resolve().parents[2]
 
 # Two episodes of a pick and place: move, grasp (gripper 1), carry, release (gripper 0), then move on.
@@ -83,17 +81,13 @@ def test_each_frame_gets_the_state_at_the_first_segment_end_at_or_after_it():
 def test_unknown_rules_and_impossible_settings_are_refused_with_the_fix():
     with pytest.raises(ValueError, match="failure_segments"):
         CCDPConfig(failure_segments="keyframes")
-    with pytest.raises(ValueError, match="pause_steps"):
-        CCDPConfig(pause_steps=0)
     with pytest.raises(ValueError, match="segment rule"):
         segment_ends("gripper", EPISODES, ACTIONS)
-    with pytest.raises(ValueError, match="--policy.gripper_action_dim"):
-        make_policy(action_dim=2, failure_segments="releases", gripper_action_dim=2)
 
 
 def test_the_policy_gives_each_demonstrated_chunk_the_state_where_its_gripper_let_go(tmp_path):
-    """`--policy.failure_segments=releases` reaches the outcome table a checkpoint keeps: a frame's final state is the
-    normalised state at its option's release, not at its episode's end."""
+    """`--policy.failure_segments=drops` reaches the outcome table a checkpoint keeps: a frame's final state is the
+    normalised state where its option's release ends, not at its episode's end."""
     features = {"observation.state": {"dtype": "float32", "shape": (2,), "names": None},
                 "action": {"dtype": "float32", "shape": (2,), "names": None}}
     dataset = LeRobotDataset.create("local/releases", fps=10, features=features, root=tmp_path / "d", use_videos=False)
@@ -109,10 +103,10 @@ def test_the_policy_gives_each_demonstrated_chunk_the_state_where_its_gripper_le
     config = CCDPConfig(input_features={"observation.state": policy_features["observation.state"]},
                         output_features={"action": policy_features["action"]}, device="cpu", horizon=8,
                         n_action_steps=4, down_dims=(32, 64), failure_feature="final_state", failure_state_dims=[0],
-                        failure_segments="releases")
+                        failure_segments="drops")
     policy = CCDPPolicy(config, dataset_meta=meta, dataset_stats=meta.stats)
     low, high = POSITION.min(), POSITION.max()
-    expected = 2 * (segment_final_states(POSITION[:, None], segment_ends("releases", EPISODES, ACTIONS)) - low) / (high - low) - 1
+    expected = 2 * (segment_final_states(POSITION[:, None], segment_ends("drops", EPISODES, ACTIONS)) - low) / (high - low) - 1
     torch.testing.assert_close(policy.model.outcomes.final_states, torch.tensor(expected, dtype=torch.float32))
 
 
