@@ -69,7 +69,8 @@ class Episodes:
             repeated_failures=np.asarray(metrics["repeated_failures"], dtype=int),
             preference_matched=np.asarray(metrics["preference_matched"], dtype=bool),
             attempts_after_failure=np.asarray(
-                metrics.get("attempts_after_failure", [np.nan] * len(metrics["successes"])), dtype=float),
+                metrics.get("attempts_after_failure", [np.nan] * len(metrics["successes"])), dtype=float
+            ),
             failures=np.asarray(metrics.get("failures", [np.nan] * len(metrics["successes"])), dtype=float),
         )
 
@@ -123,5 +124,7 @@ def solved_before_any_failure(episodes: Episodes) -> str:
     if np.isnan(episodes.failures).any():
         return "n/a"
     failed = episodes.failures > 0
-    return (f"{int((episodes.success & ~failed).sum())}; "
-            f"{int((episodes.success & failed).sum())} / {int(failed.sum())}")
+    return (
+        f"{int((episodes.success & ~failed).sum())}; "
+        f"{int((episodes.success & failed).sum())} / {int(failed.sum())}"
+    )

@@ -52,8 +52,10 @@ def _locked(path: Path, out: Path) -> IO[str]:
             handle.seek(0)
             pid = handle.read().strip() or "unknown"
             handle.close()
-            raise PipelineRunning(f"Another pipeline (pid {pid}) is running on {out}: wait for it to finish, or stop "
-                                  f"it (kill {pid}) before starting this one.") from None
+            raise PipelineRunning(
+                f"Another pipeline (pid {pid}) is running on {out}: wait for it to finish, or stop "
+                f"it (kill {pid}) before starting this one."
+            ) from None
         with contextlib.suppress(FileNotFoundError):
             if os.path.samestat(os.fstat(handle.fileno()), os.stat(path)):
                 return handle

@@ -23,7 +23,13 @@ import numpy as np
 
 logger = logging.getLogger(__name__)
 
-EPISODE_INFO_KEYS = ("attempts", "failures", "repeated_failures", "attempts_after_failure", "preference_matched")
+EPISODE_INFO_KEYS = (
+    "attempts",
+    "failures",
+    "repeated_failures",
+    "attempts_after_failure",
+    "preference_matched",
+)
 
 
 def _row(info: dict[str, Any], key: str, i: int) -> Any | None:

@@ -43,7 +43,9 @@ class CheckpointConfig:
     # required: a ccdp base checkpoint, the pretrained_model folder lerobot-train writes
     # (<run>/checkpoints/last/pretrained_model)
     path: Path
-    device: str | None = None  # where the policy runs, e.g. cpu or cuda; null: the checkpoint's, or cpu if absent
+    device: str | None = (
+        None  # where the policy runs, e.g. cpu or cuda; null: the checkpoint's, or cpu if absent
+    )
 
 
 @dataclass
@@ -111,15 +113,22 @@ def parse_cli(config_class: type[T], args: Sequence[str] | None = None) -> T:
     config_path, args = parser.parse_arg("config_path", args), parser.filter_arg("config_path", args)
     section = config_class.section
     try:
-        if "--config_path" in args:  # draccus would read the whole file, both sections, as this command's config
+        if (
+            "--config_path" in args
+        ):  # draccus would read the whole file, both sections, as this command's config
             raise ValueError("write the recipe as --config_path=<recipe yaml>, with '='")
         file_values = {section: read_recipe_section(config_path, section)} if config_path else {}
         missing = [f"--{name}" for name in _required_fields(config_class) if not _given(name, args)]
-        if config_path:  # the section's own check names what the file lacks, after any unknown (misspelt) field
+        if (
+            config_path
+        ):  # the section's own check names what the file lacks, after any unknown (misspelt) field
             missing = [flag for flag in missing if not flag.startswith(f"--{section}.")]
         if missing and not {"-h", "--help"} & set(args):
-            hint = (f" (or name a recipe file holding the {section}.* ones with --config_path=<recipe yaml>)"
-                    if any(flag.startswith(f"--{section}.") for flag in missing) else "")
+            hint = (
+                f" (or name a recipe file holding the {section}.* ones with --config_path=<recipe yaml>)"
+                if any(flag.startswith(f"--{section}.") for flag in missing)
+                else ""
+            )
             raise ValueError(f"missing required flag(s): {', '.join(missing)}{hint}")
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / "config.yaml"

@@ -48,8 +48,9 @@ def owner(folder: str | Path) -> str | None:
     return str(record.get("created_by"))
 
 
-def check_output_folder(out: Path, created_by: str, fresh: bool = False, adopt: bool = False,
-                        flag: str = "--out") -> None:
+def check_output_folder(
+    out: Path, created_by: str, fresh: bool = False, adopt: bool = False, flag: str = "--out"
+) -> None:
     """Refuse (NotOwned) an output folder `created_by` did not make, before anything is written or deleted.
 
     A missing or empty folder, or one `created_by` marked where it is now, is used; `adopt` marks a folder of an
@@ -57,26 +58,36 @@ def check_output_folder(out: Path, created_by: str, fresh: bool = False, adopt: 
     folder holding them, marked or not."""
     real = out.resolve()
     if fresh and any(p.is_relative_to(real) for p in (Path.cwd().resolve(), Path.home().resolve())):
-        raise NotOwned(f"{flag} {real} is or holds the working directory or the home folder, which --fresh would "
-                       "delete. Nothing was deleted; choose another folder.")
+        raise NotOwned(
+            f"{flag} {real} is or holds the working directory or the home folder, which --fresh would "
+            "delete. Nothing was deleted; choose another folder."
+        )
     if real.exists() and not real.is_dir():
         raise NotOwned(f"{flag} {real} is a file, not a folder. Nothing was changed; choose another folder.")
     made_by = owner(real) if real.exists() else None
     if adopt or not real.exists() or made_by == created_by or not any(real.iterdir()):
         return
-    reason = (f"it was made by {made_by}, not by {created_by}" if made_by else
-              f"it holds files and no {MARKER} of this folder (the mark of one {created_by} made here; a moved "
-              "or copied output folder carries the mark of its old place)")
+    reason = (
+        f"it was made by {made_by}, not by {created_by}"
+        if made_by
+        else f"it holds files and no {MARKER} of this folder (the mark of one {created_by} made here; a moved "
+        "or copied output folder carries the mark of its old place)"
+    )
     if fresh:
-        advice = "--fresh deletes only a folder this command made: choose another folder, or delete it yourself"
+        advice = (
+            "--fresh deletes only a folder this command made: choose another folder, or delete it yourself"
+        )
     else:
-        advice = ("Choose another folder, or, if it is an output folder of an earlier version of this command, "
-                  "rerun with --adopt to mark it as its own and resume it")
+        advice = (
+            "Choose another folder, or, if it is an output folder of an earlier version of this command, "
+            "rerun with --adopt to mark it as its own and resume it"
+        )
     raise NotOwned(f"Refusing {flag} {real}: {reason}. Nothing was deleted or written. {advice}.")
 
 
-def claim_output_folder(out: Path, created_by: str, fresh: bool = False, adopt: bool = False,
-                        flag: str = "--out") -> None:
+def claim_output_folder(
+    out: Path, created_by: str, fresh: bool = False, adopt: bool = False, flag: str = "--out"
+) -> None:
     """Make `out` `created_by`'s folder, emptied with `fresh`, once `check_output_folder` allows it (checked again
     here, at the moment of change)."""
     check_output_folder(out, created_by, fresh, adopt, flag)

@@ -40,14 +40,19 @@ RECIPE_COPY = "meta/ccdp_record_recipe.yaml"
 
 def dataset_features(env: CCDPTaskEnv) -> dict[str, dict]:
     """LeRobot feature spec of a task's demo dataset, from what the env observes (cameras are stored as videos)."""
-    features = {OBS_STATE: {"dtype": "float32", "shape": (len(AGENT_POS_NAMES),), "names": list(AGENT_POS_NAMES)}}
+    features = {
+        OBS_STATE: {"dtype": "float32", "shape": (len(AGENT_POS_NAMES),), "names": list(AGENT_POS_NAMES)}
+    }
     spaces = env.observation_space.spaces
     if "environment_state" in spaces:
         names = list(env.env_state_names)
         features[OBS_ENV_STATE] = {"dtype": "float32", "shape": (len(names),), "names": names}
     for camera, space in spaces.get("pixels", {}).items():
-        features[f"{OBS_IMAGES}.{camera}"] = {"dtype": "video", "shape": space.shape,
-                                              "names": ["height", "width", "channels"]}
+        features[f"{OBS_IMAGES}.{camera}"] = {
+            "dtype": "video",
+            "shape": space.shape,
+            "names": ["height", "width", "channels"],
+        }
     return {
         **features,
         ACTION: {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
@@ -68,7 +73,9 @@ def _observation_frame(observation: dict) -> dict[str, np.ndarray]:
 
 def _add_episode(dataset: LeRobotDataset, episode: Episode, description: str) -> None:
     hidden = np.array([episode.hidden_param], dtype=np.float32)
-    for observation, action, option in zip(episode.observations, episode.actions, episode.options, strict=True):
+    for observation, action, option in zip(
+        episode.observations, episode.actions, episode.options, strict=True
+    ):
         dataset.add_frame(
             {
                 **_observation_frame(observation),
@@ -91,7 +98,9 @@ def record_dataset(
             discarded = _record_into(staging, recipe, repo_id, env, progress)
     finally:
         env.close()
-    logger.info("Recorded %d episodes (%d discarded) of %s to %s", recipe.n_episodes, discarded, recipe.task, root)
+    logger.info(
+        "Recorded %d episodes (%d discarded) of %s to %s", recipe.n_episodes, discarded, recipe.task, root
+    )
     return root
 
 
@@ -117,7 +126,11 @@ def _record_into(path: Path, recipe: RecordRecipe, repo_id: str, env: gym.Env, p
                 if episode.success:
                     break
                 discarded += 1
-                logger.warning("Expert failed on seed %d (hidden_param=%d); episode discarded", seed - 1, episode.hidden_param)
+                logger.warning(
+                    "Expert failed on seed %d (hidden_param=%d); episode discarded",
+                    seed - 1,
+                    episode.hidden_param,
+                )
                 if discarded > recipe.n_episodes:
                     raise RuntimeError(f"The {recipe.task} expert failed {discarded} times; giving up")
             _add_episode(dataset, episode, description)

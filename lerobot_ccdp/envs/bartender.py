@@ -40,7 +40,12 @@ class BartenderEnv(CCDPTaskEnv):
     )
     default_episode_steps = 250
     home = (-0.32, -0.05, 0.15, 1.0)  # the gripper holds the bottle
-    right_home = (0.37, -0.05, 0.15, 1.0)  # 0.08 right of cup 3 (`home` is 0.10 left of cup 0; 0.39 would put the
+    right_home = (
+        0.37,
+        -0.05,
+        0.15,
+        1.0,
+    )  # 0.08 right of cup 3 (`home` is 0.10 left of cup 0; 0.39 would put the
     # start noise at the workspace's 0.4 edge)
     pour_z = 0.07  # end-effector height while pouring (below POUR_HEIGHT)
 
@@ -65,8 +70,13 @@ class BartenderEnv(CCDPTaskEnv):
 
     def _task_bodies_xml(self) -> str:
         glass, drink = "0.8 0.85 0.9 0.5", "0.9 0.6 0.1 1"
-        cups = [mocap_cylinder(f"cup_{i}", (x, y, 0.02), 0.025, 0.02, glass) for i, (x, y) in enumerate(CUPS_XY)]
-        drinks = [mocap_cylinder(f"drink_{i}", (x, y, EMPTY_Z), 0.02, 0.016, drink) for i, (x, y) in enumerate(CUPS_XY)]
+        cups = [
+            mocap_cylinder(f"cup_{i}", (x, y, 0.02), 0.025, 0.02, glass) for i, (x, y) in enumerate(CUPS_XY)
+        ]
+        drinks = [
+            mocap_cylinder(f"drink_{i}", (x, y, EMPTY_Z), 0.02, 0.016, drink)
+            for i, (x, y) in enumerate(CUPS_XY)
+        ]
         bottle = (
             '<body name="bottle" mocap="true">'
             '<geom type="cylinder" size="0.015 0.03" pos="0 0 -0.03" rgba="0.2 0.5 0.25 1"/></body>'

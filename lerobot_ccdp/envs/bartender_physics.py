@@ -17,7 +17,9 @@ from lerobot_ccdp.envs.panda import PandaArm
 
 BOTTLE_RADIUS, BOTTLE_HALF_HEIGHT = 0.015, 0.045
 BOTTLE_ABOVE_PINCH = 0.03  # the bottle's centre above the pinch point where the gripper takes it
-GRASP_SETTLE_STEPS = 150  # physics steps (0.3 s) the gripper closes on the bottle at reset, the bottle held still
+GRASP_SETTLE_STEPS = (
+    150  # physics steps (0.3 s) the gripper closes on the bottle at reset, the bottle held still
+)
 
 
 class BartenderPhysicsEnv(BartenderEnv):
@@ -78,7 +80,9 @@ class BartenderPhysicsEnv(BartenderEnv):
         self._bottle_at_start = self.free_pose("bottle").copy()
 
     def _update_task(self):
-        self._cups = np.array([self.free_pose(f"cup_{i}")[:2] for i in range(len(CUPS_XY))])  # where they stand now
+        self._cups = np.array(
+            [self.free_pose(f"cup_{i}")[:2] for i in range(len(CUPS_XY))]
+        )  # where they stand now
         return super()._update_task()
 
     def _on_failure(self, option: int) -> None:

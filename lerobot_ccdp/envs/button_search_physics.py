@@ -15,7 +15,9 @@ from lerobot_ccdp.envs.button_search import BUTTONS_XY, ButtonSearchEnv
 from lerobot_ccdp.envs.panda import PandaArm
 
 TRAVEL = 0.01  # how far a cap can be pushed in
-PRESS_DEPTH = 0.004  # pushed this far, a button is pressed; it can be pressed again once back above half of it
+PRESS_DEPTH = (
+    0.004  # pushed this far, a button is pressed; it can be pressed again once back above half of it
+)
 
 
 class ButtonSearchPhysicsEnv(ButtonSearchEnv):

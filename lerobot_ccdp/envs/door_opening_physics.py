@@ -15,7 +15,9 @@ from lerobot_ccdp.envs.base import Outcome, OutcomeKind
 from lerobot_ccdp.envs.door_opening import COMMIT_SLIDE, HANDLE, MAX_SLIDE, OPEN_SLIDE, DoorOpeningEnv
 from lerobot_ccdp.envs.panda import PandaArm
 
-HANDLE_FROM_DOOR = np.array([0.0, -0.07, 0.0])  # the handle stands out of the door's front face, clear of the gripper
+HANDLE_FROM_DOOR = np.array(
+    [0.0, -0.07, 0.0]
+)  # the handle stands out of the door's front face, clear of the gripper
 GRASPED, RELEASED = 0.3, 0.15  # measured gripper closure: closed on the handle, open again
 STUCK = 0.005  # a door that moved less than this under the push did not give way
 
@@ -70,12 +72,16 @@ class DoorOpeningPhysicsEnv(DoorOpeningEnv):
         pushed = self.robot.target[0] - self._grasp_x
         if self._open_dir is None and abs(pushed) >= COMMIT_SLIDE:
             option = int(pushed > 0)
-            if self.slide * np.sign(pushed) < STUCK:  # the arm pushed the handle and the door did not give way
+            if (
+                self.slide * np.sign(pushed) < STUCK
+            ):  # the arm pushed the handle and the door did not give way
                 self._grasp_x = None
                 return Outcome(OutcomeKind.FAILURE, option)
             self._open_dir = option
         if abs(self.slide) >= OPEN_SLIDE:
-            return Outcome(OutcomeKind.SUCCESS, int(self.slide > 0), preferred=self.preferred_feasible_option())
+            return Outcome(
+                OutcomeKind.SUCCESS, int(self.slide > 0), preferred=self.preferred_feasible_option()
+            )
         if grip < RELEASED and self._open_dir is None and abs(pushed) < COMMIT_SLIDE / 2:
             self._grasp_x = None  # let go before trying either way
         return None

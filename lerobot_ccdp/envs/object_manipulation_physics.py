@@ -45,7 +45,9 @@ class ObjectManipulationPhysicsEnv(ObjectManipulationEnv):
         self._target = BOX[:2] + np.array([0.0, 0.2]) + self.jitter(2)
         self.mocap("target")[:2] = self._target
         self.place_free_body("box", (*(BOX[:2] + self.jitter(2)), HALF))
-        self._closed_at: tuple[float, float] | None = None  # (pinch z, box z) when the gripper closed on the box
+        self._closed_at: tuple[float, float] | None = (
+            None  # (pinch z, box z) when the gripper closed on the box
+        )
         self._lifted = False
 
     def _apply_hidden(self) -> None:

@@ -22,7 +22,10 @@ GYM_NAMESPACE = "lerobot_ccdp"
 ENTRY_POINTS: dict[str, tuple[str, int]] = {
     "DoorOpening-v0": ("lerobot_ccdp.envs.door_opening_physics:DoorOpeningPhysicsEnv", 150),
     "ButtonSearch-v0": ("lerobot_ccdp.envs.button_search_physics:ButtonSearchPhysicsEnv", 200),
-    "ObjectManipulation-v0": ("lerobot_ccdp.envs.object_manipulation_physics:ObjectManipulationPhysicsEnv", 150),
+    "ObjectManipulation-v0": (
+        "lerobot_ccdp.envs.object_manipulation_physics:ObjectManipulationPhysicsEnv",
+        150,
+    ),
     "ObjectPacking-v0": ("lerobot_ccdp.envs.object_packing_physics:ObjectPackingPhysicsEnv", 300),
     "Bartender-v0": ("lerobot_ccdp.envs.bartender_physics:BartenderPhysicsEnv", 250),
     # The same tasks with geometric interaction rules on a free gripper, 20-40x faster per step (docs/tasks.md).

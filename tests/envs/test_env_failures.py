@@ -100,7 +100,9 @@ def test_preference_labelling(task, hidden, options, matched):
 def test_rejected_object_goes_back_and_full_basket_stays_full():
     env = make("ObjectPacking-lite-v0")
     # Basket 0 takes one object: the second object into basket 0 is rejected, then basket 1 takes it.
-    episode = run_episode(env, FixedOptions(env, [0, 0, 1]), seed=0, hidden_param=encode_capacities([1, 1, 0]))
+    episode = run_episode(
+        env, FixedOptions(env, [0, 0, 1]), seed=0, hidden_param=encode_capacities([1, 1, 0])
+    )
     assert episode.success
     assert episode.info["attempts"] == 3 and episode.info["failures"] == 1
     assert episode.info["repeated_failures"] == 0  # basket 0 had not failed before

@@ -56,7 +56,9 @@ def test_bartender_demos_from_the_right_fill_cup_3_first_and_succeed(task):
         assert episode.options[0] == (3 if started_right else min(available))  # the nearest available cup
     from_home = make(task)
     hidden_values = from_home.unwrapped.hidden_values()
-    firsts = {run_episode(from_home, Expert(from_home), seed=3, hidden_param=h).options[0] for h in hidden_values}
+    firsts = {
+        run_episode(from_home, Expert(from_home), seed=3, hidden_param=h).options[0] for h in hidden_values
+    }
     assert 3 not in firsts
 
 
