@@ -1,11 +1,13 @@
-"""CCDP versus LeRobot's stock DiffusionPolicy with a camera: planning latency and training step, side by side.
+"""CCDP versus LeRobot's stock DiffusionPolicy with a camera: planning latency and training step,
+side by side.
 
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_cameras.py [--size 64] [--repeats 30]
-        [--train-steps 20] [--cli-steps 40 | --no-cli] [--recovery-head unet|mlp] [--threads 2] [--out outputs/bench_cameras.json]
+        [--train-steps 20] [--cli-steps 40 | --no-cli] [--recovery-head unet|mlp] [--threads 2]
+        [--out outputs/bench_cameras.json]
 
-Both policies see one camera of --size x --size pixels and the ccdp tasks' 4-D robot state, encoded by LeRobot's
-RGB encoder with the same settings (ResNet-18 with all 4 stages, 32 spatial-softmax keypoints, group norm, no
-crop), with bench_policy.py's UNet and sampling settings (SHARED).
+Both policies see one camera of --size x --size pixels and the ccdp tasks' 4-D robot state, encoded by
+LeRobot's RGB encoder with the same settings (ResNet-18 with all 4 stages, 32 spatial-softmax keypoints, group
+norm, no crop), with bench_policy.py's UNet and sampling settings (SHARED).
 
 (a) Planning latency: `predict_action_chunk` at batch 1 (the camera encoded once per plan), median over
     --repeats interleaved calls; CCDP at N = 0 and 4 failures (eps_z marked trained so the failure terms run).
@@ -13,9 +15,9 @@ crop), with bench_policy.py's UNet and sampling settings (SHARED).
     history_length 0 and 2 (its default: the camera of every history frame is encoded too) against diffusion.
 (c) Render size: per --sizes, milliseconds to step DoorOpening-lite-v0 with its front camera rendered, and the
     training step of CCDP with the pixel task configs' encoder (3 ResNet stages) at that size.
-(b') Real lerobot-train runs on --cli-episodes recorded pixel demos of DoorOpening-lite-v0 (video, decoded with
-    pyav): steps/s from lerobot-train's own timers for diffusion, CCDP at history_length 0 and 2 (same encoder),
-    and CCDP with the pixel task configs' encoder (`--policy.vision_backbone_stages=3`).
+(b') Real lerobot-train runs on --cli-episodes recorded pixel demos of DoorOpening-lite-v0 (video, decoded
+    with pyav): steps/s from lerobot-train's own timers for diffusion, CCDP at history_length 0 and 2 (same
+    encoder), and CCDP with the pixel task configs' encoder (`--policy.vision_backbone_stages=3`).
 """
 
 from __future__ import annotations
@@ -74,7 +76,8 @@ def planning_latency(size: int, repeats: int, warmup: int, recovery_head: str) -
     diffusion = make_diffusion(size).eval()
     diffusion.reset()
     diffusion.select_action(dict(obs))
-    # Stock diffusion plans from its queues, keyed by the stacked cameras select_action adds as observation.images.
+    # Stock diffusion plans from its queues, keyed by the stacked cameras select_action adds as
+    # observation.images.
     stacked = {**obs, "observation.images": obs[CAMERA].unsqueeze(-4)}
     calls = {"diffusion": lambda: diffusion.predict_action_chunk(dict(stacked))}
     for n in (0, 4):
@@ -225,7 +228,7 @@ def table(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", type=int, default=64, help="camera image height and width (pixels)")
     parser.add_argument("--repeats", type=int, default=30)
     parser.add_argument("--warmup", type=int, default=3)

@@ -1,4 +1,5 @@
-"""Benchmark of the five CCDP tasks: simulation speed, demo recording time, and the no-repeat oracle's metrics.
+"""Benchmark of the five CCDP tasks: simulation speed, demo recording time, and the no-repeat oracle's
+metrics.
 
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_envs.py [--tasks DoorOpening-v0 ...]
 
@@ -73,7 +74,7 @@ def oracle_metrics(task: str, n_episodes: int) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=list(TASKS))
     parser.add_argument("--steps", type=int, default=5000, help="env steps timed per task")
     parser.add_argument("--record-episodes", type=int, default=100)
@@ -91,8 +92,8 @@ def main() -> None:
         rec = recording_seconds(task, args.record_episodes)
         m = oracle_metrics(task, args.episodes)
         print(
-            f"| {task} | {sps:,.0f} | {rec:.1f} | {m['success']:.3f} | {m['attempts']:.2f} | {m['failures']:.2f} "
-            f"| {m['repeated']:.3f} | {m['preference']:.3f} |",
+            f"| {task} | {sps:,.0f} | {rec:.1f} | {m['success']:.3f} | {m['attempts']:.2f} "
+            f"| {m['failures']:.2f} | {m['repeated']:.3f} | {m['preference']:.3f} |",
             flush=True,
         )
 

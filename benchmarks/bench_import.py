@@ -8,8 +8,8 @@ interpreter; "without" hides this package's distribution from `importlib.metadat
 discovery scan and everything else is identical apart from importing the plugin. Runs alternate so background
 load hits both alike; CPU seconds (the child's user + system time) are less sensitive to other load on the
 machine than wall seconds. Beyond the import (the discovery figure), a registered `ccdp` also makes draccus
-render its fields in `--help`, so the help text's length is printed too. Prints the medians of each and whether the plugin, MuJoCo and lerobot_eval were
-loaded when the CLI exited.
+render its fields in `--help`, so the help text's length is printed too. Prints the medians of each and
+whether the plugin, MuJoCo and lerobot_eval were loaded when the CLI exited.
 """
 
 from __future__ import annotations
@@ -89,7 +89,8 @@ def main(argv: list[str] | None = None) -> dict:
 
     cli = args.script.replace("_", "-")
     print(
-        f"`{cli} --help`, {args.runs} alternated runs each, CPU {cpu_model()}, Python {platform.python_version()}"
+        f"`{cli} --help`, {args.runs} alternated runs each, CPU {cpu_model()}, "
+        f"Python {platform.python_version()}"
     )
     medians = {
         variant: {key: statistics.median(r[key] for r in reports) for key in ("wall", "cpu", "discovery")}
@@ -98,7 +99,8 @@ def main(argv: list[str] | None = None) -> dict:
     for variant, median in medians.items():
         print(
             f"  {variant:>7} plugin: median wall {median['wall']:.2f} s, CPU {median['cpu']:.2f} s, "
-            f"plugin discovery CPU {median['discovery']:.3f} s, --help {runs[variant][-1]['help_chars']} chars; "
+            f"plugin discovery CPU {median['discovery']:.3f} s, "
+            f"--help {runs[variant][-1]['help_chars']} chars; "
             f"loaded at exit: "
             f"{', '.join(runs[variant][-1]['loaded']) or 'none of the watched modules'}"
         )

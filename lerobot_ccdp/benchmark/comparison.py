@@ -124,8 +124,8 @@ SOLVED_HEADER = "solved before any failure; solved / episodes with a failure"
 
 
 def lost_table(episodes: dict[str, dict[str, Episodes]]) -> str:
-    """Per task and method, how many episodes were lost and why (`LostEpisodes`), and how many were solved before
-    any failure, where recovery plays no part (`solved_before_any_failure`)."""
+    """Per task and method, how many episodes were lost and why (`LostEpisodes`), and how many were solved
+    before any failure, where recovery plays no part (`solved_before_any_failure`)."""
     lines = [f"| task | method | {LOST_HEADER} | {SOLVED_HEADER} |", "|---|---|---|---|"]
     for task, methods in episodes.items():
         for method, runs in methods.items():

@@ -67,7 +67,8 @@ def cluster_bootstrap(
 def paired_difference(
     a: Episodes, b: Episodes, statistic: Statistic, n_resamples: int = N_RESAMPLES, seed: int = 0
 ) -> Estimate:
-    """statistic(a) - statistic(b) with a paired-bootstrap 95% interval (episode i of both resampled together)."""
+    """statistic(a) - statistic(b) with a paired-bootstrap 95% interval (episode i of both resampled
+    together)."""
     if len(a) != len(b):
         raise ValueError(
             f"Paired comparison needs the same episodes (seeds) for both methods; got {len(a)} and "
@@ -77,7 +78,8 @@ def paired_difference(
 
 
 def attempts_ratio(a: Episodes, b: Episodes, n_resamples: int = N_RESAMPLES, seed: int = 0) -> Estimate:
-    """Mean attempts of `a` over those of `b`, on the episodes both solved, with a paired-bootstrap interval."""
+    """Mean attempts of `a` over those of `b`, on the episodes both solved, with a paired-bootstrap
+    interval."""
     both = a.success & b.success
     x, y = a.attempts[both].astype(float), b.attempts[both].astype(float)
     return _bootstrap(len(x), lambda idx: x[idx].mean() / y[idx].mean(), n_resamples, seed)
@@ -86,9 +88,9 @@ def attempts_ratio(a: Episodes, b: Episodes, n_resamples: int = N_RESAMPLES, see
 def verdict(
     estimate: Estimate, low_bound: float = -np.inf, high_bound: float = np.inf, strict: bool = False
 ) -> str:
-    """Judge a target `low_bound <= value <= high_bound` (`<` with `strict`) from the 95% interval: `met` if the
-    whole interval satisfies it, `missed` if none of it does, `tie` if the interval is exactly a bound (every seed
-    equal), else `not distinguishable` at this many episodes."""
+    """Judge a target `low_bound <= value <= high_bound` (`<` with `strict`) from the 95% interval: `met` if
+    the whole interval satisfies it, `missed` if none of it does, `tie` if the interval is exactly a bound
+    (every seed equal), else `not distinguishable` at this many episodes."""
     low, high = estimate.low, estimate.high
     if np.isnan(low):
         return "n/a"

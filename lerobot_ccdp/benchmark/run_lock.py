@@ -63,8 +63,9 @@ def _locked(path: Path, out: Path) -> IO[str]:
 
 
 def die_with_parent(parent: int) -> None:
-    """`preexec_fn` of a stage (bind `parent`, the pipeline's pid): the kernel kills it when the pipeline process
-    dies, however it dies (Linux). A pipeline that died before the signal was armed is caught by the parent check."""
+    """`preexec_fn` of a stage (bind `parent`, the pipeline's pid): the kernel kills it when the pipeline
+    process dies, however it dies (Linux). A pipeline that died before the signal was armed is caught by the
+    parent check."""
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
     if os.getppid() != parent:

@@ -1,9 +1,11 @@
-"""`python -m lerobot_ccdp.benchmark.watch`: a GIF of DP repeating a failed option beside CCDP recovering, on one seed.
+"""`python -m lerobot_ccdp.benchmark.watch`: a GIF of DP repeating a failed option beside CCDP recovering, on
+one seed.
 
-It reads what `lerobot-eval` already wrote for two methods evaluated on the same seeds (the pipeline's rendered runs,
-`<task>/videos/<method>/`): the per-episode outcomes in `eval_info.json` and the videos of the first rendered
-episodes (`videos/**/eval_episode_<i>.mp4`, episode i of both runs has the same seed). Without `--episode` it
-picks the rendered episode where DP repeated a failure most while CCDP succeeded after a failure.
+It reads what `lerobot-eval` already wrote for two methods evaluated on the same seeds (the pipeline's
+rendered runs, `<task>/videos/<method>/`): the per-episode outcomes in `eval_info.json` and the videos of the
+first rendered episodes (`videos/**/eval_episode_<i>.mp4`, episode i of both runs has the same seed). Without
+`--episode` it picks the rendered episode where DP repeated a failure most while CCDP succeeded after a
+failure.
 """
 
 from __future__ import annotations
@@ -27,15 +29,15 @@ def rendered_videos(eval_dir: Path) -> dict[int, Path]:
     videos = {int(p.stem.rsplit("_", 1)[1]): p for p in eval_dir.glob("videos/**/eval_episode_*.mp4")}
     if not videos:
         raise FileNotFoundError(
-            f"{eval_dir} holds no videos: evaluate with a rendering env (`--env.render_mode=rgb_array`, the eval "
-            "configs' setting) so lerobot-eval saves its first episodes as videos."
+            f"{eval_dir} holds no videos: evaluate with a rendering env (`--env.render_mode=rgb_array`, "
+            "the eval configs' setting) so lerobot-eval saves its first episodes as videos."
         )
     return videos
 
 
 def pick_episode(baseline: Episodes, recovering: Episodes, candidates: list[int]) -> int:
-    """The rendered episode that shows recovery best: the baseline repeats a failure (most repeats first) and the
-    recovering method succeeds after at least one failure."""
+    """The rendered episode that shows recovery best: the baseline repeats a failure (most repeats first) and
+    the recovering method succeeds after at least one failure."""
     shown = [
         i
         for i in candidates
@@ -45,8 +47,8 @@ def pick_episode(baseline: Episodes, recovering: Episodes, candidates: list[int]
     ]
     if not shown:
         raise ValueError(
-            f"No rendered episode ({candidates}) where the baseline repeated a failure and the other method recovered "
-            "from one; pass --episode N to show one anyway, or evaluate more seeds."
+            f"No rendered episode ({candidates}) where the baseline repeated a failure and the other method "
+            "recovered from one; pass --episode N to show one anyway, or evaluate more seeds."
         )
     return max(shown, key=lambda i: (int(baseline.repeated_failures[i]), -i))
 
@@ -95,7 +97,7 @@ def write_gif(images: list[Image.Image], path: Path, fps: float) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--eval-root",
         type=Path,

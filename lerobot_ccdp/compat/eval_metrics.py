@@ -1,4 +1,5 @@
-"""Per-episode task metrics in lerobot-eval's eval_info.json: attempts, failures, repeated failures, preference.
+"""Per-episode task metrics in lerobot-eval's eval_info.json: attempts, failures, repeated failures,
+preference.
 
 LeRobot's eval loop keeps only the reward and `is_success` of each episode, but the CCDP comparison (DESIGN
 section 8) needs the rest of the env's final `info`. This module wraps `lerobot_eval.eval_one` (installed on

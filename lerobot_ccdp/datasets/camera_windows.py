@@ -18,7 +18,8 @@ logger = logging.getLogger(__name__)
 
 @functools.cache
 def video_backend() -> str:
-    """`torchcodec` where it loads (it needs the system's FFmpeg libraries), else `pyav` (FFmpeg in its wheel).
+    """`torchcodec` where it loads (it needs the system's FFmpeg libraries), else `pyav` (FFmpeg in its
+    wheel).
 
     LeRobot picks torchcodec whenever the package is installed, even where it cannot load; decided by trying.
     """
@@ -32,7 +33,8 @@ def video_backend() -> str:
 
 class CameraWindows:
     """Images (len(frames), n_obs_steps, C, H, W) in [0, 1] per camera: the observation window ending at each
-    dataset frame index in `frames`, padded at episode starts as LeRobotDataset pads (repeating the first frame).
+    dataset frame index in `frames`, padded at episode starts as LeRobotDataset pads (repeating the first
+    frame).
 
     The dataset is opened once and read for every batch of synthesised states."""
 

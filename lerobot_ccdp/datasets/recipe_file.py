@@ -51,9 +51,8 @@ class RecordRecipe:
     fps: int = CONTROL_FPS  # the tasks' control rate; no other value is accepted
     max_episode_steps: int | None = None  # step limit of an episode; null: the task's own
     task_description: str | None = None  # the dataset's task text; null: the task's own description
-    env_kwargs: dict[str, Any] = field(
-        default_factory=dict
-    )  # extra env arguments, e.g. {obs_type: pixels_agent_pos}
+    # extra env arguments, e.g. {obs_type: pixels_agent_pos}
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any], source: str | None = None) -> RecordRecipe:
@@ -91,26 +90,22 @@ class RecoveryRecipe:
     other fields are the synthesis parameters. Distances are in the policy's normalised space.
     """
 
-    failure_feature: (
-        str  # required: what z is, one of final_state, action, primitive (as --policy.failure_feature)
-    )
+    # required: what z is, one of final_state, action, primitive (as --policy.failure_feature)
+    failure_feature: str
     failure_state_key: str = OBS_STATE  # final_state z: the observation that forms z
     failure_state_dims: list[int] = field(default_factory=list)  # final_state z: which of its dims; []: all
-    failure_action_steps: list[int] = field(
-        default_factory=list
-    )  # action z: which steps of the chunk; []: all
-    failure_action_dims: list[int] = field(
-        default_factory=list
-    )  # action z: which action dims at each step; []: all
+    # action z: which steps of the chunk; []: all
+    failure_action_steps: list[int] = field(default_factory=list)
+    # action z: which action dims at each step; []: all
+    failure_action_dims: list[int] = field(default_factory=list)
     primitive_key: str = "primitive"  # primitive z: the dataset column of the option label
     num_primitives: int = 0  # primitive z: the number of options (z is one-hot)
     n_states: int = 512  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
     chunks_per_state: int = 16  # chunks sampled around each x_s from eq. (7)
     sigma: float = 0.02  # std of the state noise xi_x (eq. 6)
     w_s: float = 0.8  # state weight of eq. (7); <= 1 widens the proposals
-    outcome_radius: float = (
-        0.0  # drop sampled chunks whose RMS gap to every demonstrated chunk exceeds this; 0 keeps all
-    )
+    # drop sampled chunks whose RMS gap to every demonstrated chunk exceeds this; 0 keeps all
+    outcome_radius: float = 0.0
     demo_frames: int = 4096  # demonstrated chunks that join the pool; 0 = synthesised chunks only
     delta_z: float = 0.5  # eq. (5): a recovery's z differs from the failure's by more than this
     delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
@@ -179,7 +174,8 @@ def env_arguments(env_class: type) -> list[str]:
 
 
 def _build(cls: type, values: dict[str, Any], section: str, at: str):
-    """Instantiate a recipe dataclass from its section, naming unknown, missing, mistyped and non-finite fields."""
+    """Instantiate a recipe dataclass from its section, naming unknown, missing, mistyped and non-finite
+    fields."""
     known = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(values) - set(known))
     if unknown:

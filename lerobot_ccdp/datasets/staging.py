@@ -1,8 +1,8 @@
 """Atomic dataset writing: build in a hidden folder beside the target, rename into place only when complete.
 
-A dataset written here carries an ownership marker for the path it was written at (`lerobot_ccdp.datasets.ownership`);
-`--overwrite` replaces only such a dataset at that same path, so it never deletes what this project did not create
-there."""
+A dataset written here carries an ownership marker for the path it was written at
+(`lerobot_ccdp.datasets.ownership`); `--overwrite` replaces only such a dataset at that same path, so it never
+deletes what this project did not create there."""
 
 from __future__ import annotations
 
@@ -45,7 +45,8 @@ def check_output_root(root: str | Path, overwrite: bool) -> None:
     """Refuse, before any work, a `root` that cannot be created or that exists and may not be replaced.
 
     --overwrite deletes what sits at `root` once the new dataset is complete, so it only reaches a dataset
-    this project wrote there (`ownership.owner`): never the working directory, its parents, or others' files."""
+    this project wrote there (`ownership.owner`): never the working directory, its parents, or others'
+    files."""
     root = Path(root)
     if not (root.exists() or root.is_symlink()):
         _check_parent_writable(root)

@@ -1,4 +1,5 @@
-"""Bartender: fill two cups one after the other; the nearest available cup is preferred; availability is hidden."""
+"""Bartender: fill two cups one after the other; the nearest available cup is preferred; availability is
+hidden."""
 
 from __future__ import annotations
 
@@ -25,11 +26,11 @@ class BartenderEnv(CCDPTaskEnv):
 
     right_start: probability that an episode whose cup 3 is available starts on the right of the cups
     (`right_home`) instead of `home`. From `home` the nearest cup is cup 0 and cup 3 is never filled first, so
-    demonstrations recorded only from there never show cup 3 full; a policy that fills it first then sees an input
-    it never saw. From the right the expert then fills cup 3 first, so no demonstration crosses the cups with every
-    cup empty in the other direction (with those, a base learnt to stop between two cups). Recipes set it for
-    recording, where the start then tells cup 3's availability; evaluation keeps 0 (and then draws nothing more
-    from the episode's seed).
+    demonstrations recorded only from there never show cup 3 full; a policy that fills it first then sees an
+    input it never saw. From the right the expert then fills cup 3 first, so no demonstration crosses the cups
+    with every cup empty in the other direction (with those, a base learnt to stop between two cups). Recipes
+    set it for recording, where the start then tells cup 3's availability; evaluation keeps 0 (and then draws
+    nothing more from the episode's seed).
     """
 
     name = "Bartender"
@@ -40,13 +41,9 @@ class BartenderEnv(CCDPTaskEnv):
     )
     default_episode_steps = 250
     home = (-0.32, -0.05, 0.15, 1.0)  # the gripper holds the bottle
-    right_home = (
-        0.37,
-        -0.05,
-        0.15,
-        1.0,
-    )  # 0.08 right of cup 3 (`home` is 0.10 left of cup 0; 0.39 would put the
-    # start noise at the workspace's 0.4 edge)
+    # 0.08 right of cup 3 (`home` is 0.10 left of cup 0; 0.39 would put the start noise at the workspace's
+    # 0.4 edge)
+    right_home = (0.37, -0.05, 0.15, 1.0)
     pour_z = 0.07  # end-effector height while pouring (below POUR_HEIGHT)
 
     def __init__(self, *args, right_start: float = 0.0, **kwargs):
@@ -61,7 +58,8 @@ class BartenderEnv(CCDPTaskEnv):
         return self.right_home if self._drew_right else self.home
 
     def _apply_hidden(self) -> None:
-        """A right start drawn for an episode whose cup 3 is unavailable moves to `home` (same start noise)."""
+        """A right start drawn for an episode whose cup 3 is unavailable moves to `home` (same start
+        noise)."""
         if self._drew_right and not self.hidden_param >> RIGHT_CUP & 1:
             start = np.asarray(self.home, dtype=np.float64).copy()
             start[:3] += self._start_noise

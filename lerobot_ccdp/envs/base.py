@@ -39,7 +39,8 @@ class OutcomeKind(Enum):
 
 @dataclass(frozen=True)
 class Outcome:
-    """The end of one attempt: which option was committed to, and (for successes) the option preferred then."""
+    """The end of one attempt: which option was committed to, and (for successes) the option preferred
+    then."""
 
     kind: OutcomeKind
     option: int
@@ -55,7 +56,8 @@ class Waypoint:
 
 
 class CCDPTaskEnv(gym.Env, abc.ABC):
-    """Base class: subclasses describe the task's bodies, hidden parameter, rules, options and expert plans."""
+    """Base class: subclasses describe the task's bodies, hidden parameter, rules, options and expert
+    plans."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FPS}
 
@@ -65,8 +67,8 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     env_state_names: tuple[str, ...]  # one name per environment_state dimension
     default_episode_steps: int
     home: tuple[float, float, float, float]  # robot start pose (x, y, z, grip)
-    # The robot and its scene: the lite tasks' Cartesian gripper, or the physics tasks' Franka Panda. It builds
-    # the model around the task's bodies, reads the end effector and executes (x, y, z, grip) targets.
+    # The robot and its scene: the lite tasks' Cartesian gripper, or the physics tasks' Franka Panda. It
+    # builds the model around the task's bodies, reads the end effector and executes (x, y, z, grip) targets.
     robot_class: type = CartesianGripper
 
     def __init__(
@@ -119,8 +121,8 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         self.model = self.robot_class.build_model(self.name, self._task_bodies_xml())
         self.data = mujoco.MjData(self.model)
         self.robot = self.robot_class(self.model, self.data)
-        # LeRobot's eval videos; made without shadows or reflections like the camera observations, which on the
-        # Panda scene cuts a 160 x 120 frame from about 107 to 41 ms in software OpenGL.
+        # LeRobot's eval videos; made without shadows or reflections like the camera observations, which on
+        # the Panda scene cuts a 160 x 120 frame from about 107 to 41 ms in software OpenGL.
         self._video_renderer = CameraRenderer(render_width, render_height)
         self._mocap_ids: dict[str, int] = {}
 
@@ -183,7 +185,8 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
 
     def _apply_hidden(self) -> None:
         """Give the simulation the episode's hidden parameter (a physics task's mass, say); default: nothing,
-        the task's rules read `hidden_param` themselves. Called after the layout, before the first observation."""
+        the task's rules read `hidden_param` themselves. Called after the layout, before the first
+        observation."""
 
     def _on_failure(self, option: int) -> None:
         """Undo what the failed attempt did to the objects (default: nothing; objects stay put)."""
@@ -231,7 +234,8 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         raise RuntimeError(f"{self.name}: no feasible option in stage (hidden_param={self.hidden_param})")
 
     def _start_pose(self) -> tuple[float, float, float, float]:
-        """Where an episode starts, before `init_noise`: `home` (a task may vary it for its demonstrations)."""
+        """Where an episode starts, before `init_noise`: `home` (a task may vary it for its
+        demonstrations)."""
         return self.home
 
     def hidden_label(self) -> float:

@@ -51,7 +51,8 @@ class Grasp:
 def pick_and_place(
     obj: tuple[float, float, float], dest: tuple[float, float], place_z: float, carry_z: float = 0.1
 ) -> list[Waypoint]:
-    """Expert waypoints that grasp the object at `obj`, carry it at `carry_z` and release it at (dest, place_z)."""
+    """Expert waypoints that grasp the object at `obj`, carry it at `carry_z` and release it at (dest,
+    place_z)."""
     ox, oy, oz = obj
     dx, dy = dest
     return [

@@ -6,7 +6,8 @@ holds, at its bottom, a block as tall as 2 - c objects (the crate's own colour, 
 under the lid), so the hidden parameter is room that the simulation takes away: an object dropped through the
 slot of a crate without room comes to rest on what is inside, sticking out of the slot. The env reads where a
 released object comes to rest: under the lid it is packed; on a crate but not under the lid it is a failure
-(the object is then handed back to where it started, as in the lite task); elsewhere it has to be picked again.
+(the object is then handed back to where it started, as in the lite task); elsewhere it has to be picked
+again.
 """
 
 from __future__ import annotations

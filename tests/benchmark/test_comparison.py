@@ -38,8 +38,8 @@ def test_bootstrap_interval_contains_the_mean_and_is_reproducible():
 
 
 def _episodes(success, attempts, repeated, preference, after_failure=None, failures=None) -> Episodes:
-    """Episodes; attempts after a failure and failures default to what a one-stage task gives: attempts - 1 if any
-    failed, and every attempt but a success."""
+    """Episodes; attempts after a failure and failures default to what a one-stage task gives: attempts - 1 if
+    any failed, and every attempt but a success."""
     attempts, success = np.array(attempts), np.array(success)
     if after_failure is None:
         after_failure = np.where(attempts > np.array(success, dtype=int), attempts - 1, 0)
@@ -56,7 +56,8 @@ def _episodes(success, attempts, repeated, preference, after_failure=None, failu
 
 
 def test_lost_episodes_are_split_by_repeat_no_failure_and_distinct_failures():
-    # Lost: one repeated a failure, one never had an attempt fail (time ran out), two failed distinct options only.
+    # Lost: one repeated a failure, one never had an attempt fail (time ran out), two failed distinct options
+    # only.
     runs = _episodes(
         [True, False, False, False, False],
         [2, 3, 0, 2, 1],
@@ -67,9 +68,8 @@ def test_lost_episodes_are_split_by_repeat_no_failure_and_distinct_failures():
     lost = LostEpisodes.of(runs)
     assert (lost.lost, lost.with_repeat, lost.without_failure, lost.distinct_failures) == (4, 1, 1, 2)
     assert str(lost) == "4: 1 / 1 / 2"
-    older = _episodes(
-        [False, False], [1, 2], [0, 1], [False, False], failures=[np.nan, np.nan]
-    )  # no failure count
+    # no failure count
+    older = _episodes([False, False], [1, 2], [0, 1], [False, False], failures=[np.nan, np.nan])
     assert str(LostEpisodes.of(older)) == "2: 1 / n/a / n/a"
 
 
@@ -154,16 +154,16 @@ def test_targets_table_judges_from_paired_intervals():
     assert "| ObjectPacking-lite-v0 | success > DP | CCDP - DP 0.75 [0.60, 0.88] | met |" in checks
     # Non-inferiority to DP* (issue 50): the interval's low end above -0.05; every seed equal meets it.
     assert (
-        "| ObjectPacking-lite-v0 | success non-inferior to DP* (margin 0.05) | CCDP - DP* 0.00 [0.00, 0.00] | met |"
-        in checks
+        "| ObjectPacking-lite-v0 | success non-inferior to DP* (margin 0.05) "
+        "| CCDP - DP* 0.00 [0.00, 0.00] | met |" in checks
     )
     assert "| success > DP* at CCDP's cost | CCDP - DP* at CCDP's cost 0.75 [0.60, 0.88] | met |" in checks
     slightly_worse = _episodes([True] * 39 + [False], [2] * 39 + [3], [0] * 40, [True] * 39 + [False])
     behind = target_checks({"ObjectPacking-lite-v0": {"dp_star": good, "ccdp": slightly_worse}})
     assert "CCDP - DP* -0.03 [-0.07, 0.00] | not distinguishable |" in behind
     assert (
-        "| ObjectPacking-lite-v0 | preference >= DP* (episodes both solved) | CCDP - DP* 0.00 [0.00, 0.00] | tie |"
-        in checks
+        "| ObjectPacking-lite-v0 | preference >= DP* (episodes both solved) "
+        "| CCDP - DP* 0.00 [0.00, 0.00] | tie |" in checks
     )
     assert (
         "| ObjectPacking-lite-v0 | repeated-failure rate <= 0.05 | CCDP rate 0.00 [0.00, 0.00] | met |"

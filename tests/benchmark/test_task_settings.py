@@ -1,7 +1,8 @@
-"""The shipped settings files as the pipeline finds them: every task has its state settings, and each camera variant
-(`configs/<task>_pixels/`, `datasets_recipes/<task>_pixels.yaml`) is its state twin with only the camera fields
-changed, so a setting tuned on the state task cannot silently drift from its pixel copy; each label-free variant
-(`configs/<task>_label_free/`) likewise differs from its labelled twin only in how z is defined and read."""
+"""The shipped settings files as the pipeline finds them: every task has its state settings, and each camera
+variant (`configs/<task>_pixels/`, `datasets_recipes/<task>_pixels.yaml`) is its state twin with only the
+camera fields changed, so a setting tuned on the state task cannot silently drift from its pixel copy; each
+label-free variant (`configs/<task>_label_free/`) likewise differs from its labelled twin only in how z is
+defined and read."""
 
 import json
 from pathlib import Path
@@ -82,9 +83,9 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
 
 @pytest.mark.parametrize("task", LABEL_FREE_TASKS)
 def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp_path):
-    """`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`: z where an option ends, defined
-    alike in the recipe and the policy (synthesis refuses a base checkpoint whose z differs), no label read, and
-    nothing else different from the labelled settings but the files' own paths."""
+    """`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`: z where an option ends,
+    defined alike in the recipe and the policy (synthesis refuses a base checkpoint whose z differs), no label
+    read, and nothing else different from the labelled settings but the files' own paths."""
     labelled = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path)
     files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path, label_free=True)
     slug = task_slug(task) + "_label_free"
@@ -95,9 +96,8 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
     wanted = RecoveryRecipe.load(files.recipe).failure_settings()
     assert wanted["failure_feature"] == "final_state"
     assert {k: policy.get(k, CCDPConfig.failure_state_key) for k in wanted} == wanted  # the key: its default
-    assert (
-        "num_primitives" not in policy and policy["primitive_key"] == "no_labels"
-    )  # names no dataset column
+    # names no dataset column
+    assert "num_primitives" not in policy and policy["primitive_key"] == "no_labels"
     z_fields = (
         "dataset",
         "output_dir",

@@ -1,4 +1,5 @@
-"""Which rendered episode `lerobot_ccdp.benchmark.watch` shows: the baseline repeating a failure, the other recovering."""
+"""Which rendered episode `lerobot_ccdp.benchmark.watch` shows: the baseline repeating a failure, the other
+recovering."""
 
 import numpy as np
 import pytest

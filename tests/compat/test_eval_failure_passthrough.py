@@ -67,7 +67,8 @@ def test_rollout_delivers_failures_to_the_policy(trained_checkpoint):
 
 
 def _keeping(observations):
-    """A LeRobot whose preprocess_observation passes the failure key through itself (as 0.6 is expected to)."""
+    """A LeRobot whose preprocess_observation passes the failure key through itself (as 0.6 is expected
+    to)."""
     return {"observation.state": torch.zeros(1, 2), "observation.failure": torch.ones(1, 1)}
 
 

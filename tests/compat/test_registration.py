@@ -1,4 +1,5 @@
-"""After a plain install, LeRobot's own plugin discovery registers `ccdp` (as its CLIs do, in a fresh process)."""
+"""After a plain install, LeRobot's own plugin discovery registers `ccdp` (as its CLIs do, in a fresh
+process)."""
 
 import subprocess
 import sys

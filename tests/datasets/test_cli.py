@@ -1,5 +1,6 @@
-"""lerobot-ccdp-record and lerobot-ccdp-synthesize parse as LeRobot's CLIs: draccus, `--config_path=<recipe yaml>`
-(each command reads only its own section), dotted overrides checked like the file, `--help` with every default."""
+"""lerobot-ccdp-record and lerobot-ccdp-synthesize parse as LeRobot's CLIs: draccus,
+`--config_path=<recipe yaml>` (each command reads only its own section), dotted overrides checked like the
+file, `--help` with every default."""
 
 import dataclasses
 import re
@@ -199,8 +200,7 @@ def test_a_missing_or_unfit_recipe_file_is_named(tmp_path):
         parse_cli(RecordConfig, [f"--config_path={missing}", *DEMOS])
     with pytest.raises(SystemExit, match="--config_path=<recipe yaml>, with '='"):
         parse_cli(RecordConfig, ["--config_path", str(DOOR), *DEMOS])
-    reaching = DOOR.with_name(
-        "reaching2d.yaml"
-    )  # a `recovery:` section only: its demos come from another recorder
+    # a `recovery:` section only: its demos come from another recorder
+    reaching = DOOR.with_name("reaching2d.yaml")
     with pytest.raises(SystemExit, match=f"Recipe {reaching} has no top-level `record:` section"):
         parse_cli(RecordConfig, [f"--config_path={reaching}", *DEMOS])

@@ -123,9 +123,8 @@ def test_overwrite_replaces_only_the_dataset_it_wrote_at_that_same_path(tmp_path
     assert LeRobotDataset(DEMOS_ID, root=original).num_episodes == 2
     marker = json.loads((original / MARKER).read_text())
     assert marker == {"created_by": "lerobot_ccdp dataset", "path_sha256": identity(original.resolve())}
-    assert (
-        str(tmp_path) not in (original / MARKER).read_text()
-    )  # pushed to the Hub with the data: no local path
+    # pushed to the Hub with the data: no local path
+    assert str(tmp_path) not in (original / MARKER).read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["copy", "link", "moved", "original"]
 
 
@@ -138,8 +137,8 @@ def test_a_run_removes_only_its_own_roots_dead_staging_folders(tmp_path):
         f".data.v2.{dead}.zz81ab_c.partial",
         f".data.{os.getpid()}.live0123.partial",
         ".data.notapid.abc.partial",
-        f".data.{dead}.{os.getpid()}.abcd1234.partial",
-    ]  # the last: a live one of root `data.4194311`
+        f".data.{dead}.{os.getpid()}.abcd1234.partial",  # the last: a live one of root `data.4194311`
+    ]
     for name in [*kept, f".data.{dead}.x1y2z3_w.partial"]:
         (tmp_path / name / "dataset").mkdir(parents=True)
     record.main(record_flags(tmp_path / "data"))

@@ -43,6 +43,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
     )
     if result.returncode != 0:
         pytest.fail(
-            f"{' '.join(args)} failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
+            f"{' '.join(args)} failed ({result.returncode}):\n"
+            f"{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
         )
     return result

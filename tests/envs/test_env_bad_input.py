@@ -1,6 +1,6 @@
-"""Bad env settings and actions are refused where they enter, naming the setting: before, a NaN action moved the
-lite arm to NaN (and lerobot-eval scored the episode a plain failure) or stopped the Panda's IK with an SVD error,
-and a zero budget or image size built an env that failed later or never."""
+"""Bad env settings and actions are refused where they enter, naming the setting: before, a NaN action moved
+the lite arm to NaN (and lerobot-eval scored the episode a plain failure) or stopped the Panda's IK with an
+SVD error, and a zero budget or image size built an env that failed later or never."""
 
 import gymnasium as gym
 import numpy as np

@@ -118,8 +118,8 @@ def test_expert_labels_are_options_and_follow_the_hidden_parameter():
 
 @pytest.mark.parametrize("task", ["Bartender-lite-v0", "Bartender-v0"])
 def test_a_bottle_restored_over_the_cup_it_filled_does_not_pour_again(task):
-    """After cup 0 is filled, a failed pour at cup 1 restores the arm over cup 0: holding still there is no pour
-    (it would be a failure at a filled cup that the policy never attempted)."""
+    """After cup 0 is filled, a failed pour at cup 1 restores the arm over cup 0: holding still there is no
+    pour (it would be a failure at a filled cup that the policy never attempted)."""
     env = make(task)
     agent = FixedOptions(env, [0, 1])
     _, history, info = _run_until_failure(env, agent, 0b0101)

@@ -175,9 +175,9 @@ def test_an_object_dropped_into_a_crate_goes_under_the_lid_only_if_there_is_room
 
 @pytest.mark.parametrize("task", [DOOR, TASK])
 def test_wild_commands_keep_the_simulation_stable(task):
-    """Random actions across the workspace (a policy gone wild) once made the IK jump the joints by radians and
-    MuJoCo reported unstable accelerations (door seeds 0 and 4, manipulation seed 4); commands are now held
-    within `panda.MAX_REACH` of the pinch point."""
+    """Random actions across the workspace (a policy gone wild) once made the IK jump the joints by radians
+    and MuJoCo reported unstable accelerations (door seeds 0 and 4, manipulation seed 4); commands are now
+    held within `panda.MAX_REACH` of the pinch point."""
     env = make(task)
     unwrapped = env.unwrapped
     for seed in range(5):

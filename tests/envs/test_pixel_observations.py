@@ -1,4 +1,5 @@
-"""obs_type `pixels_agent_pos` (as gym-pusht's): rendered cameras plus the robot state, through gymnasium and LeRobot."""
+"""obs_type `pixels_agent_pos` (as gym-pusht's): rendered cameras plus the robot state, through gymnasium and
+LeRobot."""
 
 import numpy as np
 import pytest

@@ -21,7 +21,8 @@ def _write(tmp_path: Path, content: dict) -> Path:
 
 
 def test_every_task_has_a_recipe():
-    # reaching2d.yaml holds only a `recovery:` section: its demos come from `python -m lerobot_ccdp.benchmark.reaching2d`.
+    # reaching2d.yaml holds only a `recovery:` section: its demos come from `python -m
+    # lerobot_ccdp.benchmark.reaching2d`.
     recorded = [p for p in RECIPES.glob("*.yaml") if "record" in yaml.safe_load(p.read_text())]
     assert {RecordRecipe.load(p).task for p in recorded} == set(TASKS)
     assert len(recorded) == len(list(RECIPES.glob("*.yaml"))) - 1
