@@ -1,4 +1,5 @@
-"""Benchmark of the five CCDP tasks: simulation speed, demo recording time, and the no-repeat oracle's metrics.
+"""Benchmark of the five CCDP tasks: simulation speed, demo recording time, and the no-repeat oracle's
+metrics.
 
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_envs.py [--tasks DoorOpening-v0 ...]
 
@@ -46,7 +47,12 @@ def steps_per_second(task: str, n_steps: int) -> float:
 def recording_seconds(task: str, n_episodes: int) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        record_dataset(RecordRecipe(task=task, n_episodes=n_episodes, seed=0), "local/bench", Path(tmp) / "ds", progress=False)
+        record_dataset(
+            RecordRecipe(task=task, n_episodes=n_episodes, seed=0),
+            "local/bench",
+            Path(tmp) / "ds",
+            progress=False,
+        )
         return time.perf_counter() - start
 
 
@@ -61,12 +67,14 @@ def oracle_metrics(task: str, n_episodes: int) -> dict[str, float]:
         "attempts": float(np.mean([i["attempts"] for i in successes])) if successes else float("nan"),
         "failures": failures / n_episodes,
         "repeated": sum(i["repeated_failures"] for i in infos) / max(failures, 1),
-        "preference": float(np.mean([i["preference_matched"] for i in successes])) if successes else float("nan"),
+        "preference": float(np.mean([i["preference_matched"] for i in successes]))
+        if successes
+        else float("nan"),
     }
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=list(TASKS))
     parser.add_argument("--steps", type=int, default=5000, help="env steps timed per task")
     parser.add_argument("--record-episodes", type=int, default=100)
@@ -74,15 +82,20 @@ def main() -> None:
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
-    print(f"| task | env steps/s | record {args.record_episodes} eps (s) | oracle success | oracle attempts "
-          "(successes) | oracle failures/ep | repeated-failure rate | oracle preference adherence |")
+    print(
+        f"| task | env steps/s | record {args.record_episodes} eps (s) | oracle success | oracle attempts "
+        "(successes) | oracle failures/ep | repeated-failure rate | oracle preference adherence |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for task in args.tasks:
         sps = steps_per_second(task, args.steps)
         rec = recording_seconds(task, args.record_episodes)
         m = oracle_metrics(task, args.episodes)
-        print(f"| {task} | {sps:,.0f} | {rec:.1f} | {m['success']:.3f} | {m['attempts']:.2f} | {m['failures']:.2f} "
-              f"| {m['repeated']:.3f} | {m['preference']:.3f} |", flush=True)
+        print(
+            f"| {task} | {sps:,.0f} | {rec:.1f} | {m['success']:.3f} | {m['attempts']:.2f} "
+            f"| {m['failures']:.2f} | {m['repeated']:.3f} | {m['preference']:.3f} |",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

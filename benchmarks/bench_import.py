@@ -8,8 +8,8 @@ interpreter; "without" hides this package's distribution from `importlib.metadat
 discovery scan and everything else is identical apart from importing the plugin. Runs alternate so background
 load hits both alike; CPU seconds (the child's user + system time) are less sensitive to other load on the
 machine than wall seconds. Beyond the import (the discovery figure), a registered `ccdp` also makes draccus
-render its fields in `--help`, so the help text's length is printed too. Prints the medians of each and whether the plugin, MuJoCo and lerobot_eval were
-loaded when the CLI exited.
+render its fields in `--help`, so the help text's length is printed too. Prints the medians of each and
+whether the plugin, MuJoCo and lerobot_eval were loaded when the CLI exited.
 """
 
 from __future__ import annotations
@@ -53,8 +53,9 @@ def run_once(variant: str, script: str) -> dict:
     """One fresh interpreter running `<script> --help`: its wall and CPU seconds, the CPU seconds of LeRobot's
     plugin discovery in it, and the watched modules it had loaded."""
     before, start = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-    result = subprocess.run([sys.executable, "-c", LAUNCHER, variant, script], check=False, capture_output=True,
-                            text=True)
+    result = subprocess.run(
+        [sys.executable, "-c", LAUNCHER, variant, script], check=False, capture_output=True, text=True
+    )
     wall, after = time.perf_counter() - start, resource.getrusage(resource.RUSAGE_CHILDREN)
     if result.returncode != 0:
         raise RuntimeError(result.stderr)
@@ -69,7 +70,9 @@ def cpu_model() -> str:
         out = subprocess.run(["lscpu"], check=False, capture_output=True, text=True).stdout
     except FileNotFoundError:
         return platform.processor() or platform.machine()
-    return next((line.split(":", 1)[1].strip() for line in out.splitlines() if line.startswith("Model name")), "?")
+    return next(
+        (line.split(":", 1)[1].strip() for line in out.splitlines() if line.startswith("Model name")), "?"
+    )
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -85,17 +88,27 @@ def main(argv: list[str] | None = None) -> dict:
             reports.append(run_once(variant, args.script))
 
     cli = args.script.replace("_", "-")
-    print(f"`{cli} --help`, {args.runs} alternated runs each, CPU {cpu_model()}, Python {platform.python_version()}")
-    medians = {variant: {key: statistics.median(r[key] for r in reports) for key in ("wall", "cpu", "discovery")}
-               for variant, reports in runs.items()}
+    print(
+        f"`{cli} --help`, {args.runs} alternated runs each, CPU {cpu_model()}, "
+        f"Python {platform.python_version()}"
+    )
+    medians = {
+        variant: {key: statistics.median(r[key] for r in reports) for key in ("wall", "cpu", "discovery")}
+        for variant, reports in runs.items()
+    }
     for variant, median in medians.items():
-        print(f"  {variant:>7} plugin: median wall {median['wall']:.2f} s, CPU {median['cpu']:.2f} s, "
-              f"plugin discovery CPU {median['discovery']:.3f} s, --help {runs[variant][-1]['help_chars']} chars; "
-              f"loaded at exit: "
-              f"{', '.join(runs[variant][-1]['loaded']) or 'none of the watched modules'}")
+        print(
+            f"  {variant:>7} plugin: median wall {median['wall']:.2f} s, CPU {median['cpu']:.2f} s, "
+            f"plugin discovery CPU {median['discovery']:.3f} s, "
+            f"--help {runs[variant][-1]['help_chars']} chars; "
+            f"loaded at exit: "
+            f"{', '.join(runs[variant][-1]['loaded']) or 'none of the watched modules'}"
+        )
     extra = {key: medians["with"][key] - medians["without"][key] for key in ("wall", "cpu", "discovery")}
-    print(f"  the plugin adds (difference of medians): wall {extra['wall']:+.2f} s, CPU {extra['cpu']:+.2f} s, "
-          f"discovery CPU {extra['discovery']:+.3f} s")
+    print(
+        f"  the plugin adds (difference of medians): wall {extra['wall']:+.2f} s, CPU {extra['cpu']:+.2f} s, "
+        f"discovery CPU {extra['discovery']:+.3f} s"
+    )
     return {"runs": runs, "medians": medians}
 
 

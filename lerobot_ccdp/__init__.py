@@ -7,7 +7,8 @@ from lerobot_ccdp.compat.headless import choose_headless_gl
 from lerobot_ccdp.envs import CCDPEnvConfig  # noqa: F401  (registers the `ccdp` env type and the gym ids)
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 
-choose_headless_gl()  # before anything imports mujoco (no import above does: tests/compat/test_plugin_import.py)
+# before anything imports mujoco (no import above does: tests/compat/test_plugin_import.py)
+choose_headless_gl()
 install_error_surfacing()
 install_failure_passthrough()
 install_episode_metrics(import_eval=False)

@@ -1,5 +1,5 @@
-"""Test session settings: offline, headless, one thread per xdist worker, the order files are dealt to workers;
-the shared fixtures are plugins under tests/fixtures/."""
+"""Test session settings: offline, headless, one thread per xdist worker, the order files are dealt to
+workers; the shared fixtures are plugins under tests/fixtures/."""
 
 import os
 from pathlib import Path
@@ -20,8 +20,9 @@ if "PYTEST_XDIST_WORKER" in os.environ:  # two workers on two cores: one thread 
 
 def _deal_rank(item: pytest.Item) -> int:
     """Where `item`'s file goes in the order `make test` deals files to its two workers (`-n 2 --dist loadfile
-    --no-loadscope-reorder`): the reduced pipeline's runs first, then the users of `trained_run` (the first of them
-    builds it while the other worker runs the pipeline), the preference family, and the short files behind them."""
+    --no-loadscope-reorder`): the reduced pipeline's runs first, then the users of `trained_run` (the first of
+    them builds it while the other worker runs the pipeline), the preference family, and the short files
+    behind them."""
     if item.path.name == "test_pipeline.py":
         return 0
     if "trained_run" in item.fixturenames:

@@ -50,8 +50,9 @@ def _command(line: str) -> str:
 
 def test_importing_the_package_renders_without_a_display_or_mujoco_gl():
     env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY")}
-    result = subprocess.run([sys.executable, "-c", RENDER], capture_output=True, text=True, env=env,
-                            check=False)
+    result = subprocess.run(
+        [sys.executable, "-c", RENDER], capture_output=True, text=True, env=env, check=False
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     report = json.loads(result.stdout.strip().splitlines()[-1])
     assert len(report["shape"]) == 3 and report["shape"][2] == 3
@@ -158,16 +159,25 @@ def test_every_lerobot_eval_in_the_readme_chooses_its_seeds():
 def test_pipeline_flags_in_the_readme_are_in_its_help():
     prose = re.sub(r"```.*?```", "", README, flags=re.S)  # inline commands, outside the fenced blocks
     commands = _shell_lines() + [span.replace("\n", " ") for span in re.findall(r"`([^`]+)`", prose)]
-    given = {f for line in commands for part in line.split("-m lerobot_ccdp.benchmark.pipeline")[1:]
-             for f in re.findall(r"(?<![\w-])(--[a-z][\w-]*)", part)}
+    given = {
+        f
+        for line in commands
+        for part in line.split("-m lerobot_ccdp.benchmark.pipeline")[1:]
+        for f in re.findall(r"(?<![\w-])(--[a-z][\w-]*)", part)
+    }
     assert given
-    usage = subprocess.run([sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--help"], capture_output=True,
-                           text=True, check=True).stdout
+    usage = subprocess.run(
+        [sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     known = set(re.findall(r"--[a-z][\w-]*", usage))
     assert given <= known, f"README gives the pipeline flags its --help lacks: {given - known}"
 
 
 def test_quickstart_writes_into_a_folder_per_task():
-    result = subprocess.run(["make", "-n", "quickstart", "TASK=X"], cwd=REPO, capture_output=True, text=True,
-                            check=True)
+    result = subprocess.run(
+        ["make", "-n", "quickstart", "TASK=X"], cwd=REPO, capture_output=True, text=True, check=True
+    )
     assert re.search(r"--out outputs/quickstart/X(\s|$)", result.stdout, flags=re.MULTILINE), result.stdout

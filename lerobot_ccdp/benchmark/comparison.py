@@ -28,8 +28,13 @@ from lerobot_ccdp.benchmark.episodes import Episodes, Estimate, LostEpisodes, so
 from lerobot_ccdp.benchmark.paired import cluster_bootstrap, repeats_per_attempt, repeats_per_opportunity
 from lerobot_ccdp.envs.tasks import task_family
 
-METHOD_LABELS = {"dp": "DP", "dp_star": "DP*", "dp_star_matched": "DP* at CCDP's cost", "ccdp": "CCDP",
-                 "oracle": "no-repeat oracle"}
+METHOD_LABELS = {
+    "dp": "DP",
+    "dp_star": "DP*",
+    "dp_star_matched": "DP* at CCDP's cost",
+    "ccdp": "CCDP",
+    "oracle": "no-repeat oracle",
+}
 METRIC_LABELS = {
     "success": "success rate",
     "attempts": "attempts (successes)",
@@ -119,13 +124,15 @@ SOLVED_HEADER = "solved before any failure; solved / episodes with a failure"
 
 
 def lost_table(episodes: dict[str, dict[str, Episodes]]) -> str:
-    """Per task and method, how many episodes were lost and why (`LostEpisodes`), and how many were solved before
-    any failure, where recovery plays no part (`solved_before_any_failure`)."""
+    """Per task and method, how many episodes were lost and why (`LostEpisodes`), and how many were solved
+    before any failure, where recovery plays no part (`solved_before_any_failure`)."""
     lines = [f"| task | method | {LOST_HEADER} | {SOLVED_HEADER} |", "|---|---|---|---|"]
     for task, methods in episodes.items():
         for method, runs in methods.items():
-            lines.append(f"| {task} | {METHOD_LABELS[method]} | {LostEpisodes.of(runs)} | "
-                         f"{solved_before_any_failure(runs)} |")
+            lines.append(
+                f"| {task} | {METHOD_LABELS[method]} | {LostEpisodes.of(runs)} | "
+                f"{solved_before_any_failure(runs)} |"
+            )
     return "\n".join(lines)
 
 
@@ -148,8 +155,14 @@ def bar_chart(results: Results, path: str | Path) -> None:
             values = np.array([e.value if e else np.nan for e in est])
             errors = np.array([[e.value - e.low, e.high - e.value] if e else [np.nan, np.nan] for e in est]).T
             errors = np.clip(errors, 0.0, None)  # float round-off of one-valued bootstrap samples
-            ax.bar(x + (k - (len(methods) - 1) / 2) * width, values, width, yerr=errors, capsize=2,
-                   label=METHOD_LABELS[method])
+            ax.bar(
+                x + (k - (len(methods) - 1) / 2) * width,
+                values,
+                width,
+                yerr=errors,
+                capsize=2,
+                label=METHOD_LABELS[method],
+            )
         ax.set_title(label)
         ax.set_xticks(x, [t.removesuffix("-v0") for t in tasks], fontsize=8)
         if name != "attempts":

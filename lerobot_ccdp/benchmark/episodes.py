@@ -51,7 +51,8 @@ class Episodes:
 
     @classmethod
     def from_eval_info(cls, path: str | Path) -> Episodes:
-        """From the eval_info.json lerobot-eval writes (per-episode lists added by `lerobot_ccdp.compat.eval_metrics`)."""
+        """From the eval_info.json lerobot-eval writes (per-episode lists added by
+        `lerobot_ccdp.compat.eval_metrics`)."""
         info = json.loads(Path(path).read_text())
         tasks = info.get("per_task", [])
         if len(tasks) != 1:
@@ -69,7 +70,8 @@ class Episodes:
             repeated_failures=np.asarray(metrics["repeated_failures"], dtype=int),
             preference_matched=np.asarray(metrics["preference_matched"], dtype=bool),
             attempts_after_failure=np.asarray(
-                metrics.get("attempts_after_failure", [np.nan] * len(metrics["successes"])), dtype=float),
+                metrics.get("attempts_after_failure", [np.nan] * len(metrics["successes"])), dtype=float
+            ),
             failures=np.asarray(metrics.get("failures", [np.nan] * len(metrics["successes"])), dtype=float),
         )
 
@@ -88,10 +90,10 @@ class Episodes:
 
 @dataclass(frozen=True)
 class LostEpisodes:
-    """Why the unsuccessful episodes of a run were lost, which says whether recovery or execution costs success:
-    `with_repeat` repeated a failed option (what recovery should prevent); `without_failure` ended before any attempt
-    failed (the policy never completed one: an execution problem that no failure memory can fix); `distinct_failures`
-    failed only different options and ran out of time or of allowed failures."""
+    """Why the unsuccessful episodes of a run were lost, which says whether recovery or execution costs
+    success: `with_repeat` repeated a failed option (what recovery should prevent); `without_failure` ended
+    before any attempt failed (the policy never completed one: an execution problem that no failure memory can
+    fix); `distinct_failures` failed only different options and ran out of time or of allowed failures."""
 
     lost: int
     with_repeat: int
@@ -114,14 +116,17 @@ class LostEpisodes:
 
 
 def solved_before_any_failure(episodes: Episodes) -> str:
-    """Episodes solved without a failed attempt, and `solved / had` of those where an attempt failed: "45; 38 / 55".
+    """Episodes solved without a failed attempt, and `solved / had` of those where an attempt failed:
+    "45; 38 / 55".
 
     Until an episode's first failure DP, DP* and CCDP sample the same base policy: with common random numbers
-    (`noise_streams`) the first count matches between them, without them it differs by sampling luck alone; recovery
-    shows in the second. "n/a" where the run predates the failure count.
+    (`noise_streams`) the first count matches between them, without them it differs by sampling luck alone;
+    recovery shows in the second. "n/a" where the run predates the failure count.
     """
     if np.isnan(episodes.failures).any():
         return "n/a"
     failed = episodes.failures > 0
-    return (f"{int((episodes.success & ~failed).sum())}; "
-            f"{int((episodes.success & failed).sum())} / {int(failed.sum())}")
+    return (
+        f"{int((episodes.success & ~failed).sum())}; "
+        f"{int((episodes.success & failed).sum())} / {int(failed.sum())}"
+    )

@@ -57,32 +57,40 @@ def _bootstrap(n: int, of_indices: Callable[[np.ndarray], float], n_resamples: i
     return Estimate(float(value), float(low), float(high), n)
 
 
-def cluster_bootstrap(episodes: Episodes, statistic: Statistic, n_resamples: int = N_RESAMPLES,
-                      seed: int = 0) -> Estimate:
+def cluster_bootstrap(
+    episodes: Episodes, statistic: Statistic, n_resamples: int = N_RESAMPLES, seed: int = 0
+) -> Estimate:
     """`statistic` with a percentile interval from resampling whole episodes."""
     return _bootstrap(len(episodes), lambda idx: statistic(episodes, idx), n_resamples, seed)
 
 
-def paired_difference(a: Episodes, b: Episodes, statistic: Statistic, n_resamples: int = N_RESAMPLES,
-                      seed: int = 0) -> Estimate:
-    """statistic(a) - statistic(b) with a paired-bootstrap 95% interval (episode i of both resampled together)."""
+def paired_difference(
+    a: Episodes, b: Episodes, statistic: Statistic, n_resamples: int = N_RESAMPLES, seed: int = 0
+) -> Estimate:
+    """statistic(a) - statistic(b) with a paired-bootstrap 95% interval (episode i of both resampled
+    together)."""
     if len(a) != len(b):
-        raise ValueError(f"Paired comparison needs the same episodes (seeds) for both methods; got {len(a)} and "
-                         f"{len(b)}. Evaluate every method with the same eval config.")
+        raise ValueError(
+            f"Paired comparison needs the same episodes (seeds) for both methods; got {len(a)} and "
+            f"{len(b)}. Evaluate every method with the same eval config."
+        )
     return _bootstrap(len(a), lambda idx: statistic(a, idx) - statistic(b, idx), n_resamples, seed)
 
 
 def attempts_ratio(a: Episodes, b: Episodes, n_resamples: int = N_RESAMPLES, seed: int = 0) -> Estimate:
-    """Mean attempts of `a` over those of `b`, on the episodes both solved, with a paired-bootstrap interval."""
+    """Mean attempts of `a` over those of `b`, on the episodes both solved, with a paired-bootstrap
+    interval."""
     both = a.success & b.success
     x, y = a.attempts[both].astype(float), b.attempts[both].astype(float)
     return _bootstrap(len(x), lambda idx: x[idx].mean() / y[idx].mean(), n_resamples, seed)
 
 
-def verdict(estimate: Estimate, low_bound: float = -np.inf, high_bound: float = np.inf, strict: bool = False) -> str:
-    """Judge a target `low_bound <= value <= high_bound` (`<` with `strict`) from the 95% interval: `met` if the
-    whole interval satisfies it, `missed` if none of it does, `tie` if the interval is exactly a bound (every seed
-    equal), else `not distinguishable` at this many episodes."""
+def verdict(
+    estimate: Estimate, low_bound: float = -np.inf, high_bound: float = np.inf, strict: bool = False
+) -> str:
+    """Judge a target `low_bound <= value <= high_bound` (`<` with `strict`) from the 95% interval: `met` if
+    the whole interval satisfies it, `missed` if none of it does, `tie` if the interval is exactly a bound
+    (every seed equal), else `not distinguishable` at this many episodes."""
     low, high = estimate.low, estimate.high
     if np.isnan(low):
         return "n/a"

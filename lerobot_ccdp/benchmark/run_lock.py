@@ -52,8 +52,10 @@ def _locked(path: Path, out: Path) -> IO[str]:
             handle.seek(0)
             pid = handle.read().strip() or "unknown"
             handle.close()
-            raise PipelineRunning(f"Another pipeline (pid {pid}) is running on {out}: wait for it to finish, or stop "
-                                  f"it (kill {pid}) before starting this one.") from None
+            raise PipelineRunning(
+                f"Another pipeline (pid {pid}) is running on {out}: wait for it to finish, or stop "
+                f"it (kill {pid}) before starting this one."
+            ) from None
         with contextlib.suppress(FileNotFoundError):
             if os.path.samestat(os.fstat(handle.fileno()), os.stat(path)):
                 return handle
@@ -61,8 +63,9 @@ def _locked(path: Path, out: Path) -> IO[str]:
 
 
 def die_with_parent(parent: int) -> None:
-    """`preexec_fn` of a stage (bind `parent`, the pipeline's pid): the kernel kills it when the pipeline process
-    dies, however it dies (Linux). A pipeline that died before the signal was armed is caught by the parent check."""
+    """`preexec_fn` of a stage (bind `parent`, the pipeline's pid): the kernel kills it when the pipeline
+    process dies, however it dies (Linux). A pipeline that died before the signal was armed is caught by the
+    parent check."""
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
     if os.getppid() != parent:

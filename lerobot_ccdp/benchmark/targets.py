@@ -37,20 +37,49 @@ def target_checks(episodes: dict[str, dict[str, Episodes]]) -> str:
         if ccdp is None:
             continue
         rate = cluster_bootstrap(ccdp, repeats_per_attempt)
-        row(task, f"repeated-failure rate <= {REPEAT_TARGET}", "CCDP rate", rate, verdict(rate, high_bound=REPEAT_TARGET))
-        for ref, low, strict in (("dp", 0.0, True), ("dp_star", -NON_INFERIORITY, False),
-                                 ("dp_star_matched", 0.0, True)):
+        row(
+            task,
+            f"repeated-failure rate <= {REPEAT_TARGET}",
+            "CCDP rate",
+            rate,
+            verdict(rate, high_bound=REPEAT_TARGET),
+        )
+        for ref, low, strict in (
+            ("dp", 0.0, True),
+            ("dp_star", -NON_INFERIORITY, False),
+            ("dp_star_matched", 0.0, True),
+        ):
             if ref in methods:
                 diff = paired_difference(ccdp, methods[ref], success_rate)
-                target = f"> {METHOD_LABELS[ref]}" if strict else f"non-inferior to {METHOD_LABELS[ref]} (margin {-low:g})"
-                row(task, f"success {target}", f"CCDP - {METHOD_LABELS[ref]}", diff,
-                    verdict(diff, low_bound=low, strict=strict))
+                target = (
+                    f"> {METHOD_LABELS[ref]}"
+                    if strict
+                    else f"non-inferior to {METHOD_LABELS[ref]} (margin {-low:g})"
+                )
+                row(
+                    task,
+                    f"success {target}",
+                    f"CCDP - {METHOD_LABELS[ref]}",
+                    diff,
+                    verdict(diff, low_bound=low, strict=strict),
+                )
         if has_preference(task) and "dp_star" in methods:
             both = ccdp.success & methods["dp_star"].success  # compare preference, not success
             diff = paired_difference(ccdp.subset(both), methods["dp_star"].subset(both), preference_rate)
-            row(task, "preference >= DP* (episodes both solved)", "CCDP - DP*", diff, verdict(diff, low_bound=0.0))
+            row(
+                task,
+                "preference >= DP* (episodes both solved)",
+                "CCDP - DP*",
+                diff,
+                verdict(diff, low_bound=0.0),
+            )
         if "oracle" in methods:
             ratio = attempts_ratio(ccdp, methods["oracle"])
-            row(task, f"attempts within {ATTEMPTS_TOLERANCE:.0%} of oracle (episodes both solved)", "CCDP / oracle",
-                ratio, verdict(ratio, low_bound=1 - ATTEMPTS_TOLERANCE, high_bound=1 + ATTEMPTS_TOLERANCE))
+            row(
+                task,
+                f"attempts within {ATTEMPTS_TOLERANCE:.0%} of oracle (episodes both solved)",
+                "CCDP / oracle",
+                ratio,
+                verdict(ratio, low_bound=1 - ATTEMPTS_TOLERANCE, high_bound=1 + ATTEMPTS_TOLERANCE),
+            )
     return "\n".join(rows)

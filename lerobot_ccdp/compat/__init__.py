@@ -1,1 +1,2 @@
-"""Every adaptation of LeRobot (and MuJoCo) behaviour, in one place, each installed only where it is needed."""
+"""Every adaptation of LeRobot (and MuJoCo) behaviour, in one place, each installed only where it is
+needed."""

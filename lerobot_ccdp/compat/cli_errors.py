@@ -3,9 +3,9 @@
 LeRobot's CLIs parse their configs with draccus, which turns the ValueError a config's checks raise into
 "Couldn't instantiate class CCDPConfig using the given arguments" and prints the real message 60 lines higher,
 in the middle of the traceback. The hook below, installed by importing the plugin, prints the traceback as
-before and then repeats that buried error as the last line. It acts only when the uncaught exception was raised
-while handling a ValueError or TypeError from this package's own code, so a LeRobot that stops burying the
-message (the error is then the top exception) leaves the output unchanged.
+before and then repeats that buried error as the last line. It acts only when the uncaught exception was
+raised while handling a ValueError or TypeError from this package's own code, so a LeRobot that stops burying
+the message (the error is then the top exception) leaves the output unchanged.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ PACKAGE = Path(__file__).resolve().parents[1]  # lerobot_ccdp, whose code raised
 
 
 def buried_error(error: BaseException) -> BaseException | None:
-    """The ValueError or TypeError of this package's code that `error` was raised from or while handling, if any."""
+    """The ValueError or TypeError of this package's code that `error` was raised from or while handling, if
+    any."""
     seen, link = {id(error)}, error.__cause__ or error.__context__
     while link is not None and id(link) not in seen:
         if isinstance(link, (ValueError, TypeError)) and _raised_here(link):

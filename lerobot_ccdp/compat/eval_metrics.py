@@ -1,4 +1,5 @@
-"""Per-episode task metrics in lerobot-eval's eval_info.json: attempts, failures, repeated failures, preference.
+"""Per-episode task metrics in lerobot-eval's eval_info.json: attempts, failures, repeated failures,
+preference.
 
 LeRobot's eval loop keeps only the reward and `is_success` of each episode, but the CCDP comparison (DESIGN
 section 8) needs the rest of the env's final `info`. This module wraps `lerobot_eval.eval_one` (installed on
@@ -23,7 +24,13 @@ import numpy as np
 
 logger = logging.getLogger(__name__)
 
-EPISODE_INFO_KEYS = ("attempts", "failures", "repeated_failures", "attempts_after_failure", "preference_matched")
+EPISODE_INFO_KEYS = (
+    "attempts",
+    "failures",
+    "repeated_failures",
+    "attempts_after_failure",
+    "preference_matched",
+)
 
 
 def _row(info: dict[str, Any], key: str, i: int) -> Any | None:

@@ -1,8 +1,8 @@
 """Pass the env's `failure` key through to the policy as `observation.failure` where LeRobot drops it.
 
 LeRobot's `preprocess_observation` (0.4.x and 0.5.x) keeps only the keys it knows, so the policy would never
-see a failure during `lerobot-eval` or lerobot-train's periodic eval. Whether the installed LeRobot drops it is
-detected by calling it, not read from its version number, so the wrapper disappears by itself on a LeRobot
+see a failure during `lerobot-eval` or lerobot-train's periodic eval. Whether the installed LeRobot drops it
+is detected by calling it, not read from its version number, so the wrapper disappears by itself on a LeRobot
 that passes the key through as `observation.failure`.
 """
 
@@ -18,7 +18,8 @@ ENV_FAILURE_KEY = "failure"
 
 
 def needs_backport() -> bool:
-    """Whether LeRobot's preprocess_observation loses an env's `failure` key (probed with a tiny observation)."""
+    """Whether LeRobot's preprocess_observation loses an env's `failure` key (probed with a tiny
+    observation)."""
     from lerobot.envs.utils import preprocess_observation
 
     probe = {"agent_pos": np.zeros((1, 2), np.float32), ENV_FAILURE_KEY: np.ones((1, 1), np.float32)}

@@ -19,7 +19,9 @@ def lerobot_policy_server() -> ModuleType:
     try:
         from lerobot.async_inference import policy_server
     except ModuleNotFoundError as error:
-        raise SystemExit(f"LeRobot's async inference needs the {error.name!r} package: {INSTALL_HINT}") from error
+        raise SystemExit(
+            f"LeRobot's async inference needs the {error.name!r} package: {INSTALL_HINT}"
+        ) from error
     return policy_server
 
 
@@ -27,7 +29,12 @@ def supported_policies(server: ModuleType) -> list[str]:
     """The list the server checks a requested policy type against, found by what it holds (LeRobot's built-in
     `diffusion` among strings) rather than by its name, which LeRobot may change between versions."""
     for value in vars(server).values():
-        if isinstance(value, list) and value and all(isinstance(v, str) for v in value) and "diffusion" in value:
+        if (
+            isinstance(value, list)
+            and value
+            and all(isinstance(v, str) for v in value)
+            and "diffusion" in value
+        ):
             return value
     raise RuntimeError(
         f"{server.__name__} has no list of supported policy types (one holding 'diffusion'); this LeRobot's "

@@ -1,9 +1,10 @@
-"""Command-line configs of `lerobot-ccdp-record` and `lerobot-ccdp-synthesize`, parsed with draccus as LeRobot's.
+"""Command-line configs of `lerobot-ccdp-record` and `lerobot-ccdp-synthesize`, parsed with draccus as
+LeRobot's.
 
 `--config_path=datasets_recipes/<task>.yaml` reads the command's own section of a recipe file (`record:` or
 `recovery:`; the other one belongs to the other command) and dotted flags override any field
-(`--record.n_episodes=2`, `--recovery.sigma=0.05`). Without `--config_path` every required field comes from flags.
-`--help` lists every field with its default.
+(`--record.n_episodes=2`, `--recovery.sigma=0.05`). Without `--config_path` every required field comes from
+flags. `--help` lists every field with its default.
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ class CheckpointConfig:
     # required: a ccdp base checkpoint, the pretrained_model folder lerobot-train writes
     # (<run>/checkpoints/last/pretrained_model)
     path: Path
-    device: str | None = None  # where the policy runs, e.g. cpu or cuda; null: the checkpoint's, or cpu if absent
+    # where the policy runs, e.g. cpu or cuda; null: the checkpoint's, or cpu if absent
+    device: str | None = None
 
 
 @dataclass
@@ -73,7 +75,8 @@ class RecordConfig(RecipeCommandConfig):
 class SynthesizeConfig(RecipeCommandConfig):
     """lerobot-ccdp-synthesize: turn demonstrations and a base checkpoint into a recovery dataset (eq. 5-7).
 
-    --config_path=<recipe yaml> reads the file's `recovery:` section; --recovery.<field>=... flags override it."""
+    --config_path=<recipe yaml> reads the file's `recovery:` section;
+    --recovery.<field>=... flags override it."""
 
     recovery: RecoveryRecipe  # how to synthesise: the `recovery:` section of the recipe file
     dataset: LocalDatasetConfig  # the demonstrations the base was trained on
@@ -88,8 +91,8 @@ class SynthesizeConfig(RecipeCommandConfig):
 
 @draccus.decode.register(RecipeCommandConfig, include_subclasses=True)
 def _decode(config_class: type[RecipeCommandConfig], raw_value: dict[str, Any], path: Sequence[str]):
-    """The recipe section goes through its recipe's own checks (`from_dict`: unknown fields, strict types, ranges,
-    the same messages as for a recipe file), every other field as draccus decodes it."""
+    """The recipe section goes through its recipe's own checks (`from_dict`: unknown fields, strict types,
+    ranges, the same messages as for a recipe file), every other field as draccus decodes it."""
     hints = typing.get_type_hints(config_class)
     values = {}
     for name, value in raw_value.items():
@@ -105,21 +108,26 @@ def _decode(config_class: type[RecipeCommandConfig], raw_value: dict[str, Any], 
 def parse_cli(config_class: type[T], args: Sequence[str] | None = None) -> T:
     """Parse `args` (default: sys.argv[1:]) into `config_class`; a wrong flag or value exits naming it.
 
-    As LeRobot's `parser.wrap`, but `--config_path` names a recipe file of which only the command's own section
-    (`config_class.section`) is read, so one file serves both commands."""
+    As LeRobot's `parser.wrap`, but `--config_path` names a recipe file of which only the command's own
+    section (`config_class.section`) is read, so one file serves both commands."""
     args = sys.argv[1:] if args is None else list(args)
     config_path, args = parser.parse_arg("config_path", args), parser.filter_arg("config_path", args)
     section = config_class.section
     try:
-        if "--config_path" in args:  # draccus would read the whole file, both sections, as this command's config
+        # draccus would read the whole file, both sections, as this command's config
+        if "--config_path" in args:
             raise ValueError("write the recipe as --config_path=<recipe yaml>, with '='")
         file_values = {section: read_recipe_section(config_path, section)} if config_path else {}
         missing = [f"--{name}" for name in _required_fields(config_class) if not _given(name, args)]
-        if config_path:  # the section's own check names what the file lacks, after any unknown (misspelt) field
+        # the section's own check names what the file lacks, after any unknown (misspelt) field
+        if config_path:
             missing = [flag for flag in missing if not flag.startswith(f"--{section}.")]
         if missing and not {"-h", "--help"} & set(args):
-            hint = (f" (or name a recipe file holding the {section}.* ones with --config_path=<recipe yaml>)"
-                    if any(flag.startswith(f"--{section}.") for flag in missing) else "")
+            hint = (
+                f" (or name a recipe file holding the {section}.* ones with --config_path=<recipe yaml>)"
+                if any(flag.startswith(f"--{section}.") for flag in missing)
+                else ""
+            )
             raise ValueError(f"missing required flag(s): {', '.join(missing)}{hint}")
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / "config.yaml"

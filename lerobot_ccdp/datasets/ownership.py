@@ -1,9 +1,10 @@
-"""Folders this project created, told apart from everything else, so that no command deletes what it did not create.
+"""Folders this project created, told apart from everything else, so that no command deletes what it did not
+create.
 
 A folder is ours when it holds `MARKER`, recording which command made it and a digest of the path it was made
-at: a digest, not the path, since a dataset pushed to the Hub uploads its marker. A copy, a download, a move or
-a symlink to one of our folders is therefore not ours. Datasets (`datasets/staging.py`), the pipeline's output
-folder and the benchmarks' work folders all use it: `--overwrite` and `--fresh` delete only what
+at: a digest, not the path, since a dataset pushed to the Hub uploads its marker. A copy, a download, a move
+or a symlink to one of our folders is therefore not ours. Datasets (`datasets/staging.py`), the pipeline's
+output folder and the benchmarks' work folders all use it: `--overwrite` and `--fresh` delete only what
 `owner` recognises, never by the shape of a folder's contents.
 """
 
@@ -22,23 +23,23 @@ class NotOwned(RuntimeError):
 
 
 def identity(folder: str | Path) -> str:
-    """A digest of where `folder` is: its parent resolved (symlinks, `..`, relative spellings), its own name as
-    given, so that a symlink named elsewhere is not the folder it points to."""
+    """A digest of where `folder` is: its parent resolved (symlinks, `..`, relative spellings), its own name
+    as given, so that a symlink named elsewhere is not the folder it points to."""
     folder = Path(folder).absolute()
     where = folder.resolve() if folder.name in ("", "..") else folder.parent.resolve() / folder.name
     return hashlib.sha256(str(where).encode()).hexdigest()
 
 
 def mark(folder: str | Path, created_by: str, at: str | Path | None = None) -> None:
-    """Write `folder`'s marker, naming `created_by`, for the path `at` the folder will have (default: where it is;
-    a dataset is marked in its staging folder before it is renamed into place)."""
+    """Write `folder`'s marker, naming `created_by`, for the path `at` the folder will have (default: where it
+    is; a dataset is marked in its staging folder before it is renamed into place)."""
     record = {"created_by": created_by, "path_sha256": identity(folder if at is None else at)}
     (Path(folder) / MARKER).write_text(json.dumps(record, indent=2) + "\n")
 
 
 def owner(folder: str | Path) -> str | None:
-    """Which of this project's commands made `folder` where it is now, or None (no marker, or one of a folder that
-    was copied, moved or downloaded here)."""
+    """Which of this project's commands made `folder` where it is now, or None (no marker, or one of a folder
+    that was copied, moved or downloaded here)."""
     try:
         record = json.loads((Path(folder) / MARKER).read_text())
     except (OSError, ValueError):
@@ -48,37 +49,48 @@ def owner(folder: str | Path) -> str | None:
     return str(record.get("created_by"))
 
 
-def check_output_folder(out: Path, created_by: str, fresh: bool = False, adopt: bool = False,
-                        flag: str = "--out") -> None:
+def check_output_folder(
+    out: Path, created_by: str, fresh: bool = False, adopt: bool = False, flag: str = "--out"
+) -> None:
     """Refuse (NotOwned) an output folder `created_by` did not make, before anything is written or deleted.
 
-    A missing or empty folder, or one `created_by` marked where it is now, is used; `adopt` marks a folder of an
-    earlier version, made before the marker. `fresh` never deletes the working directory, the home folder or a
-    folder holding them, marked or not."""
+    A missing or empty folder, or one `created_by` marked where it is now, is used; `adopt` marks a folder of
+    an earlier version, made before the marker. `fresh` never deletes the working directory, the home folder
+    or a folder holding them, marked or not."""
     real = out.resolve()
     if fresh and any(p.is_relative_to(real) for p in (Path.cwd().resolve(), Path.home().resolve())):
-        raise NotOwned(f"{flag} {real} is or holds the working directory or the home folder, which --fresh would "
-                       "delete. Nothing was deleted; choose another folder.")
+        raise NotOwned(
+            f"{flag} {real} is or holds the working directory or the home folder, which --fresh would "
+            "delete. Nothing was deleted; choose another folder."
+        )
     if real.exists() and not real.is_dir():
         raise NotOwned(f"{flag} {real} is a file, not a folder. Nothing was changed; choose another folder.")
     made_by = owner(real) if real.exists() else None
     if adopt or not real.exists() or made_by == created_by or not any(real.iterdir()):
         return
-    reason = (f"it was made by {made_by}, not by {created_by}" if made_by else
-              f"it holds files and no {MARKER} of this folder (the mark of one {created_by} made here; a moved "
-              "or copied output folder carries the mark of its old place)")
+    reason = (
+        f"it was made by {made_by}, not by {created_by}"
+        if made_by
+        else f"it holds files and no {MARKER} of this folder (the mark of one {created_by} made here; "
+        "a moved or copied output folder carries the mark of its old place)"
+    )
     if fresh:
-        advice = "--fresh deletes only a folder this command made: choose another folder, or delete it yourself"
+        advice = (
+            "--fresh deletes only a folder this command made: choose another folder, or delete it yourself"
+        )
     else:
-        advice = ("Choose another folder, or, if it is an output folder of an earlier version of this command, "
-                  "rerun with --adopt to mark it as its own and resume it")
+        advice = (
+            "Choose another folder, or, if it is an output folder of an earlier version of this command, "
+            "rerun with --adopt to mark it as its own and resume it"
+        )
     raise NotOwned(f"Refusing {flag} {real}: {reason}. Nothing was deleted or written. {advice}.")
 
 
-def claim_output_folder(out: Path, created_by: str, fresh: bool = False, adopt: bool = False,
-                        flag: str = "--out") -> None:
-    """Make `out` `created_by`'s folder, emptied with `fresh`, once `check_output_folder` allows it (checked again
-    here, at the moment of change)."""
+def claim_output_folder(
+    out: Path, created_by: str, fresh: bool = False, adopt: bool = False, flag: str = "--out"
+) -> None:
+    """Make `out` `created_by`'s folder, emptied with `fresh`, once `check_output_folder` allows it (checked
+    again here, at the moment of change)."""
     check_output_folder(out, created_by, fresh, adopt, flag)
     real = out.resolve()
     if fresh and real.exists():

@@ -51,7 +51,8 @@ class RecordRecipe:
     fps: int = CONTROL_FPS  # the tasks' control rate; no other value is accepted
     max_episode_steps: int | None = None  # step limit of an episode; null: the task's own
     task_description: str | None = None  # the dataset's task text; null: the task's own description
-    env_kwargs: dict[str, Any] = field(default_factory=dict)  # extra env arguments, e.g. {obs_type: pixels_agent_pos}
+    # extra env arguments, e.g. {obs_type: pixels_agent_pos}
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any], source: str | None = None) -> RecordRecipe:
@@ -65,11 +66,15 @@ class RecordRecipe:
         accepted = env_arguments(env_class)
         unknown = sorted(set(recipe.env_kwargs) - set(accepted))
         if unknown:
-            raise ValueError(f"{at}record.env_kwargs: {recipe.task} takes no argument(s) "
-                             f"{', '.join(unknown)}; it accepts {', '.join(accepted)} (the step limit is "
-                             "record.max_episode_steps)")
+            raise ValueError(
+                f"{at}record.env_kwargs: {recipe.task} takes no argument(s) "
+                f"{', '.join(unknown)}; it accepts {', '.join(accepted)} (the step limit is "
+                "record.max_episode_steps)"
+            )
         if recipe.fps != CONTROL_FPS:
-            raise ValueError(f"{at}record.fps must be {CONTROL_FPS} (the tasks' control rate), got {recipe.fps}")
+            raise ValueError(
+                f"{at}record.fps must be {CONTROL_FPS} (the tasks' control rate), got {recipe.fps}"
+            )
         return recipe
 
     @classmethod
@@ -85,18 +90,22 @@ class RecoveryRecipe:
     other fields are the synthesis parameters. Distances are in the policy's normalised space.
     """
 
-    failure_feature: str  # required: what z is, one of final_state, action, primitive (as --policy.failure_feature)
+    # required: what z is, one of final_state, action, primitive (as --policy.failure_feature)
+    failure_feature: str
     failure_state_key: str = OBS_STATE  # final_state z: the observation that forms z
     failure_state_dims: list[int] = field(default_factory=list)  # final_state z: which of its dims; []: all
-    failure_action_steps: list[int] = field(default_factory=list)  # action z: which steps of the chunk; []: all
-    failure_action_dims: list[int] = field(default_factory=list)  # action z: which action dims at each step; []: all
+    # action z: which steps of the chunk; []: all
+    failure_action_steps: list[int] = field(default_factory=list)
+    # action z: which action dims at each step; []: all
+    failure_action_dims: list[int] = field(default_factory=list)
     primitive_key: str = "primitive"  # primitive z: the dataset column of the option label
     num_primitives: int = 0  # primitive z: the number of options (z is one-hot)
     n_states: int = 512  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
     chunks_per_state: int = 16  # chunks sampled around each x_s from eq. (7)
     sigma: float = 0.02  # std of the state noise xi_x (eq. 6)
     w_s: float = 0.8  # state weight of eq. (7); <= 1 widens the proposals
-    outcome_radius: float = 0.0  # drop sampled chunks whose RMS gap to every demonstrated chunk exceeds this; 0 keeps all
+    # drop sampled chunks whose RMS gap to every demonstrated chunk exceeds this; 0 keeps all
+    outcome_radius: float = 0.0
     demo_frames: int = 4096  # demonstrated chunks that join the pool; 0 = synthesised chunks only
     delta_z: float = 0.5  # eq. (5): a recovery's z differs from the failure's by more than this
     delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
@@ -110,17 +119,22 @@ class RecoveryRecipe:
         at = f"{source}: " if source else ""
         recipe = _build(cls, values, "recovery", at)
         if recipe.failure_feature not in FAILURE_FEATURES:
-            raise ValueError(f"{at}recovery.failure_feature must be one of {list(FAILURE_FEATURES)}, "
-                             f"got {recipe.failure_feature!r}")
+            raise ValueError(
+                f"{at}recovery.failure_feature must be one of {list(FAILURE_FEATURES)}, "
+                f"got {recipe.failure_feature!r}"
+            )
         if not 0.0 < recipe.w_s <= 1.0:
             raise ValueError(f"{at}recovery.w_s must be in (0, 1] (eq. 7), got {recipe.w_s}")
         counts = ("chunks_per_state", "pairs_per_failure", "batch_states")
         bad = [name for name in counts if getattr(recipe, name) < 1] + [
-            name for name in ("n_states", "demo_frames", "sigma", "delta_z", "delta_x", "outcome_radius")
+            name
+            for name in ("n_states", "demo_frames", "sigma", "delta_z", "delta_x", "outcome_radius")
             if getattr(recipe, name) < 0
         ]
         if bad:
-            raise ValueError(f"{at}recovery field(s) {', '.join(bad)} out of range (counts >= 1, the rest >= 0)")
+            raise ValueError(
+                f"{at}recovery field(s) {', '.join(bad)} out of range (counts >= 1, the rest >= 0)"
+            )
         if recipe.n_states == 0 and recipe.demo_frames == 0:
             raise ValueError(f"{at}recovery.n_states and recovery.demo_frames are both 0: the pool is empty")
         return recipe
@@ -147,28 +161,42 @@ def env_arguments(env_class: type) -> list[str]:
         if "__init__" not in vars(klass):
             continue
         parameters = inspect.signature(klass.__init__).parameters.values()
-        names += [p.name for p in parameters if p.name != "self" and p.name not in names
-                  and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        names += [
+            p.name
+            for p in parameters
+            if p.name != "self"
+            and p.name not in names
+            and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+        ]
         if not any(p.kind is p.VAR_KEYWORD for p in parameters):
             break
     return names
 
 
 def _build(cls: type, values: dict[str, Any], section: str, at: str):
-    """Instantiate a recipe dataclass from its section, naming unknown, missing, mistyped and non-finite fields."""
+    """Instantiate a recipe dataclass from its section, naming unknown, missing, mistyped and non-finite
+    fields."""
     known = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(values) - set(known))
     if unknown:
-        raise ValueError(f"{at}unknown field(s) in `{section}:`: {', '.join(unknown)}; known: {', '.join(known)}")
-    required = [n for n, f in known.items() if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+        raise ValueError(
+            f"{at}unknown field(s) in `{section}:`: {', '.join(unknown)}; known: {', '.join(known)}"
+        )
+    required = [
+        n
+        for n, f in known.items()
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
     missing = [n for n in required if n not in values]
     if missing:
         raise ValueError(f"{at}`{section}:` is missing required field(s): {', '.join(missing)}")
     hints = typing.get_type_hints(cls)
     for name, value in values.items():
         if not _has_type(value, hints[name]):
-            raise ValueError(f"{at}{section}.{name} must be {_type_name(hints[name])}, got {value!r} "
-                             f"({type(value).__name__}); write it without quotes or decimals where a number is meant")
+            raise ValueError(
+                f"{at}{section}.{name} must be {_type_name(hints[name])}, got {value!r} "
+                f"({type(value).__name__}); write it without quotes or decimals where a number is meant"
+            )
         if (where := _non_finite(value, f"{section}.{name}")) is not None:
             raise ValueError(f"{at}{where} must be a finite number, not NaN or infinite")
     return cls(**values)

@@ -2,10 +2,11 @@
 
 The dataset holds what the env observes: `observation.state` and `observation.environment_state` (obs_type
 `state`), or `observation.state` and one `observation.images.<camera>` video per camera (obs_type
-`pixels_agent_pos`, set in the recipe's `env_kwargs`), then `action`, plus two per-frame labels: `primitive` (the option the expert executes in that frame) and `hidden_param` (the
-episode's hidden parameter, for analysis; no policy input reads it). Only successful episodes are kept.
-It is written to a temporary folder next to `--dataset.root` and renamed into place when complete, so an
-interrupted run leaves nothing half-written there; its ownership marker lets `--overwrite` replace it later.
+`pixels_agent_pos`, set in the recipe's `env_kwargs`), then `action`, plus two per-frame labels: `primitive`
+(the option the expert executes in that frame) and `hidden_param` (the episode's hidden parameter, for
+analysis; no policy input reads it). Only successful episodes are kept. It is written to a temporary folder
+next to `--dataset.root` and renamed into place when complete, so an interrupted run leaves nothing
+half-written there; its ownership marker lets `--overwrite` replace it later.
 
     lerobot-ccdp-record --config_path=datasets_recipes/door_opening.yaml \
         --dataset.repo_id=local/door_opening --dataset.root=data/door_opening [--record.n_episodes=20]
@@ -39,15 +40,21 @@ RECIPE_COPY = "meta/ccdp_record_recipe.yaml"
 
 
 def dataset_features(env: CCDPTaskEnv) -> dict[str, dict]:
-    """LeRobot feature spec of a task's demo dataset, from what the env observes (cameras are stored as videos)."""
-    features = {OBS_STATE: {"dtype": "float32", "shape": (len(AGENT_POS_NAMES),), "names": list(AGENT_POS_NAMES)}}
+    """LeRobot feature spec of a task's demo dataset, from what the env observes (cameras are stored as
+    videos)."""
+    features = {
+        OBS_STATE: {"dtype": "float32", "shape": (len(AGENT_POS_NAMES),), "names": list(AGENT_POS_NAMES)}
+    }
     spaces = env.observation_space.spaces
     if "environment_state" in spaces:
         names = list(env.env_state_names)
         features[OBS_ENV_STATE] = {"dtype": "float32", "shape": (len(names),), "names": names}
     for camera, space in spaces.get("pixels", {}).items():
-        features[f"{OBS_IMAGES}.{camera}"] = {"dtype": "video", "shape": space.shape,
-                                              "names": ["height", "width", "channels"]}
+        features[f"{OBS_IMAGES}.{camera}"] = {
+            "dtype": "video",
+            "shape": space.shape,
+            "names": ["height", "width", "channels"],
+        }
     return {
         **features,
         ACTION: {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
@@ -68,7 +75,9 @@ def _observation_frame(observation: dict) -> dict[str, np.ndarray]:
 
 def _add_episode(dataset: LeRobotDataset, episode: Episode, description: str) -> None:
     hidden = np.array([episode.hidden_param], dtype=np.float32)
-    for observation, action, option in zip(episode.observations, episode.actions, episode.options, strict=True):
+    for observation, action, option in zip(
+        episode.observations, episode.actions, episode.options, strict=True
+    ):
         dataset.add_frame(
             {
                 **_observation_frame(observation),
@@ -91,12 +100,15 @@ def record_dataset(
             discarded = _record_into(staging, recipe, repo_id, env, progress)
     finally:
         env.close()
-    logger.info("Recorded %d episodes (%d discarded) of %s to %s", recipe.n_episodes, discarded, recipe.task, root)
+    logger.info(
+        "Recorded %d episodes (%d discarded) of %s to %s", recipe.n_episodes, discarded, recipe.task, root
+    )
     return root
 
 
 def _record_into(path: Path, recipe: RecordRecipe, repo_id: str, env: gym.Env, progress: bool) -> int:
-    """Record the recipe's episodes into a new dataset at `path`; return how many expert failures were discarded."""
+    """Record the recipe's episodes into a new dataset at `path`; return how many expert failures were
+    discarded."""
     description = recipe.task_description or env.unwrapped.task_description
     features = dataset_features(env.unwrapped)
     dataset = LeRobotDataset.create(
@@ -117,12 +129,17 @@ def _record_into(path: Path, recipe: RecordRecipe, repo_id: str, env: gym.Env, p
                 if episode.success:
                     break
                 discarded += 1
-                logger.warning("Expert failed on seed %d (hidden_param=%d); episode discarded", seed - 1, episode.hidden_param)
+                logger.warning(
+                    "Expert failed on seed %d (hidden_param=%d); episode discarded",
+                    seed - 1,
+                    episode.hidden_param,
+                )
                 if discarded > recipe.n_episodes:
                     raise RuntimeError(f"The {recipe.task} expert failed {discarded} times; giving up")
             _add_episode(dataset, episode, description)
     finally:
-        dataset.finalize()  # close its writers now, or their destructors write into the deleted staging folder
+        # close its writers now, or their destructors write into the deleted staging folder
+        dataset.finalize()
     (path / RECIPE_COPY).write_text(yaml.safe_dump({"record": _as_dict(recipe)}, sort_keys=False))
     return discarded
 
@@ -139,7 +156,8 @@ def _as_dict(recipe: RecordRecipe) -> dict:
 
 
 def main(args: list[str] | None = None) -> None:
-    """`lerobot-ccdp-record --config_path=<recipe yaml> --dataset.repo_id=... --dataset.root=...` (see --help)."""
+    """`lerobot-ccdp-record --config_path=<recipe yaml> --dataset.repo_id=... --dataset.root=...` (see
+    --help)."""
     cfg = parse_cli(RecordConfig, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     start = time.perf_counter()

@@ -1,8 +1,8 @@
 """Atomic dataset writing: build in a hidden folder beside the target, rename into place only when complete.
 
-A dataset written here carries an ownership marker for the path it was written at (`lerobot_ccdp.datasets.ownership`);
-`--overwrite` replaces only such a dataset at that same path, so it never deletes what this project did not create
-there."""
+A dataset written here carries an ownership marker for the path it was written at
+(`lerobot_ccdp.datasets.ownership`); `--overwrite` replaces only such a dataset at that same path, so it never
+deletes what this project did not create there."""
 
 from __future__ import annotations
 
@@ -45,22 +45,27 @@ def check_output_root(root: str | Path, overwrite: bool) -> None:
     """Refuse, before any work, a `root` that cannot be created or that exists and may not be replaced.
 
     --overwrite deletes what sits at `root` once the new dataset is complete, so it only reaches a dataset
-    this project wrote there (`ownership.owner`): never the working directory, its parents, or others' files."""
+    this project wrote there (`ownership.owner`): never the working directory, its parents, or others'
+    files."""
     root = Path(root)
     if not (root.exists() or root.is_symlink()):
         _check_parent_writable(root)
         return
     if not overwrite:
-        raise FileExistsError(f"{root} already exists; pass --overwrite=true to replace it, or choose "
-                              "another root")
+        raise FileExistsError(
+            f"{root} already exists; pass --overwrite=true to replace it, or choose another root"
+        )
     resolved, cwd = root.resolve(), Path.cwd().resolve()
     if resolved == cwd or resolved in cwd.parents:
-        raise ValueError(f"--overwrite refuses {root}: it holds the working directory. Name the dataset's "
-                         "own folder.")
+        raise ValueError(
+            f"--overwrite refuses {root}: it holds the working directory. Name the dataset's own folder."
+        )
     if owner(root) != CREATED_BY:
-        raise ValueError(f"--overwrite only replaces a dataset that lerobot_ccdp wrote at this same path "
-                         f"(marked by {MARKER}); {root} is not one, so nothing was deleted. Choose a "
-                         "new root, or remove that folder yourself if it is yours to lose.")
+        raise ValueError(
+            f"--overwrite only replaces a dataset that lerobot_ccdp wrote at this same path "
+            f"(marked by {MARKER}); {root} is not one, so nothing was deleted. Choose a "
+            "new root, or remove that folder yourself if it is yours to lose."
+        )
 
 
 def _check_parent_writable(root: Path) -> None:
@@ -89,9 +94,11 @@ def check_disjoint(
         source = Path(path).resolve()
         if out == source or out in source.parents or source in out.parents:
             relation = "is" if out == source else "holds" if out in source.parents else "lies inside"
-            raise ValueError(f"{output_flag}={output} {relation} {flag}={path} (resolved: {out} and "
-                             f"{source}), so writing it would destroy that input; nothing was done. Choose "
-                             f"an {output_flag} outside {flag}.")
+            raise ValueError(
+                f"{output_flag}={output} {relation} {flag}={path} (resolved: {out} and "
+                f"{source}), so writing it would destroy that input; nothing was done. Choose "
+                f"an {output_flag} outside {flag}."
+            )
 
 
 def remove_stale_staging(root: Path) -> None:
@@ -133,8 +140,9 @@ def staged_dataset_root(root: str | Path, overwrite: bool = False) -> Iterator[P
     try:
         root.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_staging(root)
-        staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.{os.getpid()}.", suffix=STAGING_SUFFIX,
-                                        dir=root.parent))
+        staging = Path(
+            tempfile.mkdtemp(prefix=f".{root.name}.{os.getpid()}.", suffix=STAGING_SUFFIX, dir=root.parent)
+        )
         yield staging / "dataset"
         mark(staging / "dataset", CREATED_BY, at=root)
         check_output_root(root, overwrite)  # again: what appeared at `root` meanwhile may not be ours
@@ -145,8 +153,10 @@ def staged_dataset_root(root: str | Path, overwrite: bool = False) -> Iterator[P
         _release_frames(error)
         code = _write_failure(error, root.parent)
         if code is not None:
-            message = (f"{os.strerror(code)} in {root.parent} while writing {root.name}: nothing was written "
-                       f"there and the partial copy is removed. {WRITE_FIXES[code]}")
+            message = (
+                f"{os.strerror(code)} in {root.parent} while writing {root.name}: nothing was written "
+                f"there and the partial copy is removed. {WRITE_FIXES[code]}"
+            )
             raise OSError(code, message) from error
         raise
     finally:

@@ -1,4 +1,5 @@
-"""Bartender: fill two cups one after the other; the nearest available cup is preferred; availability is hidden."""
+"""Bartender: fill two cups one after the other; the nearest available cup is preferred; availability is
+hidden."""
 
 from __future__ import annotations
 
@@ -25,11 +26,11 @@ class BartenderEnv(CCDPTaskEnv):
 
     right_start: probability that an episode whose cup 3 is available starts on the right of the cups
     (`right_home`) instead of `home`. From `home` the nearest cup is cup 0 and cup 3 is never filled first, so
-    demonstrations recorded only from there never show cup 3 full; a policy that fills it first then sees an input
-    it never saw. From the right the expert then fills cup 3 first, so no demonstration crosses the cups with every
-    cup empty in the other direction (with those, a base learnt to stop between two cups). Recipes set it for
-    recording, where the start then tells cup 3's availability; evaluation keeps 0 (and then draws nothing more
-    from the episode's seed).
+    demonstrations recorded only from there never show cup 3 full; a policy that fills it first then sees an
+    input it never saw. From the right the expert then fills cup 3 first, so no demonstration crosses the cups
+    with every cup empty in the other direction (with those, a base learnt to stop between two cups). Recipes
+    set it for recording, where the start then tells cup 3's availability; evaluation keeps 0 (and then draws
+    nothing more from the episode's seed).
     """
 
     name = "Bartender"
@@ -40,8 +41,9 @@ class BartenderEnv(CCDPTaskEnv):
     )
     default_episode_steps = 250
     home = (-0.32, -0.05, 0.15, 1.0)  # the gripper holds the bottle
-    right_home = (0.37, -0.05, 0.15, 1.0)  # 0.08 right of cup 3 (`home` is 0.10 left of cup 0; 0.39 would put the
-    # start noise at the workspace's 0.4 edge)
+    # 0.08 right of cup 3 (`home` is 0.10 left of cup 0; 0.39 would put the start noise at the workspace's
+    # 0.4 edge)
+    right_home = (0.37, -0.05, 0.15, 1.0)
     pour_z = 0.07  # end-effector height while pouring (below POUR_HEIGHT)
 
     def __init__(self, *args, right_start: float = 0.0, **kwargs):
@@ -56,7 +58,8 @@ class BartenderEnv(CCDPTaskEnv):
         return self.right_home if self._drew_right else self.home
 
     def _apply_hidden(self) -> None:
-        """A right start drawn for an episode whose cup 3 is unavailable moves to `home` (same start noise)."""
+        """A right start drawn for an episode whose cup 3 is unavailable moves to `home` (same start
+        noise)."""
         if self._drew_right and not self.hidden_param >> RIGHT_CUP & 1:
             start = np.asarray(self.home, dtype=np.float64).copy()
             start[:3] += self._start_noise
@@ -65,8 +68,13 @@ class BartenderEnv(CCDPTaskEnv):
 
     def _task_bodies_xml(self) -> str:
         glass, drink = "0.8 0.85 0.9 0.5", "0.9 0.6 0.1 1"
-        cups = [mocap_cylinder(f"cup_{i}", (x, y, 0.02), 0.025, 0.02, glass) for i, (x, y) in enumerate(CUPS_XY)]
-        drinks = [mocap_cylinder(f"drink_{i}", (x, y, EMPTY_Z), 0.02, 0.016, drink) for i, (x, y) in enumerate(CUPS_XY)]
+        cups = [
+            mocap_cylinder(f"cup_{i}", (x, y, 0.02), 0.025, 0.02, glass) for i, (x, y) in enumerate(CUPS_XY)
+        ]
+        drinks = [
+            mocap_cylinder(f"drink_{i}", (x, y, EMPTY_Z), 0.02, 0.016, drink)
+            for i, (x, y) in enumerate(CUPS_XY)
+        ]
         bottle = (
             '<body name="bottle" mocap="true">'
             '<geom type="cylinder" size="0.015 0.03" pos="0 0 -0.03" rgba="0.2 0.5 0.25 1"/></body>'

@@ -1,10 +1,10 @@
 """Bartender on the Franka Panda with contact physics: the gripper holds a real bottle over real cups.
 
-Same options, hidden parameter, observations and metrics as the lite task (`bartender.py`). The bottle is a free
-body held by the 2F-85's friction grasp and the cups are free bodies on the table, so a clumsy move knocks a cup
-over or drops the bottle. The pour is the one piece left to a rule, as liquid is not simulated at this cost:
-holding the bottle `POUR_HEIGHT` over a cup for `POUR_STEPS` steps pours; whether the cup could take the drink is
-the hidden parameter.
+Same options, hidden parameter, observations and metrics as the lite task (`bartender.py`). The bottle is a
+free body held by the 2F-85's friction grasp and the cups are free bodies on the table, so a clumsy move
+knocks a cup over or drops the bottle. The pour is the one piece left to a rule, as liquid is not simulated at
+this cost: holding the bottle `POUR_HEIGHT` over a cup for `POUR_STEPS` steps pours; whether the cup could
+take the drink is the hidden parameter.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from lerobot_ccdp.envs.panda import PandaArm
 
 BOTTLE_RADIUS, BOTTLE_HALF_HEIGHT = 0.015, 0.045
 BOTTLE_ABOVE_PINCH = 0.03  # the bottle's centre above the pinch point where the gripper takes it
-GRASP_SETTLE_STEPS = 150  # physics steps (0.3 s) the gripper closes on the bottle at reset, the bottle held still
+# physics steps (0.3 s) the gripper closes on the bottle at reset, the bottle held still
+GRASP_SETTLE_STEPS = 150
 
 
 class BartenderPhysicsEnv(BartenderEnv):
@@ -78,7 +79,8 @@ class BartenderPhysicsEnv(BartenderEnv):
         self._bottle_at_start = self.free_pose("bottle").copy()
 
     def _update_task(self):
-        self._cups = np.array([self.free_pose(f"cup_{i}")[:2] for i in range(len(CUPS_XY))])  # where they stand now
+        # where they stand now
+        self._cups = np.array([self.free_pose(f"cup_{i}")[:2] for i in range(len(CUPS_XY))])
         return super()._update_task()
 
     def _on_failure(self, option: int) -> None:

@@ -39,7 +39,8 @@ class OutcomeKind(Enum):
 
 @dataclass(frozen=True)
 class Outcome:
-    """The end of one attempt: which option was committed to, and (for successes) the option preferred then."""
+    """The end of one attempt: which option was committed to, and (for successes) the option preferred
+    then."""
 
     kind: OutcomeKind
     option: int
@@ -55,7 +56,8 @@ class Waypoint:
 
 
 class CCDPTaskEnv(gym.Env, abc.ABC):
-    """Base class: subclasses describe the task's bodies, hidden parameter, rules, options and expert plans."""
+    """Base class: subclasses describe the task's bodies, hidden parameter, rules, options and expert
+    plans."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FPS}
 
@@ -65,8 +67,8 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     env_state_names: tuple[str, ...]  # one name per environment_state dimension
     default_episode_steps: int
     home: tuple[float, float, float, float]  # robot start pose (x, y, z, grip)
-    # The robot and its scene: the lite tasks' Cartesian gripper, or the physics tasks' Franka Panda. It builds
-    # the model around the task's bodies, reads the end effector and executes (x, y, z, grip) targets.
+    # The robot and its scene: the lite tasks' Cartesian gripper, or the physics tasks' Franka Panda. It
+    # builds the model around the task's bodies, reads the end effector and executes (x, y, z, grip) targets.
     robot_class: type = CartesianGripper
 
     def __init__(
@@ -83,34 +85,44 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         observation_height: int = OBSERVATION_SIZE,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
+            )
         if obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {list(OBS_TYPES)}, got {obs_type!r}")
         unknown = sorted(set(cameras) - set(CAMERAS))
         if unknown or not cameras:
             raise ValueError(f"cameras must name one or more of {list(CAMERAS)}, got {list(cameras)}")
-        sizes = {"max_failures": 1 if max_failures is None else max_failures, "render_width": render_width,
-                 "render_height": render_height, "observation_width": observation_width,
-                 "observation_height": observation_height}
+        sizes = {
+            "max_failures": 1 if max_failures is None else max_failures,
+            "render_width": render_width,
+            "render_height": render_height,
+            "observation_width": observation_width,
+            "observation_height": observation_height,
+        }
         small = {name: value for name, value in sizes.items() if not value >= 1}
         noise = {"init_noise": init_noise, "layout_noise": layout_noise}
         small |= {name: value for name, value in noise.items() if not (np.isfinite(value) and value >= 0)}
         if small:
-            raise ValueError(f"{small}: the attempt budget and image sizes must be >= 1, the noise levels finite and "
-                             ">= 0. Fix the env setting (--env.<name>, or the recipe's env_kwargs).")
+            raise ValueError(
+                f"{small}: the attempt budget and image sizes must be >= 1, the noise levels finite and "
+                ">= 0. Fix the env setting (--env.<name>, or the recipe's env_kwargs)."
+            )
         self.render_mode = render_mode
         self.max_failures = self.n_options if max_failures is None else max_failures
         self.init_noise = init_noise
         self.layout_noise = layout_noise
         self.render_width, self.render_height = render_width, render_height
         self.obs_type, self.cameras = obs_type, tuple(cameras)
-        self._camera_renderer = CameraRenderer(observation_width, observation_height) if obs_type != "state" else None
+        self._camera_renderer = (
+            CameraRenderer(observation_width, observation_height) if obs_type != "state" else None
+        )
 
         self.model = self.robot_class.build_model(self.name, self._task_bodies_xml())
         self.data = mujoco.MjData(self.model)
         self.robot = self.robot_class(self.model, self.data)
-        # LeRobot's eval videos; made without shadows or reflections like the camera observations, which on the
-        # Panda scene cuts a 160 x 120 frame from about 107 to 41 ms in software OpenGL.
+        # LeRobot's eval videos; made without shadows or reflections like the camera observations, which on
+        # the Panda scene cuts a 160 x 120 frame from about 107 to 41 ms in software OpenGL.
         self._video_renderer = CameraRenderer(render_width, render_height)
         self._mocap_ids: dict[str, int] = {}
 
@@ -121,7 +133,9 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         )
         observations = {"agent_pos": spaces.Box(-1.0, 1.0, shape=(AGENT_POS_DIM,), dtype=np.float32)}
         if self._camera_renderer is None:
-            observations["environment_state"] = spaces.Box(-1.0, 1.0, shape=(len(self.env_state_names),), dtype=np.float32)
+            observations["environment_state"] = spaces.Box(
+                -1.0, 1.0, shape=(len(self.env_state_names),), dtype=np.float32
+            )
         else:
             frame = spaces.Box(0, 255, shape=(observation_height, observation_width, 3), dtype=np.uint8)
             observations["pixels"] = spaces.Dict({camera: frame for camera in self.cameras})
@@ -171,7 +185,8 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
 
     def _apply_hidden(self) -> None:
         """Give the simulation the episode's hidden parameter (a physics task's mass, say); default: nothing,
-        the task's rules read `hidden_param` themselves. Called after the layout, before the first observation."""
+        the task's rules read `hidden_param` themselves. Called after the layout, before the first
+        observation."""
 
     def _on_failure(self, option: int) -> None:
         """Undo what the failed attempt did to the objects (default: nothing; objects stay put)."""
@@ -219,7 +234,8 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         raise RuntimeError(f"{self.name}: no feasible option in stage (hidden_param={self.hidden_param})")
 
     def _start_pose(self) -> tuple[float, float, float, float]:
-        """Where an episode starts, before `init_noise`: `home` (a task may vary it for its demonstrations)."""
+        """Where an episode starts, before `init_noise`: `home` (a task may vary it for its
+        demonstrations)."""
         return self.home
 
     def hidden_label(self) -> float:
@@ -259,9 +275,11 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     def step(self, action):
         action = np.asarray(action, dtype=np.float64)
         if action.shape != self.action_space.shape or not np.isfinite(action).all():
-            raise ValueError(f"{type(self).__name__}.step takes a finite action of shape {self.action_space.shape} "
-                             f"(an end-effector target); got {action.tolist()}. A NaN action usually comes from a "
-                             "policy fed NaN observations or settings.")
+            raise ValueError(
+                f"{type(self).__name__}.step takes a finite action of shape {self.action_space.shape} "
+                f"(an end-effector target); got {action.tolist()}. A NaN action usually comes from a "
+                "policy fed NaN observations or settings."
+            )
         action = np.clip(action, self.action_space.low, self.action_space.high)
         self.robot.step(action)
 
@@ -309,8 +327,9 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         if self._camera_renderer is None:
             observation["environment_state"] = self._environment_state().astype(np.float32)
         else:
-            observation["pixels"] = {camera: self._camera_renderer.render(self.model, self.data, camera)
-                                     for camera in self.cameras}
+            observation["pixels"] = {
+                camera: self._camera_renderer.render(self.model, self.data, camera) for camera in self.cameras
+            }
         observation["failure"] = np.array([1.0 if failure else 0.0], dtype=np.float32)
         return observation
 

@@ -69,4 +69,7 @@ class ButtonSearchEnv(CCDPTaskEnv):
 
     def plan(self, option: int) -> list[Waypoint]:
         x, y = self._buttons[option]
-        return [Waypoint((x, y, 0.07, self.press_grip)), Waypoint((x, y, self.press_z, self.press_grip), dwell=3)]
+        return [
+            Waypoint((x, y, 0.07, self.press_grip)),
+            Waypoint((x, y, self.press_z, self.press_grip), dwell=3),
+        ]

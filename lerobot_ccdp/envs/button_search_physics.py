@@ -1,9 +1,9 @@
 """ButtonSearch on the Franka Panda with contact physics: each button is a spring-loaded cap on a slide joint.
 
-Same options, hidden parameter, observations and metrics as the lite task (`button_search.py`). A button counts
-as pressed when the simulation has pushed its cap `PRESS_DEPTH` into its housing; whether it was the live one is
-the hidden parameter, as a light behind the panel would tell (the one piece left to a rule: wiring has no
-physics here). The gripper presses with closed fingers (open, the 2F-85's fingers straddle the cap).
+Same options, hidden parameter, observations and metrics as the lite task (`button_search.py`). A button
+counts as pressed when the simulation has pushed its cap `PRESS_DEPTH` into its housing; whether it was the
+live one is the hidden parameter, as a light behind the panel would tell (the one piece left to a rule: wiring
+has no physics here). The gripper presses with closed fingers (open, the 2F-85's fingers straddle the cap).
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from lerobot_ccdp.envs.button_search import BUTTONS_XY, ButtonSearchEnv
 from lerobot_ccdp.envs.panda import PandaArm
 
 TRAVEL = 0.01  # how far a cap can be pushed in
-PRESS_DEPTH = 0.004  # pushed this far, a button is pressed; it can be pressed again once back above half of it
+# pushed this far, a button is pressed; it can be pressed again once back above half of it
+PRESS_DEPTH = 0.004
 
 
 class ButtonSearchPhysicsEnv(ButtonSearchEnv):

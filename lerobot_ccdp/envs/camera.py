@@ -1,4 +1,5 @@
-"""Camera observations of the tasks (obs_type `pixels_agent_pos`): small RGB frames rendered each control step."""
+"""Camera observations of the tasks (obs_type `pixels_agent_pos`): small RGB frames rendered each control
+step."""
 
 from __future__ import annotations
 
@@ -9,8 +10,9 @@ import numpy as np
 class CameraRenderer:
     """Renders named scene cameras at the observation size, without shadows or reflections.
 
-    Those two effects cost about two thirds of a frame in software OpenGL (what a CPU machine has) and show the
-    policy nothing it needs. The renderer is made on first use, so a state-only env never opens a GL context.
+    Those two effects cost about two thirds of a frame in software OpenGL (what a CPU machine has) and show
+    the policy nothing it needs. The renderer is made on first use, so a state-only env never opens a GL
+    context.
     """
 
     def __init__(self, width: int, height: int):

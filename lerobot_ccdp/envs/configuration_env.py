@@ -56,15 +56,19 @@ class CCDPEnvConfig(EnvConfig):
         if self.episode_length is None:
             self.episode_length = cls.default_episode_steps
         if self.episode_length < 1:
-            raise ValueError(f"--env.episode_length must be >= 1 (steps before an episode is cut off); got "
-                             f"{self.episode_length}. Leave it out for the task's default, "
-                             f"{cls.default_episode_steps}.")
+            raise ValueError(
+                f"--env.episode_length must be >= 1 (steps before an episode is cut off); got "
+                f"{self.episode_length}. Leave it out for the task's default, "
+                f"{cls.default_episode_steps}."
+            )
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,)),
             "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(AGENT_POS_DIM,)),
         }
         if self.obs_type == "state":
-            self.features["environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(len(cls.env_state_names),))
+            self.features["environment_state"] = PolicyFeature(
+                type=FeatureType.ENV, shape=(len(cls.env_state_names),)
+            )
         else:
             frame = (self.observation_height, self.observation_width, 3)
             for camera in self.cameras:
@@ -81,12 +85,19 @@ class CCDPEnvConfig(EnvConfig):
 
     @property
     def gym_kwargs(self) -> dict:
-        kwargs = {"render_mode": self.render_mode, "max_episode_steps": self.episode_length, "obs_type": self.obs_type}
+        kwargs = {
+            "render_mode": self.render_mode,
+            "max_episode_steps": self.episode_length,
+            "obs_type": self.obs_type,
+        }
         if self.render_mode is not None:
             kwargs.update(render_width=self.render_width, render_height=self.render_height)
         if self.obs_type != "state":
-            kwargs.update(cameras=tuple(self.cameras), observation_width=self.observation_width,
-                          observation_height=self.observation_height)
+            kwargs.update(
+                cameras=tuple(self.cameras),
+                observation_width=self.observation_width,
+                observation_height=self.observation_height,
+            )
         if self.max_failures is not None:
             kwargs["max_failures"] = self.max_failures
         return kwargs

@@ -1,10 +1,10 @@
 """DoorOpening on the Franka Panda with contact physics: the door is a sliding body behind a one-way stop.
 
 Same options, hidden parameter, observations and metrics as the lite task (`door_opening.py`). The door slides
-on a joint whose travel the hidden parameter limits to one side (the stop of a one-way latch), so pushing it the
-wrong way moves nothing. The gripper closes on the handle from above, its fingers on the handle's sides, and
-slides it. The env only reads what happened: once the arm has tried to move the handle `COMMIT_SLIDE` one way
-and the door has not given way, the attempt failed; the task succeeds when the door has slid `OPEN_SLIDE`.
+on a joint whose travel the hidden parameter limits to one side (the stop of a one-way latch), so pushing it
+the wrong way moves nothing. The gripper closes on the handle from above, its fingers on the handle's sides,
+and slides it. The env only reads what happened: once the arm has tried to move the handle `COMMIT_SLIDE` one
+way and the door has not given way, the attempt failed; the task succeeds when the door has slid `OPEN_SLIDE`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from lerobot_ccdp.envs.base import Outcome, OutcomeKind
 from lerobot_ccdp.envs.door_opening import COMMIT_SLIDE, HANDLE, MAX_SLIDE, OPEN_SLIDE, DoorOpeningEnv
 from lerobot_ccdp.envs.panda import PandaArm
 
-HANDLE_FROM_DOOR = np.array([0.0, -0.07, 0.0])  # the handle stands out of the door's front face, clear of the gripper
+# the handle stands out of the door's front face, clear of the gripper
+HANDLE_FROM_DOOR = np.array([0.0, -0.07, 0.0])
 GRASPED, RELEASED = 0.3, 0.15  # measured gripper closure: closed on the handle, open again
 STUCK = 0.005  # a door that moved less than this under the push did not give way
 
@@ -33,8 +34,8 @@ class DoorOpeningPhysicsEnv(DoorOpeningEnv):
     <geom name="wall_l" type="box" pos="-0.31 {wall_y} 0.13" size="0.16 0.01 0.13" rgba="0.55 0.5 0.45 1"/>
     <geom name="wall_r" type="box" pos="0.31 {wall_y} 0.13" size="0.16 0.01 0.13" rgba="0.55 0.5 0.45 1"/>
     <body name="door" pos="{door[0]} {door[1]} {door[2]}">
-      <joint name="door" type="slide" axis="1 0 0" range="{-MAX_SLIDE} {MAX_SLIDE}" damping="5" frictionloss="1"
-             solreflimit="0.005 1"/>
+      <joint name="door" type="slide" axis="1 0 0" range="{-MAX_SLIDE} {MAX_SLIDE}" damping="5"
+             frictionloss="1" solreflimit="0.005 1"/>
       <geom name="panel" type="box" size="0.13 0.01 0.11" rgba="0.45 0.3 0.2 1"/>
       <geom name="neck" type="box" pos="0 -0.03 0" size="0.008 0.02 0.008" rgba="0.85 0.8 0.3 1"/>
       <geom name="handle" type="box" pos="{HANDLE_FROM_DOOR[0]} {HANDLE_FROM_DOOR[1]} {HANDLE_FROM_DOOR[2]}"
@@ -70,12 +71,15 @@ class DoorOpeningPhysicsEnv(DoorOpeningEnv):
         pushed = self.robot.target[0] - self._grasp_x
         if self._open_dir is None and abs(pushed) >= COMMIT_SLIDE:
             option = int(pushed > 0)
-            if self.slide * np.sign(pushed) < STUCK:  # the arm pushed the handle and the door did not give way
+            # the arm pushed the handle and the door did not give way
+            if self.slide * np.sign(pushed) < STUCK:
                 self._grasp_x = None
                 return Outcome(OutcomeKind.FAILURE, option)
             self._open_dir = option
         if abs(self.slide) >= OPEN_SLIDE:
-            return Outcome(OutcomeKind.SUCCESS, int(self.slide > 0), preferred=self.preferred_feasible_option())
+            return Outcome(
+                OutcomeKind.SUCCESS, int(self.slide > 0), preferred=self.preferred_feasible_option()
+            )
         if grip < RELEASED and self._open_dir is None and abs(pushed) < COMMIT_SLIDE / 2:
             self._grasp_x = None  # let go before trying either way
         return None

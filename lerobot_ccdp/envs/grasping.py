@@ -48,9 +48,11 @@ class Grasp:
         obj[2] = self.half_size
 
 
-def pick_and_place(obj: tuple[float, float, float], dest: tuple[float, float], place_z: float,
-                   carry_z: float = 0.1) -> list[Waypoint]:
-    """Expert waypoints that grasp the object at `obj`, carry it at `carry_z` and release it at (dest, place_z)."""
+def pick_and_place(
+    obj: tuple[float, float, float], dest: tuple[float, float], place_z: float, carry_z: float = 0.1
+) -> list[Waypoint]:
+    """Expert waypoints that grasp the object at `obj`, carry it at `carry_z` and release it at (dest,
+    place_z)."""
     ox, oy, oz = obj
     dx, dy = dest
     return [

@@ -1,4 +1,5 @@
-"""ObjectManipulation: bring a box to a target; light boxes are picked up, heavy ones slip and must be pushed."""
+"""ObjectManipulation: bring a box to a target; light boxes are picked up, heavy ones slip and must be
+pushed."""
 
 from __future__ import annotations
 

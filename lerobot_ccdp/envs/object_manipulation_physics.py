@@ -1,11 +1,12 @@
-"""ObjectManipulation on the Franka Panda with contact physics: the box's mass decides whether the grasp holds.
+"""ObjectManipulation on the Franka Panda with contact physics: the box's mass decides whether the grasp
+holds.
 
 Same options, hidden parameter, preferences, observations and expert plans as the lite task
 (`object_manipulation.py`), but the box is a free body on the table and nothing is scripted: the 2F-85 closes
 with a limited force, so friction lifts the light box (0.2 kg) and the heavy one (2.5 kg) slips out; pushing
-slides either along the table. The env only reads what happened: a pick fails when the gripper has risen `LIFT`
-above where it closed on the box and the box has not followed, and the task succeeds when the box rests on the
-target (after a pick, once the gripper has let go).
+slides either along the table. The env only reads what happened: a pick fails when the gripper has risen
+`LIFT` above where it closed on the box and the box has not followed, and the task succeeds when the box rests
+on the target (after a pick, once the gripper has let go).
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ class ObjectManipulationPhysicsEnv(ObjectManipulationEnv):
     </body>
     <body name="box" pos="{BOX[0]} {BOX[1]} {HALF}">
       <freejoint name="box"/>
-      <geom name="box" type="box" size="{HALF} {HALF} {HALF}" mass="{MASS[0]}" friction="0.8" rgba="0.2 0.35 0.8 1"/>
+      <geom name="box" type="box" size="{HALF} {HALF} {HALF}" mass="{MASS[0]}" friction="0.8"
+            rgba="0.2 0.35 0.8 1"/>
     </body>"""
 
     def box_position(self) -> np.ndarray:
@@ -45,7 +47,8 @@ class ObjectManipulationPhysicsEnv(ObjectManipulationEnv):
         self._target = BOX[:2] + np.array([0.0, 0.2]) + self.jitter(2)
         self.mocap("target")[:2] = self._target
         self.place_free_body("box", (*(BOX[:2] + self.jitter(2)), HALF))
-        self._closed_at: tuple[float, float] | None = None  # (pinch z, box z) when the gripper closed on the box
+        # (pinch z, box z) when the gripper closed on the box
+        self._closed_at: tuple[float, float] | None = None
         self._lifted = False
 
     def _apply_hidden(self) -> None:

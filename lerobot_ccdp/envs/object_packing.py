@@ -30,8 +30,12 @@ def _basket_xml(i: int) -> str:
     x, y = BASKETS_XY[i]
     walls = "".join(
         f'<geom type="box" size="{sx} {sy} 0.02" pos="{px} {py} 0.02" rgba="0.6 0.45 0.25 1"/>'
-        for sx, sy, px, py in [(0.055, 0.004, 0, 0.055), (0.055, 0.004, 0, -0.055), (0.004, 0.055, 0.055, 0),
-                               (0.004, 0.055, -0.055, 0)]
+        for sx, sy, px, py in [
+            (0.055, 0.004, 0, 0.055),
+            (0.055, 0.004, 0, -0.055),
+            (0.004, 0.055, 0.055, 0),
+            (0.004, 0.055, -0.055, 0),
+        ]
     )
     floor = '<geom type="box" size="0.055 0.055 0.001" rgba="0.7 0.55 0.35 1"/>'
     return f'<body name="basket_{i}" mocap="true" pos="{x} {y} 0">{floor}{walls}</body>'
@@ -60,7 +64,9 @@ class ObjectPackingEnv(CCDPTaskEnv):
         baskets = [_basket_xml(i) for i in range(len(BASKETS_XY))]
         objects = [
             mocap_box(f"object_{i}", (x, y, HALF), (HALF, HALF, HALF), rgba)
-            for i, ((x, y), rgba) in enumerate(zip(OBJECTS_XY, ["0.85 0.2 0.2 1", "0.2 0.35 0.85 1"], strict=True))
+            for i, ((x, y), rgba) in enumerate(
+                zip(OBJECTS_XY, ["0.85 0.2 0.2 1", "0.2 0.35 0.85 1"], strict=True)
+            )
         ]
         return "\n".join(baskets + objects)
 
@@ -115,8 +121,12 @@ class ObjectPackingEnv(CCDPTaskEnv):
         self.mocap(f"object_{self._packed}")[:] = (*self._objects0[self._packed], HALF)
 
     def plan(self, option: int) -> list[Waypoint]:
-        return pick_and_place(tuple(self.object_position(self._packed)), tuple(self._baskets[option]), self.place_z,
-                              self.carry_z)
+        return pick_and_place(
+            tuple(self.object_position(self._packed)),
+            tuple(self._baskets[option]),
+            self.place_z,
+            self.carry_z,
+        )
 
     def object_position(self, i: int) -> np.ndarray:
         return self.mocap(f"object_{i}").copy()

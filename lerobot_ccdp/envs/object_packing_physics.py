@@ -6,7 +6,8 @@ holds, at its bottom, a block as tall as 2 - c objects (the crate's own colour, 
 under the lid), so the hidden parameter is room that the simulation takes away: an object dropped through the
 slot of a crate without room comes to rest on what is inside, sticking out of the slot. The env reads where a
 released object comes to rest: under the lid it is packed; on a crate but not under the lid it is a failure
-(the object is then handed back to where it started, as in the lite task); elsewhere it has to be picked again.
+(the object is then handed back to where it started, as in the lite task); elsewhere it has to be picked
+again.
 """
 
 from __future__ import annotations
@@ -38,8 +39,10 @@ HIDDEN_GROUP = 3  # MuJoCo renders geom groups 0-2 by default
 def _box(size, pos, name: str = "", group: int = 0) -> str:
     """One box geom of a crate, in the crate's colour."""
     named = f'name="{name}" ' if name else ""
-    return (f'<geom {named}type="box" size="{size[0]} {size[1]} {size[2]}" pos="{pos[0]} {pos[1]} {pos[2]}"'
-            f' rgba="{CRATE}" group="{group}"/>')
+    return (
+        f'<geom {named}type="box" size="{size[0]} {size[1]} {size[2]}" pos="{pos[0]} {pos[1]} {pos[2]}"'
+        f' rgba="{CRATE}" group="{group}"/>'
+    )
 
 
 def _crate_xml(i: int) -> str:
@@ -47,16 +50,34 @@ def _crate_xml(i: int) -> str:
     x, y = BASKETS_XY[i]
     outer, gap = INNER + WALL, (INNER + WALL - SLOT) / 2
     floor = [_box((outer, outer, WALL / 2), (0, 0, WALL / 2))]
-    walls = [_box((sx, sy, DEPTH / 2), (px, py, WALL + DEPTH / 2))
-             for sx, sy, px, py in [(outer, WALL / 2, 0, outer - WALL / 2), (outer, WALL / 2, 0, -outer + WALL / 2),
-                                    (WALL / 2, outer, outer - WALL / 2, 0), (WALL / 2, outer, -outer + WALL / 2, 0)]]
-    lid = [_box((sx, sy, WALL / 2), (px, py, LID + WALL / 2))
-           for sx, sy, px, py in [(outer, gap, 0, SLOT + gap), (outer, gap, 0, -SLOT - gap),
-                                  (gap, SLOT, SLOT + gap, 0), (gap, SLOT, -SLOT - gap, 0)]]
+    walls = [
+        _box((sx, sy, DEPTH / 2), (px, py, WALL + DEPTH / 2))
+        for sx, sy, px, py in [
+            (outer, WALL / 2, 0, outer - WALL / 2),
+            (outer, WALL / 2, 0, -outer + WALL / 2),
+            (WALL / 2, outer, outer - WALL / 2, 0),
+            (WALL / 2, outer, -outer + WALL / 2, 0),
+        ]
+    ]
+    lid = [
+        _box((sx, sy, WALL / 2), (px, py, LID + WALL / 2))
+        for sx, sy, px, py in [
+            (outer, gap, 0, SLOT + gap),
+            (outer, gap, 0, -SLOT - gap),
+            (gap, SLOT, SLOT + gap, 0),
+            (gap, SLOT, -SLOT - gap, 0),
+        ]
+    ]
     # Compiled at its largest (MuJoCo's collision bounds come from the compiled size); sized at reset. In geom
     # group 3, which cameras do not draw: seen through the slot it would show the hidden capacity.
-    filler = [_box((INNER - 0.001, INNER - 0.001, MAX_CAPACITY * HALF), (0, 0, WALL + MAX_CAPACITY * HALF),
-                   f"filler_{i}", group=HIDDEN_GROUP)]
+    filler = [
+        _box(
+            (INNER - 0.001, INNER - 0.001, MAX_CAPACITY * HALF),
+            (0, 0, WALL + MAX_CAPACITY * HALF),
+            f"filler_{i}",
+            group=HIDDEN_GROUP,
+        )
+    ]
     return f'<body name="basket_{i}" pos="{x} {y} 0">{"".join(floor + walls + lid + filler)}</body>'
 
 

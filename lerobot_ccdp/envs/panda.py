@@ -42,7 +42,9 @@ def gym_hil_assets() -> Path:
     """gym-hil's asset folder, found without importing gym-hil (its package imports its own envs)."""
     spec = importlib.util.find_spec("gym_hil")
     if spec is None or not spec.submodule_search_locations:
-        raise ImportError("The physics tasks use gym-hil's Franka Panda model: pip install 'gym-hil>=0.1.13,<0.2'.")
+        raise ImportError(
+            "The physics tasks use gym-hil's Franka Panda model: pip install 'gym-hil>=0.1.13,<0.2'."
+        )
     return Path(spec.submodule_search_locations[0]) / "assets"
 
 
@@ -78,12 +80,15 @@ def build_physics_scene(name: str, task_bodies: str) -> mujoco.MjModel:
     panda = mujoco.MjSpec.from_file(str(gym_hil_assets() / "panda.xml"))
     for body in panda.bodies:
         if body.name.startswith("link"):
-            body.gravcomp = 1.0  # the servos track targets; the controller of a real Panda cancels gravity too
+            # the servos track targets; the controller of a real Panda cancels gravity too
+            body.gravcomp = 1.0
     for i, actuator in enumerate(panda.actuators[:7]):  # gym-hil drives torques; the IK gives joint targets
         actuator.set_to_position(kp=SERVO_KP[i], kv=SERVO_KP[i] / 10)
         actuator.ctrlrange = panda.joint(f"joint{i + 1}").range
     panda.actuator("fingers_actuator").forcerange = [-GRIP_FORCE, GRIP_FORCE]
-    frame = world.worldbody.add_frame(pos=list(BASE_POS), quat=[np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])
+    frame = world.worldbody.add_frame(
+        pos=list(BASE_POS), quat=[np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]
+    )
     world.attach(panda, frame=frame, prefix="panda/")
     return world.compile()
 
@@ -112,7 +117,8 @@ class PandaArm:
         self._scratch.qpos[self._arm_qpos] = READY_Q
         mujoco.mj_kinematics(model, self._scratch)
         self._down = self._scratch.site_xmat[self._site].reshape(3, 3).copy()  # the pinch frame pointing down
-        self.target = np.zeros(3)  # the end-effector target of the latest command (what the arm is trying to do)
+        # the end-effector target of the latest command (what the arm is trying to do)
+        self.target = np.zeros(3)
 
     build_model = staticmethod(build_physics_scene)
     video_camera = "video"

@@ -32,9 +32,12 @@ WORLD_LIGHT = '<light pos="0.3 -0.4 1.2" dir="-0.2 0.3 -1" directional="true" di
 
 _ROBOT = f"""
     <body name="ee" pos="0 0 0">
-      <joint name="ee_x" type="slide" axis="1 0 0" range="{WORKSPACE_LOW[0]} {WORKSPACE_HIGH[0]}" damping="60"/>
-      <joint name="ee_y" type="slide" axis="0 1 0" range="{WORKSPACE_LOW[1]} {WORKSPACE_HIGH[1]}" damping="60"/>
-      <joint name="ee_z" type="slide" axis="0 0 1" range="{WORKSPACE_LOW[2]} {WORKSPACE_HIGH[2]}" damping="60"/>
+      <joint name="ee_x" type="slide" axis="1 0 0" range="{WORKSPACE_LOW[0]} {WORKSPACE_HIGH[0]}"
+             damping="60"/>
+      <joint name="ee_y" type="slide" axis="0 1 0" range="{WORKSPACE_LOW[1]} {WORKSPACE_HIGH[1]}"
+             damping="60"/>
+      <joint name="ee_z" type="slide" axis="0 0 1" range="{WORKSPACE_LOW[2]} {WORKSPACE_HIGH[2]}"
+             damping="60"/>
       <geom type="sphere" size="0.012" mass="1" rgba="0.2 0.2 0.25 1"/>
       <geom type="capsule" fromto="0 0 0.015 0 0 0.5" size="0.008" mass="0.01" rgba="0.6 0.6 0.65 1"/>
       <body name="finger_l">

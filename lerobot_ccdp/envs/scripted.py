@@ -74,7 +74,9 @@ class ScriptedAgent(abc.ABC):
         if self.env.attempt_index != self._attempt:
             self._attempt = self.env.attempt_index
             self.option = self.choose_option()
-            self._follower = WaypointFollower(self.env.plan(self.option), observation["agent_pos"], self.speed)
+            self._follower = WaypointFollower(
+                self.env.plan(self.option), observation["agent_pos"], self.speed
+            )
         return self._follower.next_action().astype(np.float32)
 
 

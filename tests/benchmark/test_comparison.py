@@ -38,25 +38,38 @@ def test_bootstrap_interval_contains_the_mean_and_is_reproducible():
 
 
 def _episodes(success, attempts, repeated, preference, after_failure=None, failures=None) -> Episodes:
-    """Episodes; attempts after a failure and failures default to what a one-stage task gives: attempts - 1 if any
-    failed, and every attempt but a success."""
+    """Episodes; attempts after a failure and failures default to what a one-stage task gives: attempts - 1 if
+    any failed, and every attempt but a success."""
     attempts, success = np.array(attempts), np.array(success)
     if after_failure is None:
         after_failure = np.where(attempts > np.array(success, dtype=int), attempts - 1, 0)
     if failures is None:
         failures = attempts - np.array(success, dtype=int)
-    return Episodes(success, attempts, np.array(repeated), np.array(preference), np.array(after_failure, dtype=float),
-                    np.array(failures, dtype=float))
+    return Episodes(
+        success,
+        attempts,
+        np.array(repeated),
+        np.array(preference),
+        np.array(after_failure, dtype=float),
+        np.array(failures, dtype=float),
+    )
 
 
 def test_lost_episodes_are_split_by_repeat_no_failure_and_distinct_failures():
-    # Lost: one repeated a failure, one never had an attempt fail (time ran out), two failed distinct options only.
-    runs = _episodes([True, False, False, False, False], [2, 3, 0, 2, 1], [0, 1, 0, 0, 0], [True] + [False] * 4,
-                     failures=[1, 3, 0, 2, 1])
+    # Lost: one repeated a failure, one never had an attempt fail (time ran out), two failed distinct options
+    # only.
+    runs = _episodes(
+        [True, False, False, False, False],
+        [2, 3, 0, 2, 1],
+        [0, 1, 0, 0, 0],
+        [True] + [False] * 4,
+        failures=[1, 3, 0, 2, 1],
+    )
     lost = LostEpisodes.of(runs)
     assert (lost.lost, lost.with_repeat, lost.without_failure, lost.distinct_failures) == (4, 1, 1, 2)
     assert str(lost) == "4: 1 / 1 / 2"
-    older = _episodes([False, False], [1, 2], [0, 1], [False, False], failures=[np.nan, np.nan])  # no failure count
+    # no failure count
+    older = _episodes([False, False], [1, 2], [0, 1], [False, False], failures=[np.nan, np.nan])
     assert str(LostEpisodes.of(older)) == "2: 1 / n/a / n/a"
 
 
@@ -124,27 +137,54 @@ def test_verdicts_name_met_missed_and_not_distinguishable():
 
 def test_targets_table_judges_from_paired_intervals():
     good = _episodes([True] * 40, [2] * 40, [0] * 40, [True] * 40)
-    poor = _episodes([True] * 10 + [False] * 30, [1] * 10 + [3] * 30, [0] * 10 + [1] * 30, [True] * 10 + [False] * 30)
-    checks = target_checks({"ObjectPacking-lite-v0": {"dp": poor, "dp_star": good, "dp_star_matched": poor,
-                                                      "ccdp": good, "oracle": good}})
+    poor = _episodes(
+        [True] * 10 + [False] * 30, [1] * 10 + [3] * 30, [0] * 10 + [1] * 30, [True] * 10 + [False] * 30
+    )
+    checks = target_checks(
+        {
+            "ObjectPacking-lite-v0": {
+                "dp": poor,
+                "dp_star": good,
+                "dp_star_matched": poor,
+                "ccdp": good,
+                "oracle": good,
+            }
+        }
+    )
     assert "| ObjectPacking-lite-v0 | success > DP | CCDP - DP 0.75 [0.60, 0.88] | met |" in checks
     # Non-inferiority to DP* (issue 50): the interval's low end above -0.05; every seed equal meets it.
-    assert "| ObjectPacking-lite-v0 | success non-inferior to DP* (margin 0.05) | CCDP - DP* 0.00 [0.00, 0.00] | met |" in checks
+    assert (
+        "| ObjectPacking-lite-v0 | success non-inferior to DP* (margin 0.05) "
+        "| CCDP - DP* 0.00 [0.00, 0.00] | met |" in checks
+    )
     assert "| success > DP* at CCDP's cost | CCDP - DP* at CCDP's cost 0.75 [0.60, 0.88] | met |" in checks
     slightly_worse = _episodes([True] * 39 + [False], [2] * 39 + [3], [0] * 40, [True] * 39 + [False])
     behind = target_checks({"ObjectPacking-lite-v0": {"dp_star": good, "ccdp": slightly_worse}})
     assert "CCDP - DP* -0.03 [-0.07, 0.00] | not distinguishable |" in behind
-    assert "| ObjectPacking-lite-v0 | preference >= DP* (episodes both solved) | CCDP - DP* 0.00 [0.00, 0.00] | tie |" in checks
-    assert "| ObjectPacking-lite-v0 | repeated-failure rate <= 0.05 | CCDP rate 0.00 [0.00, 0.00] | met |" in checks
+    assert (
+        "| ObjectPacking-lite-v0 | preference >= DP* (episodes both solved) "
+        "| CCDP - DP* 0.00 [0.00, 0.00] | tie |" in checks
+    )
+    assert (
+        "| ObjectPacking-lite-v0 | repeated-failure rate <= 0.05 | CCDP rate 0.00 [0.00, 0.00] | met |"
+        in checks
+    )
     swapped = target_checks({"ObjectPacking-lite-v0": {"dp": good, "ccdp": poor}})
     assert "success > DP | CCDP - DP -0.75 [" in swapped and "| missed |" in swapped
-    assert "| ObjectPacking-lite-v0 | CCDP | 40 | 0.25 [" in markdown_table({"ObjectPacking-lite-v0": {"ccdp": MethodMetrics.of(poor)}})
+    assert "| ObjectPacking-lite-v0 | CCDP | 40 | 0.25 [" in markdown_table(
+        {"ObjectPacking-lite-v0": {"ccdp": MethodMetrics.of(poor)}}
+    )
 
 
 def test_solved_before_any_failure_splits_wins_by_whether_recovery_played_a_part():
     # Solved: two without a failure, one after a failure; lost: one after a failure, one without any.
-    runs = _episodes([True, True, True, False, False], [1, 1, 2, 3, 0], [0, 0, 0, 1, 0], [True] * 3 + [False] * 2,
-                     failures=[0, 0, 1, 2, 0])
+    runs = _episodes(
+        [True, True, True, False, False],
+        [1, 1, 2, 3, 0],
+        [0, 0, 0, 1, 0],
+        [True] * 3 + [False] * 2,
+        failures=[0, 0, 1, 2, 0],
+    )
     assert solved_before_any_failure(runs) == "2; 1 / 2"
     table = lost_table({"Task-v0": {"ccdp": runs}})
     assert table.splitlines()[-1] == "| Task-v0 | CCDP | 2: 1 / 1 / 0 | 2; 1 / 2 |"

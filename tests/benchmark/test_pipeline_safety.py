@@ -27,9 +27,11 @@ REPO = Path(__file__).resolve().parents[2]
 TASK = "DoorOpening-lite-v0"
 SLUG = task_slug(TASK)
 # What each faked stage makes: the folder its command names, and the file in it that marks the stage done.
-OUTPUTS = {"lerobot-ccdp-record": ("--dataset.root", "meta/info.json"),
-           "lerobot-ccdp-synthesize": ("--output.root", "meta/info.json"),
-           "lerobot-train": ("--output_dir", f"{CHECKPOINT}/model.safetensors")}
+OUTPUTS = {
+    "lerobot-ccdp-record": ("--dataset.root", "meta/info.json"),
+    "lerobot-ccdp-synthesize": ("--output.root", "meta/info.json"),
+    "lerobot-train": ("--output_dir", f"{CHECKPOINT}/model.safetensors"),
+}
 
 
 class FakeStages:
@@ -70,8 +72,20 @@ def root(tmp_path, monkeypatch) -> Path:
 
 def run(out: str | Path, *extra: str, settings: str | Path = "settings") -> None:
     """The pipeline's training stages on `out`, the settings spelled from `settings`."""
-    main(["--tasks", TASK, "--out", str(out), "--configs", f"{settings}/configs",
-          "--recipes", f"{settings}/recipes", "--train-only", *extra])
+    main(
+        [
+            "--tasks",
+            TASK,
+            "--out",
+            str(out),
+            "--configs",
+            f"{settings}/configs",
+            "--recipes",
+            f"{settings}/recipes",
+            "--train-only",
+            *extra,
+        ]
+    )
 
 
 def user_folder(path: Path) -> Path:
@@ -89,8 +103,11 @@ def untouched(path: Path) -> bool:
 
 def test_fresh_refuses_a_folder_without_the_marker_and_deletes_nothing(root, stages):
     mine = user_folder(root / "mine")
-    with pytest.raises(SystemExit, match=re.escape(f"Refusing --out {mine}: it holds files and no {MARKER}")
-                       + r".*Nothing was deleted.*--fresh deletes only a folder this command made"):
+    with pytest.raises(
+        SystemExit,
+        match=re.escape(f"Refusing --out {mine}: it holds files and no {MARKER}")
+        + r".*Nothing was deleted.*--fresh deletes only a folder this command made",
+    ):
         run(mine, "--fresh")
     assert untouched(mine) and not stages.commands
     assert not (root / ".mine.pipeline.lock").exists()  # refused before the lock
@@ -110,15 +127,18 @@ def test_an_unmarked_folder_holding_files_is_refused_unless_adopted(root, stages
 def test_a_moved_output_folder_is_refused_until_adopted_again(root, stages):
     run("out")
     (root / "out").rename(root / "moved")
-    with pytest.raises(SystemExit, match=r"a moved or copied output folder carries the mark of its old place"):
+    with pytest.raises(
+        SystemExit, match=r"a moved or copied output folder carries the mark of its old place"
+    ):
         run("moved")
     run("moved", "--adopt")
     assert owner(root / "moved") == CREATED_BY
 
 
 @pytest.mark.parametrize("place", ["working directory", "its parent", "home folder"])
-def test_fresh_never_deletes_the_working_directory_its_parents_or_home_even_marked(root, stages, monkeypatch,
-                                                                                    place):
+def test_fresh_never_deletes_the_working_directory_its_parents_or_home_even_marked(
+    root, stages, monkeypatch, place
+):
     home, work = root / "home", root / "work" / "sub"
     for folder in (home, work):
         folder.mkdir(parents=True)
@@ -127,8 +147,11 @@ def test_fresh_never_deletes_the_working_directory_its_parents_or_home_even_mark
     monkeypatch.setenv("HOME", str(home))
     monkeypatch.chdir(work)
     out = {"working directory": ".", "its parent": "..", "home folder": "~"}[place]
-    with pytest.raises(SystemExit, match=r"is or holds the working directory or the home folder, which --fresh "
-                                         "would delete. Nothing was deleted"):
+    with pytest.raises(
+        SystemExit,
+        match=r"is or holds the working directory or the home folder, which --fresh "
+        "would delete. Nothing was deleted",
+    ):
         run(out, "--fresh", settings=root / "settings")
     assert (home / "keep.txt").exists() and (work / "keep.txt").exists() and not stages.commands
 

@@ -1,7 +1,8 @@
-"""The shipped settings files as the pipeline finds them: every task has its state settings, and each camera variant
-(`configs/<task>_pixels/`, `datasets_recipes/<task>_pixels.yaml`) is its state twin with only the camera fields
-changed, so a setting tuned on the state task cannot silently drift from its pixel copy; each label-free variant
-(`configs/<task>_label_free/`) likewise differs from its labelled twin only in how z is defined and read."""
+"""The shipped settings files as the pipeline finds them: every task has its state settings, and each camera
+variant (`configs/<task>_pixels/`, `datasets_recipes/<task>_pixels.yaml`) is its state twin with only the
+camera fields changed, so a setting tuned on the state task cannot silently drift from its pixel copy; each
+label-free variant (`configs/<task>_label_free/`) likewise differs from its labelled twin only in how z is
+defined and read."""
 
 import json
 from pathlib import Path
@@ -43,7 +44,9 @@ def test_the_five_panda_tasks_have_label_free_variants():
 
 
 def test_the_physics_door_and_buttons_have_camera_variants():
-    assert {"DoorOpening-v0", "ButtonSearch-v0", "DoorOpening-lite-v0", "ButtonSearch-lite-v0"} <= set(PIXEL_TASKS)
+    assert {"DoorOpening-v0", "ButtonSearch-v0", "DoorOpening-lite-v0", "ButtonSearch-lite-v0"} <= set(
+        PIXEL_TASKS
+    )
 
 
 @pytest.mark.parametrize("task", PIXEL_TASKS)
@@ -57,16 +60,21 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
     assert base["output_dir"] == f"outputs/{slug}/train_base"
     assert base["policy"]["history_length"] == 0  # the camera encoder sees the current frames only
     camera_fields = ("dataset", "output_dir", "policy.history_length", "policy.vision_backbone_stages")
-    assert _without(base, *camera_fields) == _without(json.loads(state.train_base.read_text()), *camera_fields)
+    assert _without(base, *camera_fields) == _without(
+        json.loads(state.train_base.read_text()), *camera_fields
+    )
 
     recovery = json.loads(pixels.train_recovery.read_text())
     assert recovery["dataset"]["repo_id"] == f"local/{slug}_recovery"
     assert _without(recovery, "dataset", "output_dir") == _without(
-        json.loads(state.train_recovery.read_text()), "dataset", "output_dir")
+        json.loads(state.train_recovery.read_text()), "dataset", "output_dir"
+    )
 
     evaluation = pixels.eval_config()
     assert evaluation["env"]["obs_type"] == "pixels_agent_pos"
-    assert _without(evaluation, "env.obs_type", "eval.batch_size") == _without(state.eval_config(), "eval.batch_size")
+    assert _without(evaluation, "env.obs_type", "eval.batch_size") == _without(
+        state.eval_config(), "eval.batch_size"
+    )
 
     recipe, state_recipe = (yaml.safe_load(f.read_text()) for f in (pixels.recipe, state.recipe))
     assert recipe["record"].pop("env_kwargs") == {"obs_type": "pixels_agent_pos"}
@@ -75,9 +83,9 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
 
 @pytest.mark.parametrize("task", LABEL_FREE_TASKS)
 def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp_path):
-    """`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`: z where an option ends, defined
-    alike in the recipe and the policy (synthesis refuses a base checkpoint whose z differs), no label read, and
-    nothing else different from the labelled settings but the files' own paths."""
+    """`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`: z where an option ends,
+    defined alike in the recipe and the policy (synthesis refuses a base checkpoint whose z differs), no label
+    read, and nothing else different from the labelled settings but the files' own paths."""
     labelled = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path)
     files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path, label_free=True)
     slug = task_slug(task) + "_label_free"
@@ -88,15 +96,24 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
     wanted = RecoveryRecipe.load(files.recipe).failure_settings()
     assert wanted["failure_feature"] == "final_state"
     assert {k: policy.get(k, CCDPConfig.failure_state_key) for k in wanted} == wanted  # the key: its default
-    assert "num_primitives" not in policy and policy["primitive_key"] == "no_labels"  # names no dataset column
-    z_fields = ("dataset", "output_dir", "policy.failure_feature", "policy.primitive_key", "policy.num_primitives",
-                "policy.failure_state_dims", "policy.failure_segments")
+    # names no dataset column
+    assert "num_primitives" not in policy and policy["primitive_key"] == "no_labels"
+    z_fields = (
+        "dataset",
+        "output_dir",
+        "policy.failure_feature",
+        "policy.primitive_key",
+        "policy.num_primitives",
+        "policy.failure_state_dims",
+        "policy.failure_segments",
+    )
     assert _without(base, *z_fields) == _without(json.loads(labelled.train_base.read_text()), *z_fields)
 
     recovery = json.loads(files.train_recovery.read_text())
     assert recovery["dataset"]["repo_id"] == f"local/{slug}_recovery"
     assert _without(recovery, "dataset", "output_dir") == _without(
-        json.loads(labelled.train_recovery.read_text()), "dataset", "output_dir")
+        json.loads(labelled.train_recovery.read_text()), "dataset", "output_dir"
+    )
     assert files.eval_config() == labelled.eval_config()
 
     for method in ("dp_star", "ccdp"):
@@ -108,4 +125,5 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
     recipe, labelled_recipe = (yaml.safe_load(f.read_text()) for f in (files.recipe, labelled.recipe))
     z_keys = ("failure_feature", "num_primitives", "failure_state_dims", "delta_z")
     assert _without(recipe, *(f"recovery.{k}" for k in z_keys)) == _without(
-        labelled_recipe, *(f"recovery.{k}" for k in z_keys))
+        labelled_recipe, *(f"recovery.{k}" for k in z_keys)
+    )

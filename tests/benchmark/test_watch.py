@@ -1,4 +1,5 @@
-"""Which rendered episode `lerobot_ccdp.benchmark.watch` shows: the baseline repeating a failure, the other recovering."""
+"""Which rendered episode `lerobot_ccdp.benchmark.watch` shows: the baseline repeating a failure, the other
+recovering."""
 
 import numpy as np
 import pytest
@@ -9,9 +10,14 @@ from lerobot_ccdp.benchmark.watch import pick_episode
 
 def episodes(success, repeats, after_failure) -> Episodes:
     n = len(success)
-    return Episodes(success=np.array(success, dtype=bool), attempts=np.ones(n, dtype=int),
-                    repeated_failures=np.array(repeats), preference_matched=np.ones(n, dtype=bool),
-                    attempts_after_failure=np.array(after_failure, dtype=float), failures=np.full(n, np.nan))
+    return Episodes(
+        success=np.array(success, dtype=bool),
+        attempts=np.ones(n, dtype=int),
+        repeated_failures=np.array(repeats),
+        preference_matched=np.ones(n, dtype=bool),
+        attempts_after_failure=np.array(after_failure, dtype=float),
+        failures=np.full(n, np.nan),
+    )
 
 
 def test_the_episode_with_most_baseline_repeats_where_the_other_method_recovered():

@@ -19,10 +19,12 @@ class FlaggingPoint(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self):
-        self.observation_space = spaces.Dict({
-            "agent_pos": spaces.Box(-2, 2, (2,), np.float32),
-            "failure": spaces.Box(0, 1, (1,), np.float32),
-        })
+        self.observation_space = spaces.Dict(
+            {
+                "agent_pos": spaces.Box(-2, 2, (2,), np.float32),
+                "failure": spaces.Box(0, 1, (1,), np.float32),
+            }
+        )
         self.action_space = spaces.Box(-2, 2, (2,), np.float32)
 
     def reset(self, seed=None, options=None):
@@ -43,7 +45,8 @@ class FlaggingPoint(gym.Env):
 def test_rollout_delivers_failures_to_the_policy(trained_checkpoint):
     gym.register("ccdp_test/FlaggingPoint-v0", entry_point=FlaggingPoint, max_episode_steps=20)
     env = gym.vector.SyncVectorEnv(
-        [lambda: gym.make("ccdp_test/FlaggingPoint-v0")] * 2, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP
+        [lambda: gym.make("ccdp_test/FlaggingPoint-v0")] * 2,
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
     )
     policy = CCDPPolicy.from_pretrained(trained_checkpoint).eval()
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(trained_checkpoint))
@@ -64,7 +67,8 @@ def test_rollout_delivers_failures_to_the_policy(trained_checkpoint):
 
 
 def _keeping(observations):
-    """A LeRobot whose preprocess_observation passes the failure key through itself (as 0.6 is expected to)."""
+    """A LeRobot whose preprocess_observation passes the failure key through itself (as 0.6 is expected
+    to)."""
     return {"observation.state": torch.zeros(1, 2), "observation.failure": torch.ones(1, 1)}
 
 

@@ -21,10 +21,12 @@ def _oracle_batch(vec: gym.vector.VectorEnv, seeds: list[int]) -> None:
     agents = [NoRepeatOracle(env) for env in vec.envs]
     done = np.zeros(vec.num_envs, dtype=bool)
     while not done.all():
-        actions = np.stack([
-            agent.act({k: v[i] for k, v in observation.items()}, {"option": info["option"][i]})
-            for i, agent in enumerate(agents)
-        ])
+        actions = np.stack(
+            [
+                agent.act({k: v[i] for k, v in observation.items()}, {"option": info["option"][i]})
+                for i, agent in enumerate(agents)
+            ]
+        )
         observation, _, terminated, truncated, info = vec.step(actions)
         done |= terminated | truncated
 

@@ -1,4 +1,5 @@
-"""LeRobot imports the plugin for every CLI: that import registers `ccdp` but loads no MuJoCo, task or lerobot-eval."""
+"""LeRobot imports the plugin for every CLI: that import registers `ccdp` but loads no MuJoCo, task or
+lerobot-eval."""
 
 import json
 import subprocess
@@ -15,7 +16,9 @@ import lerobot_policy_ccdp
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.envs.configs import EnvConfig
 
-loaded = sorted(m for m in sys.modules if m == "mujoco" or m.startswith(("lerobot.scripts", "lerobot_ccdp.envs.")))
+loaded = sorted(
+    m for m in sys.modules if m == "mujoco" or m.startswith(("lerobot.scripts", "lerobot_ccdp.envs."))
+)
 policy, env = PreTrainedConfig.get_choice_class("ccdp"), EnvConfig.get_choice_class("ccdp")
 
 import gymnasium as gym

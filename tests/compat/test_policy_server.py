@@ -46,9 +46,18 @@ def server(tmp_path):
     """The entry point in a subprocess; stopped (by its pid) when the test ends."""
     port = _free_port()
     process = subprocess.Popen(
-        [sys.executable, "-m", "lerobot_ccdp.compat.policy_server", "--host=127.0.0.1", f"--port={port}",
-         "--inference_latency=0"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
+        [
+            sys.executable,
+            "-m",
+            "lerobot_ccdp.compat.policy_server",
+            "--host=127.0.0.1",
+            f"--port={port}",
+            "--inference_latency=0",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=tmp_path,
     )
     channel = grpc.insecure_channel(f"127.0.0.1:{port}")
     try:
@@ -67,14 +76,18 @@ def server(tmp_path):
 
 
 def test_ccdp_round_trip_through_lerobots_policy_server(server, reaching_root, tmp_path):
-    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "ckpt", failure_feature="primitive", num_primitives=4)
+    checkpoint = untrained_checkpoint(
+        reaching_root, tmp_path / "ckpt", failure_feature="primitive", num_primitives=4
+    )
     # What the robot client sends for a robot with two motors x, y (map_robot_keys_to_lerobot_features).
     features = hw_to_dataset_features({"x": float, "y": float}, OBS_STR, use_video=False)
     specs = RemotePolicyConfig("ccdp", str(checkpoint), features, ACTIONS_PER_CHUNK, "cpu")
 
     server.stub.Ready(services_pb2.Empty())
     server.stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
-    observation = TimedObservation(timestamp=time.time(), timestep=0, observation={"x": 0.1, "y": -0.2}, must_go=True)
+    observation = TimedObservation(
+        timestamp=time.time(), timestep=0, observation={"x": 0.1, "y": -0.2}, must_go=True
+    )
     server.stub.SendObservations(send_bytes_in_chunks(pickle.dumps(observation), services_pb2.Observation))
     reply = server.stub.GetActions(services_pb2.Empty())
 
@@ -109,7 +122,9 @@ def test_lerobots_own_list_refuses_ccdp_until_the_entry_point_adds_it():
 def test_a_server_without_a_policy_list_is_named_with_the_workaround():
     fake = type(sys)("some.policy_server")
     fake.SUPPORTED = ("act", "diffusion")  # a tuple cannot be extended in place
-    with pytest.raises(RuntimeError, match=r"some\.policy_server has no list of supported policy types.*from_pretrained"):
+    with pytest.raises(
+        RuntimeError, match=r"some\.policy_server has no list of supported policy types.*from_pretrained"
+    ):
         supported_policies(fake)
 
 
@@ -119,5 +134,7 @@ def test_missing_grpc_names_the_extra_to_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "grpc", None)  # as if LeRobot's async extra were not installed
     monkeypatch.delitem(sys.modules, "lerobot.async_inference.policy_server", raising=False)
     monkeypatch.delattr(lerobot.async_inference, "policy_server", raising=False)  # an earlier import's
-    with pytest.raises(SystemExit, match=r"needs the 'grpc' package: pip install 'lerobot_policy_ccdp\[async\]'"):
+    with pytest.raises(
+        SystemExit, match=r"needs the 'grpc' package: pip install 'lerobot_policy_ccdp\[async\]'"
+    ):
         lerobot_policy_server()

@@ -1,4 +1,5 @@
-"""After a plain install, LeRobot's own plugin discovery registers `ccdp` (as its CLIs do, in a fresh process)."""
+"""After a plain install, LeRobot's own plugin discovery registers `ccdp` (as its CLIs do, in a fresh
+process)."""
 
 import subprocess
 import sys
@@ -23,6 +24,8 @@ def test_plugin_discovery_registers_ccdp_in_a_fresh_process():
 def test_lerobot_train_parses_policy_type_ccdp():
     from fixtures.reaching import BIN
 
-    result = subprocess.run([str(BIN / "lerobot-train"), "--policy.type=ccdp", "--help"], capture_output=True, text=True)
+    result = subprocess.run(
+        [str(BIN / "lerobot-train"), "--policy.type=ccdp", "--help"], capture_output=True, text=True
+    )
     assert result.returncode == 0, result.stderr
     assert "--policy.w_z" in result.stdout and "--policy.recovery_mode" in result.stdout

@@ -1,5 +1,6 @@
-"""lerobot-ccdp-record and lerobot-ccdp-synthesize parse as LeRobot's CLIs: draccus, `--config_path=<recipe yaml>`
-(each command reads only its own section), dotted overrides checked like the file, `--help` with every default."""
+"""lerobot-ccdp-record and lerobot-ccdp-synthesize parse as LeRobot's CLIs: draccus,
+`--config_path=<recipe yaml>` (each command reads only its own section), dotted overrides checked like the
+file, `--help` with every default."""
 
 import dataclasses
 import re
@@ -23,7 +24,12 @@ from fixtures.reaching import run_cli
 
 DOOR = Path(__file__).parents[2] / "datasets_recipes" / "door_opening.yaml"
 DEMOS = ["--dataset.repo_id=local/door", "--dataset.root=data/door"]
-SYNTHESIS = [*DEMOS, "--policy.path=runs/base", "--output.repo_id=local/door_recovery", "--output.root=data/rec"]
+SYNTHESIS = [
+    *DEMOS,
+    "--policy.path=runs/base",
+    "--output.repo_id=local/door_recovery",
+    "--output.root=data/rec",
+]
 
 
 def help_entries(text: str) -> dict[str, str]:
@@ -35,14 +41,20 @@ def help_entries(text: str) -> dict[str, str]:
     return entries
 
 
-@pytest.mark.parametrize("config_class, recipe_class", [(RecordConfig, RecordRecipe), (SynthesizeConfig, RecoveryRecipe)])
+@pytest.mark.parametrize(
+    "config_class, recipe_class", [(RecordConfig, RecordRecipe), (SynthesizeConfig, RecoveryRecipe)]
+)
 def test_help_lists_every_field_with_its_default(config_class, recipe_class, capsys):
     with pytest.raises(SystemExit) as exit_info:
         parse_cli(config_class, ["--help"])
     assert exit_info.value.code == 0
     entries = help_entries(capsys.readouterr().out)
-    nested = {config_class.section: recipe_class, "dataset": LocalDatasetConfig, "output": LocalDatasetConfig,
-              "policy": CheckpointConfig}
+    nested = {
+        config_class.section: recipe_class,
+        "dataset": LocalDatasetConfig,
+        "output": LocalDatasetConfig,
+        "policy": CheckpointConfig,
+    }
     expected = {}
     for top in dataclasses.fields(config_class):
         children = dataclasses.fields(nested[top.name]) if top.name in nested else [top]
@@ -77,9 +89,19 @@ def test_a_dotted_override_changes_what_is_recorded(tmp_path):
 
 def test_overrides_merge_with_the_own_section_of_the_recipe_file():
     file = yaml.safe_load(DOOR.read_text())
-    cfg = parse_cli(SynthesizeConfig, [f"--config_path={DOOR}", *SYNTHESIS, "--recovery.sigma=0.05",
-                                       "--recovery.failure_state_dims=[0, 1]", "--policy.device=cpu"])
-    assert cfg.recovery == RecoveryRecipe.from_dict({**file["recovery"], "sigma": 0.05, "failure_state_dims": [0, 1]})
+    cfg = parse_cli(
+        SynthesizeConfig,
+        [
+            f"--config_path={DOOR}",
+            *SYNTHESIS,
+            "--recovery.sigma=0.05",
+            "--recovery.failure_state_dims=[0, 1]",
+            "--policy.device=cpu",
+        ],
+    )
+    assert cfg.recovery == RecoveryRecipe.from_dict(
+        {**file["recovery"], "sigma": 0.05, "failure_state_dims": [0, 1]}
+    )
     assert cfg.policy == CheckpointConfig(path=Path("runs/base"), device="cpu")
     assert cfg.output == LocalDatasetConfig("local/door_recovery", Path("data/rec")) and not cfg.overwrite
     cfg = parse_cli(RecordConfig, [f"--config_path={DOOR}", *DEMOS, "--overwrite=true"])
@@ -88,33 +110,51 @@ def test_overrides_merge_with_the_own_section_of_the_recipe_file():
 
 def test_each_command_reads_only_its_own_section(tmp_path):
     recipe = tmp_path / "recipe.yaml"
-    recipe.write_text(yaml.safe_dump({"record": {"task": "DoorOpening-lite-v0", "n_episodes": 3, "seed": 0},
-                                      "recovery": {"no_such_field": 1}}))
+    recipe.write_text(
+        yaml.safe_dump(
+            {
+                "record": {"task": "DoorOpening-lite-v0", "n_episodes": 3, "seed": 0},
+                "recovery": {"no_such_field": 1},
+            }
+        )
+    )
     assert parse_cli(RecordConfig, [f"--config_path={recipe}", *DEMOS]).record.n_episodes == 3
     with pytest.raises(SystemExit, match=r"unknown field\(s\) in `recovery:`: no_such_field"):
         parse_cli(SynthesizeConfig, [f"--config_path={recipe}", *SYNTHESIS])
 
 
 def test_a_config_builds_from_flags_alone():
-    cfg = parse_cli(RecordConfig, ["--record.task=ButtonSearch-lite-v0", "--record.n_episodes=5", "--record.seed=7",
-                                   "--record.env_kwargs={obs_type: pixels_agent_pos}", *DEMOS])
-    assert cfg.record == RecordRecipe(task="ButtonSearch-lite-v0", n_episodes=5, seed=7,
-                                      env_kwargs={"obs_type": "pixels_agent_pos"})
+    cfg = parse_cli(
+        RecordConfig,
+        [
+            "--record.task=ButtonSearch-lite-v0",
+            "--record.n_episodes=5",
+            "--record.seed=7",
+            "--record.env_kwargs={obs_type: pixels_agent_pos}",
+            *DEMOS,
+        ],
+    )
+    assert cfg.record == RecordRecipe(
+        task="ButtonSearch-lite-v0", n_episodes=5, seed=7, env_kwargs={"obs_type": "pixels_agent_pos"}
+    )
     assert cfg.dataset == LocalDatasetConfig("local/door", Path("data/door"))
     cfg = parse_cli(SynthesizeConfig, ["--recovery.failure_feature=action", *SYNTHESIS])
     assert cfg.recovery == RecoveryRecipe(failure_feature="action") and cfg.policy.device is None
 
 
-@pytest.mark.parametrize("config_class, flag, message", [
-    (RecordConfig, "--record.n_episodes=abc", "record.n_episodes must be int, got 'abc'"),
-    (RecordConfig, "--record.n_episodes=true", "record.n_episodes must be int, got True"),
-    (RecordConfig, "--record.n_episodes=0", "record.n_episodes must be a positive integer, got 0"),
-    (RecordConfig, "--record.task=Door-v9", "known tasks: DoorOpening-v0"),
-    (SynthesizeConfig, "--recovery.sigma=abc", "recovery.sigma must be float, got 'abc'"),
-    (SynthesizeConfig, "--recovery.w_s=2", r"recovery.w_s must be in \(0, 1\]"),
-    (SynthesizeConfig, "--recovery.failure_feature=colour", "recovery.failure_feature must be one of"),
-    (SynthesizeConfig, "--overwrite=maybe", "`overwrite`: Couldn't parse 'maybe' into a bool"),
-])
+@pytest.mark.parametrize(
+    "config_class, flag, message",
+    [
+        (RecordConfig, "--record.n_episodes=abc", "record.n_episodes must be int, got 'abc'"),
+        (RecordConfig, "--record.n_episodes=true", "record.n_episodes must be int, got True"),
+        (RecordConfig, "--record.n_episodes=0", "record.n_episodes must be a positive integer, got 0"),
+        (RecordConfig, "--record.task=Door-v9", "known tasks: DoorOpening-v0"),
+        (SynthesizeConfig, "--recovery.sigma=abc", "recovery.sigma must be float, got 'abc'"),
+        (SynthesizeConfig, "--recovery.w_s=2", r"recovery.w_s must be in \(0, 1\]"),
+        (SynthesizeConfig, "--recovery.failure_feature=colour", "recovery.failure_feature must be one of"),
+        (SynthesizeConfig, "--overwrite=maybe", "`overwrite`: Couldn't parse 'maybe' into a bool"),
+    ],
+)
 def test_a_bad_override_is_refused_naming_the_field(config_class, flag, message):
     flags = DEMOS if config_class is RecordConfig else SYNTHESIS
     with pytest.raises(SystemExit, match=f"^{config_class.command}: error: .*{message}"):
@@ -135,9 +175,13 @@ def test_an_unknown_field_is_refused_naming_it(capsys, tmp_path):
 def test_missing_required_fields_name_their_flags(tmp_path):
     with pytest.raises(SystemExit, match=r"missing required flag\(s\): --dataset.root$"):
         parse_cli(RecordConfig, [f"--config_path={DOOR}", "--dataset.repo_id=local/door"])
-    with pytest.raises(SystemExit, match=re.escape(
+    with pytest.raises(
+        SystemExit,
+        match=re.escape(
             "missing required flag(s): --record.task, --record.n_episodes, --record.seed, --dataset.root "
-            "(or name a recipe file holding the record.* ones with --config_path=<recipe yaml>)")):
+            "(or name a recipe file holding the record.* ones with --config_path=<recipe yaml>)"
+        ),
+    ):
         parse_cli(RecordConfig, ["--dataset.repo_id=local/door"])
     with pytest.raises(SystemExit, match=r"missing required flag\(s\): --policy.path, --output.repo_id$"):
         parse_cli(SynthesizeConfig, [f"--config_path={DOOR}", *DEMOS, "--output.root=data/rec"])
@@ -145,7 +189,9 @@ def test_missing_required_fields_name_their_flags(tmp_path):
     recipe.write_text(yaml.safe_dump({"recovery": {"sigma": 0.1}}))
     with pytest.raises(SystemExit, match=r"`recovery:` is missing required field\(s\): failure_feature"):
         parse_cli(SynthesizeConfig, [f"--config_path={recipe}", *SYNTHESIS])
-    assert parse_cli(SynthesizeConfig, [f"--config_path={recipe}", *SYNTHESIS, "--recovery.failure_feature=action"])
+    assert parse_cli(
+        SynthesizeConfig, [f"--config_path={recipe}", *SYNTHESIS, "--recovery.failure_feature=action"]
+    )
 
 
 def test_a_missing_or_unfit_recipe_file_is_named(tmp_path):
@@ -154,6 +200,7 @@ def test_a_missing_or_unfit_recipe_file_is_named(tmp_path):
         parse_cli(RecordConfig, [f"--config_path={missing}", *DEMOS])
     with pytest.raises(SystemExit, match="--config_path=<recipe yaml>, with '='"):
         parse_cli(RecordConfig, ["--config_path", str(DOOR), *DEMOS])
-    reaching = DOOR.with_name("reaching2d.yaml")  # a `recovery:` section only: its demos come from another recorder
+    # a `recovery:` section only: its demos come from another recorder
+    reaching = DOOR.with_name("reaching2d.yaml")
     with pytest.raises(SystemExit, match=f"Recipe {reaching} has no top-level `record:` section"):
         parse_cli(RecordConfig, [f"--config_path={reaching}", *DEMOS])

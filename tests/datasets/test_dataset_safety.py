@@ -23,19 +23,35 @@ from fixtures.reaching import BIN, REACHING_REPO_ID
 
 TASK = "DoorOpening-lite-v0"
 DEMOS_ID = "local/door"
-RECOVERY = ["--recovery.failure_feature=action", "--recovery.n_states=4", "--recovery.chunks_per_state=2",
-            "--recovery.demo_frames=32"]
+RECOVERY = [
+    "--recovery.failure_feature=action",
+    "--recovery.n_states=4",
+    "--recovery.chunks_per_state=2",
+    "--recovery.demo_frames=32",
+]
 
 
 def record_flags(root: Path, *extra: str, n_episodes: int = 1) -> list[str]:
-    return [f"--record.task={TASK}", f"--record.n_episodes={n_episodes}", "--record.seed=0",
-            f"--dataset.repo_id={DEMOS_ID}", f"--dataset.root={root}", *extra]
+    return [
+        f"--record.task={TASK}",
+        f"--record.n_episodes={n_episodes}",
+        "--record.seed=0",
+        f"--dataset.repo_id={DEMOS_ID}",
+        f"--dataset.root={root}",
+        *extra,
+    ]
 
 
 def synthesize_flags(demos: Path, checkpoint: Path, output: Path | str, *extra: str) -> list[str]:
-    return [*RECOVERY, f"--dataset.repo_id={DEMOS_ID}", f"--dataset.root={demos}",
-            f"--policy.path={checkpoint}", "--output.repo_id=local/recovery", f"--output.root={output}",
-            *extra]
+    return [
+        *RECOVERY,
+        f"--dataset.repo_id={DEMOS_ID}",
+        f"--dataset.root={demos}",
+        f"--policy.path={checkpoint}",
+        "--output.repo_id=local/recovery",
+        f"--output.root={output}",
+        *extra,
+    ]
 
 
 def listing(folder: Path) -> dict[str, int]:
@@ -107,7 +123,8 @@ def test_overwrite_replaces_only_the_dataset_it_wrote_at_that_same_path(tmp_path
     assert LeRobotDataset(DEMOS_ID, root=original).num_episodes == 2
     marker = json.loads((original / MARKER).read_text())
     assert marker == {"created_by": "lerobot_ccdp dataset", "path_sha256": identity(original.resolve())}
-    assert str(tmp_path) not in (original / MARKER).read_text()  # pushed to the Hub with the data: no local path
+    # pushed to the Hub with the data: no local path
+    assert str(tmp_path) not in (original / MARKER).read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["copy", "link", "moved", "original"]
 
 
@@ -115,9 +132,13 @@ def test_a_run_removes_only_its_own_roots_dead_staging_folders(tmp_path):
     """`data` and `data.v2` share a prefix; writing `data` leaves every staging folder of `data.v2` alone and
     those of `data` that a live process still writes."""
     dead = 2**22 + 7  # above Linux's pid_max: no such process
-    kept = [f".data.v2.{os.getpid()}.k3y_9ab1.partial", f".data.v2.{dead}.zz81ab_c.partial",
-            f".data.{os.getpid()}.live0123.partial", ".data.notapid.abc.partial",
-            f".data.{dead}.{os.getpid()}.abcd1234.partial"]  # the last: a live one of root `data.4194311`
+    kept = [
+        f".data.v2.{os.getpid()}.k3y_9ab1.partial",
+        f".data.v2.{dead}.zz81ab_c.partial",
+        f".data.{os.getpid()}.live0123.partial",
+        ".data.notapid.abc.partial",
+        f".data.{dead}.{os.getpid()}.abcd1234.partial",  # the last: a live one of root `data.4194311`
+    ]
     for name in [*kept, f".data.{dead}.x1y2z3_w.partial"]:
         (tmp_path / name / "dataset").mkdir(parents=True)
     record.main(record_flags(tmp_path / "data"))
@@ -170,9 +191,13 @@ def test_a_file_size_limit_is_named_by_the_console_script(tmp_path):
     def limit_file_size() -> None:
         resource.setrlimit(resource.RLIMIT_FSIZE, (16 * 1024, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
 
-    result = subprocess.run([str(BIN / "lerobot-ccdp-record"), *record_flags(tmp_path / "demos")],
-                            capture_output=True, text=True, preexec_fn=limit_file_size,
-                            env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
+    result = subprocess.run(
+        [str(BIN / "lerobot-ccdp-record"), *record_flags(tmp_path / "demos")],
+        capture_output=True,
+        text=True,
+        preexec_fn=limit_file_size,
+        env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"},
+    )
     last = result.stderr.strip().splitlines()[-1]
     assert result.returncode != 0
     assert last.startswith(f"OSError: [Errno {errno.EFBIG}] File too large in {tmp_path} while writing demos")
@@ -180,13 +205,18 @@ def test_a_file_size_limit_is_named_by_the_console_script(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("flag, message", [
-    ("--record.env_kwargs={obs_typ: pixels_agent_pos}",
-     rf"record.env_kwargs: {TASK} takes no argument.* obs_typ; it accepts .*, obs_type, "),
-    ("--record.max_episode_steps=0", "record.max_episode_steps must be a positive integer, got 0"),
-    ("--record.max_episode_steps=-5", "record.max_episode_steps must be a positive integer, got -5"),
-    ("--record.env_kwargs={init_noise: .nan}", "record.env_kwargs.init_noise must be a finite number"),
-])
+@pytest.mark.parametrize(
+    "flag, message",
+    [
+        (
+            "--record.env_kwargs={obs_typ: pixels_agent_pos}",
+            rf"record.env_kwargs: {TASK} takes no argument.* obs_typ; it accepts .*, obs_type, ",
+        ),
+        ("--record.max_episode_steps=0", "record.max_episode_steps must be a positive integer, got 0"),
+        ("--record.max_episode_steps=-5", "record.max_episode_steps must be a positive integer, got -5"),
+        ("--record.env_kwargs={init_noise: .nan}", "record.env_kwargs.init_noise must be a finite number"),
+    ],
+)
 def test_record_recipe_errors_are_named_before_any_env_is_made(tmp_path, monkeypatch, flag, message):
     monkeypatch.setattr(record.gym, "make", lambda *args, **kwargs: pytest.fail("an env was made"))
     with pytest.raises(SystemExit, match=rf"lerobot-ccdp-record: error: {message}"):
@@ -209,12 +239,15 @@ def test_a_recovery_recipe_refuses_non_finite_numbers(tmp_path, field, value):
 
 def test_a_checkpoint_of_another_layout_is_refused_naming_both(door, reaching_root, tmp_path):
     demos, _ = door
-    other = untrained_checkpoint(reaching_root, tmp_path / "reaching_base", REACHING_REPO_ID,
-                                 failure_feature="action")
+    other = untrained_checkpoint(
+        reaching_root, tmp_path / "reaching_base", REACHING_REPO_ID, failure_feature="action"
+    )
     features = LeRobotDataset(DEMOS_ID, root=demos).meta.features
     state, action = features["observation.state"]["shape"][0], features["action"]["shape"][0]
-    expected = (rf"checkpoint expects observation.state \(2,\), action \(2,\); dataset {DEMOS_ID} has "
-                rf"observation.state \({state},\), action \({action},\)")
+    expected = (
+        rf"checkpoint expects observation.state \(2,\), action \(2,\); dataset {DEMOS_ID} has "
+        rf"observation.state \({state},\), action \({action},\)"
+    )
     with pytest.raises(ValueError, match=expected):
         synthesize.main(synthesize_flags(demos, other, tmp_path / "out"))
     assert list(tmp_path.iterdir()) == [tmp_path / "reaching_base"]

@@ -1,5 +1,6 @@
-"""What this project's commands delete or write into is a folder they made where it is (issue 49): a user's folder,
-a copy or a symlink of ours is refused, and the benchmark scripts that clear their folders follow the same rule."""
+"""What this project's commands delete or write into is a folder they made where it is (issue 49): a user's
+folder, a copy or a symlink of ours is refused, and the benchmark scripts that clear their folders follow the
+same rule."""
 
 import importlib.util
 from pathlib import Path

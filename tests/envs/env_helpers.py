@@ -38,7 +38,12 @@ class FixedOptions(ScriptedAgent):
 def run_cli(*args: str) -> subprocess.CompletedProcess:
     """Run a console script of this venv offline, failing the test with its output if it fails."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    result = subprocess.run([str(Path(sys.executable).parent / args[0]), *args[1:]], capture_output=True, text=True, env=env)
+    result = subprocess.run(
+        [str(Path(sys.executable).parent / args[0]), *args[1:]], capture_output=True, text=True, env=env
+    )
     if result.returncode != 0:
-        pytest.fail(f"{' '.join(args)} failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}")
+        pytest.fail(
+            f"{' '.join(args)} failed ({result.returncode}):\n"
+            f"{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
+        )
     return result

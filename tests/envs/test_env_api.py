@@ -30,8 +30,15 @@ def test_observation_keys_dtypes_and_action_space(task):
     assert obs["environment_state"].shape == (len(task_class(task).env_state_names),)
     assert obs["failure"].tolist() == [0.0]
     assert env.action_space.shape == (4,) and env.action_space.dtype == np.float32
-    assert info == {"is_success": False, "attempts": 0, "failures": 0, "repeated_failures": 0,
-                    "attempts_after_failure": 0, "preference_matched": False, "option": -1}
+    assert info == {
+        "is_success": False,
+        "attempts": 0,
+        "failures": 0,
+        "repeated_failures": 0,
+        "attempts_after_failure": 0,
+        "preference_matched": False,
+        "option": -1,
+    }
 
 
 @pytest.mark.parametrize("task", ALL)
@@ -77,7 +84,9 @@ def test_invalid_hidden_parameter_is_rejected():
 
 
 def test_unknown_task_names_the_known_ones():
-    with pytest.raises(ValueError, match="known tasks: DoorOpening-v0, ButtonSearch-v0, ObjectManipulation-v0"):
+    with pytest.raises(
+        ValueError, match="known tasks: DoorOpening-v0, ButtonSearch-v0, ObjectManipulation-v0"
+    ):
         task_class("Door-v0")
 
 

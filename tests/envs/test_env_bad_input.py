@@ -1,6 +1,6 @@
-"""Bad env settings and actions are refused where they enter, naming the setting: before, a NaN action moved the
-lite arm to NaN (and lerobot-eval scored the episode a plain failure) or stopped the Panda's IK with an SVD error,
-and a zero budget or image size built an env that failed later or never."""
+"""Bad env settings and actions are refused where they enter, naming the setting: before, a NaN action moved
+the lite arm to NaN (and lerobot-eval scored the episode a plain failure) or stopped the Panda's IK with an
+SVD error, and a zero budget or image size built an env that failed later or never."""
 
 import gymnasium as gym
 import numpy as np
@@ -23,12 +23,15 @@ def test_a_non_finite_or_misshapen_action_is_refused(task, action):
         env.step(np.asarray(action, dtype=np.float32))
 
 
-@pytest.mark.parametrize("settings,named", [
-    ({"max_failures": 0}, "max_failures"),
-    ({"max_failures": -1}, "max_failures"),
-    ({"render_width": 0}, "render_width"),
-    ({"obs_type": "pixels_agent_pos", "observation_width": 0}, "observation_width"),
-])
+@pytest.mark.parametrize(
+    "settings,named",
+    [
+        ({"max_failures": 0}, "max_failures"),
+        ({"max_failures": -1}, "max_failures"),
+        ({"render_width": 0}, "render_width"),
+        ({"obs_type": "pixels_agent_pos", "observation_width": 0}, "observation_width"),
+    ],
+)
 def test_an_env_setting_below_its_range_is_refused(settings, named):
     with pytest.raises(ValueError, match=named):
         _make(task="DoorOpening-lite-v0", **settings)

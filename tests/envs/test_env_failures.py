@@ -100,7 +100,9 @@ def test_preference_labelling(task, hidden, options, matched):
 def test_rejected_object_goes_back_and_full_basket_stays_full():
     env = make("ObjectPacking-lite-v0")
     # Basket 0 takes one object: the second object into basket 0 is rejected, then basket 1 takes it.
-    episode = run_episode(env, FixedOptions(env, [0, 0, 1]), seed=0, hidden_param=encode_capacities([1, 1, 0]))
+    episode = run_episode(
+        env, FixedOptions(env, [0, 0, 1]), seed=0, hidden_param=encode_capacities([1, 1, 0])
+    )
     assert episode.success
     assert episode.info["attempts"] == 3 and episode.info["failures"] == 1
     assert episode.info["repeated_failures"] == 0  # basket 0 had not failed before
@@ -116,8 +118,8 @@ def test_expert_labels_are_options_and_follow_the_hidden_parameter():
 
 @pytest.mark.parametrize("task", ["Bartender-lite-v0", "Bartender-v0"])
 def test_a_bottle_restored_over_the_cup_it_filled_does_not_pour_again(task):
-    """After cup 0 is filled, a failed pour at cup 1 restores the arm over cup 0: holding still there is no pour
-    (it would be a failure at a filled cup that the policy never attempted)."""
+    """After cup 0 is filled, a failed pour at cup 1 restores the arm over cup 0: holding still there is no
+    pour (it would be a failure at a filled cup that the policy never attempted)."""
     env = make(task)
     agent = FixedOptions(env, [0, 1])
     _, history, info = _run_until_failure(env, agent, 0b0101)

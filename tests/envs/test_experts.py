@@ -25,8 +25,8 @@ def test_expert_succeeds_on_every_seed(task):
         assert episode.info["preference_matched"] is True
         assert len(episode.actions) < 100
         steps = np.linalg.norm(np.diff(np.array(episode.actions)[:, :3], axis=0), axis=1)
-        # Smooth: bounded end-effector speed. A plan starts from the measured pose, which on the physics tasks'
-        # arm lags the previous command by millimetres.
+        # Smooth: bounded end-effector speed. A plan starts from the measured pose, which on the physics
+        # tasks' arm lags the previous command by millimetres.
         assert steps.max() <= 0.025 + (1e-6 if is_lite(task) else 0.005)
         assert all(0 <= o < env.unwrapped.n_options for o in episode.options)
 
@@ -44,8 +44,8 @@ def test_expert_and_oracle_succeed_for_every_hidden_parameter(task):
 
 @pytest.mark.parametrize("task", ["Bartender-lite-v0", "Bartender-v0"])
 def test_bartender_demos_from_the_right_fill_cup_3_first_and_succeed(task):
-    """`right_start` is how the recipe's demos show cup 3 full: from `home` the expert never fills it first. Only
-    an episode whose cup 3 is available starts right, so no demo crosses the empty cups leftwards."""
+    """`right_start` is how the recipe's demos show cup 3 full: from `home` the expert never fills it first.
+    Only an episode whose cup 3 is available starts right, so no demo crosses the empty cups leftwards."""
     env = make(task, right_start=1.0)
     for hidden in env.unwrapped.hidden_values():
         episode = run_episode(env, Expert(env), seed=3, hidden_param=hidden)
@@ -56,14 +56,16 @@ def test_bartender_demos_from_the_right_fill_cup_3_first_and_succeed(task):
         assert episode.options[0] == (3 if started_right else min(available))  # the nearest available cup
     from_home = make(task)
     hidden_values = from_home.unwrapped.hidden_values()
-    firsts = {run_episode(from_home, Expert(from_home), seed=3, hidden_param=h).options[0] for h in hidden_values}
+    firsts = {
+        run_episode(from_home, Expert(from_home), seed=3, hidden_param=h).options[0] for h in hidden_values
+    }
     assert 3 not in firsts
 
 
 def test_bartender_right_start_draws_nothing_when_off_and_rejects_a_bad_probability():
-    """Evaluation keeps `right_start` 0: each seed's start must be the one it gave before the option existed, the
-    seed's first draws being the start noise (a draw for the side would shift it). A right start drawn for an
-    episode whose cup 3 is unavailable starts at home with the same noise."""
+    """Evaluation keeps `right_start` 0: each seed's start must be the one it gave before the option existed,
+    the seed's first draws being the start noise (a draw for the side would shift it). A right start drawn for
+    an episode whose cup 3 is unavailable starts at home with the same noise."""
     default, half = make("Bartender-lite-v0"), make("Bartender-lite-v0", right_start=0.5)
     home, noise = np.array(default.unwrapped.home[:3]), default.unwrapped.init_noise
     right = np.array(half.unwrapped.right_home[:3])

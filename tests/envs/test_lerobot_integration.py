@@ -21,11 +21,17 @@ def test_env_type_is_registered_with_lerobot():
     cfg = CCDPEnvConfig(task="Bartender-lite-v0")
     assert cfg.type == "ccdp" and cfg.gym_id == "lerobot_ccdp/Bartender-lite-v0" and cfg.fps == 10
     assert cfg.episode_length == TASKS["Bartender-lite-v0"].default_episode_steps
-    assert cfg.features_map == {"action": "action", "agent_pos": "observation.state",
-                                "environment_state": "observation.environment_state"}
+    assert cfg.features_map == {
+        "action": "action",
+        "agent_pos": "observation.state",
+        "environment_state": "observation.environment_state",
+    }
     assert "failure" not in cfg.features
     assert {k: f.shape for k, f in env_to_policy_features(cfg).items()} == {
-        "action": (4,), "observation.state": (4,), "observation.environment_state": (12,)}
+        "action": (4,),
+        "observation.state": (4,),
+        "observation.environment_state": (12,),
+    }
 
 
 def test_bad_env_config_is_named():
@@ -60,11 +66,31 @@ def _train_and_eval(task: str, tmp_path):
     root = tmp_path / "demos"
     record_dataset(RecordRecipe(task=task, n_episodes=4, seed=0), "local/smoke", root, progress=False)
     out = tmp_path / "train"
-    common = ["--policy.device=cpu", "--policy.num_inference_steps=4", "--env.type=ccdp", f"--env.task={task}",
-              "--env.episode_length=10", "--eval.n_episodes=1", "--eval.batch_size=1"]
-    run_cli("lerobot-train", "--policy.type=diffusion", "--dataset.repo_id=local/smoke", f"--dataset.root={root}",
-            f"--output_dir={out}", "--steps=2", "--batch_size=4", "--policy.push_to_hub=false", "--num_workers=0",
-            "--wandb.enable=false", "--save_freq=2", "--eval_freq=2", "--policy.down_dims=[32,64,128]", *common)
+    common = [
+        "--policy.device=cpu",
+        "--policy.num_inference_steps=4",
+        "--env.type=ccdp",
+        f"--env.task={task}",
+        "--env.episode_length=10",
+        "--eval.n_episodes=1",
+        "--eval.batch_size=1",
+    ]
+    run_cli(
+        "lerobot-train",
+        "--policy.type=diffusion",
+        "--dataset.repo_id=local/smoke",
+        f"--dataset.root={root}",
+        f"--output_dir={out}",
+        "--steps=2",
+        "--batch_size=4",
+        "--policy.push_to_hub=false",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--save_freq=2",
+        "--eval_freq=2",
+        "--policy.down_dims=[32,64,128]",
+        *common,
+    )
     assert list((out / "eval").glob("videos_step_000002/ccdp_0/*.mp4"))  # periodic eval ran on the env
     checkpoint = out / "checkpoints" / "last" / "pretrained_model"
     run_cli("lerobot-eval", f"--policy.path={checkpoint}", f"--output_dir={tmp_path / 'eval'}", *common)

@@ -40,7 +40,9 @@ def _attempt(task: str, hidden: int, option: int, seed: int, probe):
 
 def _box_attempt(hidden: int, option: int):
     """The box's and the pinch point's heights and the gripper closure at every step of one attempt."""
-    rows, obs, info, env = _attempt(TASK, hidden, option, 3, lambda u: (u.box_position()[2], u.ee_pos[2], u.grip))
+    rows, obs, info, env = _attempt(
+        TASK, hidden, option, 3, lambda u: (u.box_position()[2], u.ee_pos[2], u.grip)
+    )
     return *rows.T, obs, info, env
 
 
@@ -125,7 +127,7 @@ def test_a_pressed_button_is_a_cap_pushed_into_its_housing_that_springs_back():
     depths = np.array(depths)
     assert info["is_success"] and info["failures"] == 1 and info["repeated_failures"] == 0
     assert depths[failed_at, 1] >= PRESS_DEPTH  # the failure came when button 1's cap went down
-    assert (depths[:failed_at + 1, [0, 2, 3]] < PRESS_DEPTH / 2).all()  # and no other moved
+    assert (depths[: failed_at + 1, [0, 2, 3]] < PRESS_DEPTH / 2).all()  # and no other moved
     assert depths[failed_at + 3, 1] < PRESS_DEPTH / 2  # released by the restore, its spring pushed it back
     assert depths[-1, 3] >= PRESS_DEPTH  # the success is the live button's cap going down
 
@@ -133,8 +135,12 @@ def test_a_pressed_button_is_a_cap_pushed_into_its_housing_that_springs_back():
 def test_the_bottle_is_held_by_the_grasp_through_an_episode():
     env = make(BARTENDER)
     offsets = []
-    episode = run_episode(env, Expert(env), seed=5,
-                          on_step=lambda e: offsets.append(e.unwrapped.bottle_position() - e.unwrapped.ee_pos))
+    episode = run_episode(
+        env,
+        Expert(env),
+        seed=5,
+        on_step=lambda e: offsets.append(e.unwrapped.bottle_position() - e.unwrapped.ee_pos),
+    )
     assert episode.success
     assert np.abs(np.array(offsets) - offsets[0]).max() < 0.01  # it moved with the gripper
 
@@ -169,9 +175,9 @@ def test_an_object_dropped_into_a_crate_goes_under_the_lid_only_if_there_is_room
 
 @pytest.mark.parametrize("task", [DOOR, TASK])
 def test_wild_commands_keep_the_simulation_stable(task):
-    """Random actions across the workspace (a policy gone wild) once made the IK jump the joints by radians and
-    MuJoCo reported unstable accelerations (door seeds 0 and 4, manipulation seed 4); commands are now held
-    within `panda.MAX_REACH` of the pinch point."""
+    """Random actions across the workspace (a policy gone wild) once made the IK jump the joints by radians
+    and MuJoCo reported unstable accelerations (door seeds 0 and 4, manipulation seed 4); commands are now
+    held within `panda.MAX_REACH` of the pinch point."""
     env = make(task)
     unwrapped = env.unwrapped
     for seed in range(5):

@@ -1,4 +1,5 @@
-"""obs_type `pixels_agent_pos` (as gym-pusht's): rendered cameras plus the robot state, through gymnasium and LeRobot."""
+"""obs_type `pixels_agent_pos` (as gym-pusht's): rendered cameras plus the robot state, through gymnasium and
+LeRobot."""
 
 import numpy as np
 import pytest
@@ -45,16 +46,27 @@ def test_images_at_reset_do_not_show_the_hidden_parameter(task):
     for value in values[1:]:
         images = env.reset(seed=3, options={"hidden_param": value})[0]["pixels"]
         for camera in ("front", "top"):
-            np.testing.assert_array_equal(images[camera], reference[camera], err_msg=f"{camera}, hidden {value}")
+            np.testing.assert_array_equal(
+                images[camera], reference[camera], err_msg=f"{camera}, hidden {value}"
+            )
     env.close()
 
 
 def test_env_config_maps_cameras_to_observation_images():
-    config = CCDPEnvConfig(task="DoorOpening-lite-v0", obs_type="pixels_agent_pos", cameras=["front", "top"],
-                           observation_width=48, observation_height=40, render_mode=None)
+    config = CCDPEnvConfig(
+        task="DoorOpening-lite-v0",
+        obs_type="pixels_agent_pos",
+        cameras=["front", "top"],
+        observation_width=48,
+        observation_height=40,
+        render_mode=None,
+    )
     features = env_to_policy_features(config)
     assert {k: tuple(f.shape) for k, f in features.items() if k.startswith("observation")} == {
-        "observation.images.front": (3, 40, 48), "observation.images.top": (3, 40, 48), OBS_STATE: (4,)}
+        "observation.images.front": (3, 40, 48),
+        "observation.images.top": (3, 40, 48),
+        OBS_STATE: (4,),
+    }
     envs = make_env(config, n_envs=2)
     env = next(iter(next(iter(envs.values())).values()))
     observation = preprocess_observation(env.reset(seed=[0, 1])[0])
@@ -64,10 +76,16 @@ def test_env_config_maps_cameras_to_observation_images():
     assert "observation.environment_state" not in observation
 
 
-@pytest.mark.parametrize(("kwargs", "message"), [
-    ({"obs_type": "pixels"}, "obs_type must be one of"),
-    ({"obs_type": "pixels_agent_pos", "cameras": ("wrist",)}, r"cameras must name one or more of \['front', 'top'\]"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"obs_type": "pixels"}, "obs_type must be one of"),
+        (
+            {"obs_type": "pixels_agent_pos", "cameras": ("wrist",)},
+            r"cameras must name one or more of \['front', 'top'\]",
+        ),
+    ],
+)
 def test_bad_observation_settings_are_named(kwargs, message):
     with pytest.raises(ValueError, match=message):
         make("DoorOpening-lite-v0", **kwargs)

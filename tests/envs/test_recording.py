@@ -21,7 +21,8 @@ def _write(tmp_path: Path, content: dict) -> Path:
 
 
 def test_every_task_has_a_recipe():
-    # reaching2d.yaml holds only a `recovery:` section: its demos come from `python -m lerobot_ccdp.benchmark.reaching2d`.
+    # reaching2d.yaml holds only a `recovery:` section: its demos come from `python -m
+    # lerobot_ccdp.benchmark.reaching2d`.
     recorded = [p for p in RECIPES.glob("*.yaml") if "record" in yaml.safe_load(p.read_text())]
     assert {RecordRecipe.load(p).task for p in recorded} == set(TASKS)
     assert len(recorded) == len(list(RECIPES.glob("*.yaml"))) - 1
@@ -34,9 +35,13 @@ def test_recorded_dataset_loads_with_labels(task, tmp_path):
     record.record_dataset(recipe, "local/test", root, progress=False)
     dataset = LeRobotDataset("local/test", root=root)
     assert dataset.num_episodes == 3 and dataset.fps == 10
-    assert {"observation.state", "observation.environment_state", "action", "primitive", "hidden_param"} <= set(
-        dataset.features
-    )
+    assert {
+        "observation.state",
+        "observation.environment_state",
+        "action",
+        "primitive",
+        "hidden_param",
+    } <= set(dataset.features)
     assert not any("image" in k or "failure" in k for k in dataset.features)
     assert dataset.meta.video_keys == []
     frames = dataset.hf_dataset.with_format("numpy")[:]
@@ -61,33 +66,45 @@ def test_crash_leaves_nothing_half_written(tmp_path, monkeypatch):
     real = record.run_episode
     monkeypatch.setattr(record, "run_episode", crash_on_third)
     with pytest.raises(KeyboardInterrupt):
-        record.record_dataset(RecordRecipe(task="ButtonSearch-lite-v0", n_episodes=5, seed=0), "local/x", tmp_path / "ds")
+        record.record_dataset(
+            RecordRecipe(task="ButtonSearch-lite-v0", n_episodes=5, seed=0), "local/x", tmp_path / "ds"
+        )
     assert list(tmp_path.iterdir()) == []
 
 
 def test_recipe_ignores_other_sections_and_names_problems(tmp_path):
     recipe = RecordRecipe.load(
-        _write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_episodes": 4, "seed": 1}, "recovery": {"sigma": 0.1}})
+        _write(
+            tmp_path,
+            {"record": {"task": "Bartender-lite-v0", "n_episodes": 4, "seed": 1}, "recovery": {"sigma": 0.1}},
+        )
     )
     assert recipe == RecordRecipe(task="Bartender-lite-v0", n_episodes=4, seed=1)
     with pytest.raises(ValueError, match="missing required field.*seed"):
         RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_episodes": 4}}))
     with pytest.raises(ValueError, match="unknown field.*n_epsiodes"):
-        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_epsiodes": 4, "seed": 0}}))
+        RecordRecipe.load(
+            _write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_epsiodes": 4, "seed": 0}})
+        )
     with pytest.raises(ValueError, match="known tasks: DoorOpening-v0"):
         RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bar-v0", "n_episodes": 4, "seed": 0}}))
     with pytest.raises(ValueError, match="no top-level `record:` section"):
         RecordRecipe.load(_write(tmp_path, {"recovery": {}}))
     with pytest.raises(ValueError, match="n_episodes must be a positive integer"):
-        RecordRecipe.load(_write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_episodes": 0, "seed": 0}}))
+        RecordRecipe.load(
+            _write(tmp_path, {"record": {"task": "Bartender-lite-v0", "n_episodes": 0, "seed": 0}})
+        )
 
 
-@pytest.mark.parametrize("field, value, expected", [
-    ("seed", "zero", "record.seed must be int, got 'zero'"),
-    ("n_episodes", True, "record.n_episodes must be int, got True"),
-    ("fps", "10", "record.fps must be int, got '10'"),
-    ("max_episode_steps", 2.5, r"record.max_episode_steps must be int \| None"),
-])
+@pytest.mark.parametrize(
+    "field, value, expected",
+    [
+        ("seed", "zero", "record.seed must be int, got 'zero'"),
+        ("n_episodes", True, "record.n_episodes must be int, got True"),
+        ("fps", "10", "record.fps must be int, got '10'"),
+        ("max_episode_steps", 2.5, r"record.max_episode_steps must be int \| None"),
+    ],
+)
 def test_recipe_fields_of_the_wrong_type_are_named(tmp_path, field, value, expected):
     content = {"task": "Bartender-lite-v0", "n_episodes": 4, "seed": 0, field: value}
     with pytest.raises(ValueError, match=expected):
@@ -106,7 +123,9 @@ def test_overwrite_replaces_only_a_dataset(tmp_path, monkeypatch):
     notes = tmp_path / "mydir" / "notes.txt"
     notes.parent.mkdir()
     notes.write_text("keep me")
-    with pytest.raises(ValueError, match=r"only replaces a dataset that lerobot_ccdp wrote .*nothing was deleted"):
+    with pytest.raises(
+        ValueError, match=r"only replaces a dataset that lerobot_ccdp wrote .*nothing was deleted"
+    ):
         record.record_dataset(recipe, "local/x", notes.parent, overwrite=True, progress=False)
     monkeypatch.chdir(notes.parent)
     for root in (Path("."), tmp_path):  # the working directory, and a folder holding it
@@ -119,5 +138,7 @@ def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(tmp_path):
     root = tmp_path / "ds"
     stale = tmp_path / f".ds.{2**22 + 7}.abc.partial"  # a pid above Linux's pid_max: no such process
     (stale / "dataset").mkdir(parents=True)
-    record.record_dataset(RecordRecipe(task="DoorOpening-lite-v0", n_episodes=1, seed=0), "local/x", root, progress=False)
+    record.record_dataset(
+        RecordRecipe(task="DoorOpening-lite-v0", n_episodes=1, seed=0), "local/x", root, progress=False
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
