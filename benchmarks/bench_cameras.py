@@ -2,7 +2,7 @@
 side by side.
 
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_cameras.py [--size 64] [--repeats 30]
-        [--train-steps 20] [--cli-steps 40 | --no-cli] [--recovery-head unet|mlp] [--threads 2]
+        [--train-steps 20] [--cli-steps 40 | --no-cli] [--threads 2]
         [--out outputs/bench_cameras.json]
 
 Both policies see one camera of --size x --size pixels and the ccdp tasks' 4-D robot state, encoded by
@@ -70,7 +70,7 @@ def make_diffusion(size: int) -> DiffusionPolicy:
     )
 
 
-def planning_latency(size: int, repeats: int, warmup: int, recovery_head: str) -> dict:
+def planning_latency(size: int, repeats: int, warmup: int) -> dict:
     torch.manual_seed(0)
     obs = {STATE: torch.randn(1, 4), CAMERA: torch.rand(1, 3, size, size)}
     diffusion = make_diffusion(size).eval()
@@ -81,7 +81,7 @@ def planning_latency(size: int, repeats: int, warmup: int, recovery_head: str) -
     stacked = {**obs, "observation.images": obs[CAMERA].unsqueeze(-4)}
     calls = {"diffusion": lambda: diffusion.predict_action_chunk(dict(stacked))}
     for n in (0, 4):
-        policy = make_ccdp(size, recovery_head=recovery_head).eval()
+        policy = make_ccdp(size).eval()
         policy.model.recovery_trained.fill_(True)
         policy.select_action(dict(obs))
         for _ in range(n):
@@ -239,9 +239,6 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--cli-episodes", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true")
     parser.add_argument(
-        "--recovery-head", choices=["unet", "mlp"], default="unet", help="eps_z architecture for (a)"
-    )
-    parser.add_argument(
         "--sizes", type=int, nargs="*", default=[48, 64, 96], help="render sizes for (c); none skips"
     )
     parser.add_argument("--work", type=Path, default=Path("outputs/bench_cameras"))
@@ -251,7 +248,7 @@ def main(argv: list[str] | None = None) -> dict:
     torch.set_num_threads(args.threads)
     results = {"command": " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])])}
     print("(a) planning latency ...", flush=True)
-    results["latency"] = planning_latency(args.size, args.repeats, args.warmup, args.recovery_head)
+    results["latency"] = planning_latency(args.size, args.repeats, args.warmup)
     print("(b) training step ...", flush=True)
     results["train_step"] = training_step_time(args.size, args.batch_size, args.train_steps, args.warmup)
     if args.sizes:
