@@ -64,8 +64,11 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     baselines = BASELINES if first else {}
     if head == "set_denoiser":  # one sample per plan
         return {**baselines, **MATCHED, "CCDP set denoiser": Method("ccdp", {"w_z": 1.0})}
-    ccdp = {ccdp_name(w, n): Method("ccdp", {"w_z": w, "ccdp_redraws": n}) for w in sampling.w_z
-            for n in sampling.redraws}
+    ccdp = {
+        ccdp_name(w, n): Method("ccdp", {"w_z": w, "ccdp_redraws": n})
+        for w in sampling.w_z
+        for n in sampling.redraws
+    }
     # The reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start chunks.
     return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
@@ -77,8 +80,16 @@ def ccdp_name(w_z: float, redraws: int) -> str:
 
 def train(name: str, out: Path, args: list[str], upstream: str | None, book: StampBook) -> tuple[Path, str]:
     """lerobot-train into `out` unless the checkpoint there was made by the same command from the same upstream."""
-    command = ["lerobot-train", *args, f"--output_dir={out}", "--policy.push_to_hub=false", "--num_workers=0",
-               "--wandb.enable=false", "--log_freq=500", "--seed=0"]
+    command = [
+        "lerobot-train",
+        *args,
+        f"--output_dir={out}",
+        "--policy.push_to_hub=false",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--log_freq=500",
+        "--seed=0",
+    ]
     value = stamp(command, upstream)
     if (out / CHECKPOINT / "model.safetensors").exists() and book.matches(name, value):
         return out / CHECKPOINT, value
@@ -86,7 +97,9 @@ def train(name: str, out: Path, args: list[str], upstream: str | None, book: Sta
     print(f"  {name}: lerobot-train into {out}", flush=True)
     log = out.with_suffix(".log")
     with log.open("w") as handle:
-        done = subprocess.run([str(BIN / command[0]), *command[1:]], check=False, stdout=handle, stderr=subprocess.STDOUT)
+        done = subprocess.run(
+            [str(BIN / command[0]), *command[1:]], check=False, stdout=handle, stderr=subprocess.STDOUT
+        )
     if done.returncode:
         raise RuntimeError(f"{name} failed (exit {done.returncode}); see {log}")
     book.record(name, value)
@@ -98,8 +111,15 @@ def member_dataset(seed: int, out: Path) -> tuple[Path, str]:
     return out / f"member_{seed}" / "data", f"local/reaching_family_{seed}"
 
 
-def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episodes: int,
-                   classifier: bool, set_denoiser: bool) -> dict[str, Path]:
+def prepare_member(
+    seed: int,
+    out: Path,
+    base_steps: int,
+    head_steps: int,
+    episodes: int,
+    classifier: bool,
+    set_denoiser: bool,
+) -> dict[str, Path]:
     """Record member `seed`, train its base and, from it, the classifier head (with `classifier`) and the
     failure-set denoiser (with `set_denoiser`); return the heads' checkpoints by head name."""
     task = ReachingTask.family_member(seed)
@@ -112,40 +132,91 @@ def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episo
         shutil.rmtree(data, ignore_errors=True)
         task.record(data, repo, episodes, seed)
         book.record("record", data_stamp)
-    z = (["--policy.failure_feature=primitive", f"--policy.num_primitives={len(task.goals)}"] if task.labelled
-         else ["--policy.failure_feature=final_state"])
+    z = (
+        ["--policy.failure_feature=primitive", f"--policy.num_primitives={len(task.goals)}"]
+        if task.labelled
+        else ["--policy.failure_feature=final_state"]
+    )
     dataset = [f"--dataset.repo_id={repo}", f"--dataset.root={data}"]
     head = ["--policy.recovery_head=set_denoiser", "--policy.history_length=0"] if set_denoiser else []
-    base, base_stamp = train("base", root / "base", ["--policy.type=ccdp", *z, *head, *dataset, f"--steps={base_steps}",
-                                                     "--batch_size=64", f"--save_freq={base_steps}"], data_stamp, book)
+    base, base_stamp = train(
+        "base",
+        root / "base",
+        [
+            "--policy.type=ccdp",
+            *z,
+            *head,
+            *dataset,
+            f"--steps={base_steps}",
+            "--batch_size=64",
+            f"--save_freq={base_steps}",
+        ],
+        data_stamp,
+        book,
+    )
     heads = {}
     if classifier:
-        heads["classifier"] = train("classifier", root / "classifier", [
-            f"--policy.path={base}", "--policy.training_stage=recovery", "--policy.recovery_head=classifier",
-            *dataset, f"--steps={head_steps}", "--batch_size=64", f"--save_freq={head_steps}"], base_stamp, book)[0]
+        heads["classifier"] = train(
+            "classifier",
+            root / "classifier",
+            [
+                f"--policy.path={base}",
+                "--policy.training_stage=recovery",
+                "--policy.recovery_head=classifier",
+                *dataset,
+                f"--steps={head_steps}",
+                "--batch_size=64",
+                f"--save_freq={head_steps}",
+            ],
+            base_stamp,
+            book,
+        )[0]
     if set_denoiser:
         heads["set_denoiser"] = train_set_denoiser(root, task, base, base_stamp, head_steps, book)
     return heads
 
 
-def train_set_denoiser(root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int,
-                       book: StampBook) -> Path:
+def train_set_denoiser(
+    root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int, book: StampBook
+) -> Path:
     """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE), then lerobot-train it on them."""
-    z = ({"failure_feature": "primitive", "num_primitives": len(task.goals)} if task.labelled
-         else {"failure_feature": "final_state"})
+    z = (
+        {"failure_feature": "primitive", "num_primitives": len(task.goals)}
+        if task.labelled
+        else {"failure_feature": "final_state"}
+    )
     recipe, rows, repo = root / "set_recipe.yaml", root / "set_rows", f"local/set_rows_{root.name}"
     recipe.write_text(yaml.safe_dump({"recovery": {**z, **SET_RECIPE}}))
-    command = ["lerobot-ccdp-synthesize", f"--config_path={recipe}", f"--dataset.repo_id={member_dataset_repo(root)}",
-               f"--dataset.root={root / 'data'}", f"--policy.path={base}", f"--output.repo_id={repo}",
-               f"--output.root={rows}", "--overwrite=true"]
+    command = [
+        "lerobot-ccdp-synthesize",
+        f"--config_path={recipe}",
+        f"--dataset.repo_id={member_dataset_repo(root)}",
+        f"--dataset.root={root / 'data'}",
+        f"--policy.path={base}",
+        f"--output.repo_id={repo}",
+        f"--output.root={rows}",
+        "--overwrite=true",
+    ]
     rows_stamp = stamp(command, base_stamp)
     if not (rows / "meta" / "info.json").exists() or not book.matches("set_rows", rows_stamp):
         print(f"  set_rows: lerobot-ccdp-synthesize into {rows}", flush=True)
         subprocess.run([str(BIN / command[0]), *command[1:]], check=True, capture_output=True)
         book.record("set_rows", rows_stamp)
-    return train("set_denoiser", root / "set_denoiser", [
-        f"--policy.path={base}", "--policy.training_stage=recovery", f"--dataset.repo_id={repo}",
-        f"--dataset.root={rows}", f"--steps={steps}", "--batch_size=64", f"--save_freq={steps}"], rows_stamp, book)[0]
+    return train(
+        "set_denoiser",
+        root / "set_denoiser",
+        [
+            f"--policy.path={base}",
+            "--policy.training_stage=recovery",
+            f"--dataset.repo_id={repo}",
+            f"--dataset.root={rows}",
+            f"--steps={steps}",
+            "--batch_size=64",
+            f"--save_freq={steps}",
+        ],
+        rows_stamp,
+        book,
+    )[0]
 
 
 def member_dataset_repo(root: Path) -> str:
@@ -182,17 +253,27 @@ def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
     bootstrap interval over members and the verdict against issue 17's targets, and the preference error minus
     `reference`'s, paired member by member (the same checkpoint and start states)."""
     names = [n for n in next(iter(results.values()))["methods"] if n != "DP"]
-    lines = ["| method | failures | failed share (target <= 0.03) | preference error (target <= 0.08) | "
-             f"preference error minus {reference}'s |", "|---|---|---|---|---|"]
+    lines = [
+        "| method | failures | failed share (target <= 0.03) | preference error (target <= 0.08) | "
+        f"preference error minus {reference}'s |",
+        "|---|---|---|---|---|",
+    ]
     for name in names:
         for count in "12":
             cells = []
             for metric, target in TARGETS.items():
                 estimate = bootstrap_mean([r["methods"][name][count][metric] for r in results.values()])
                 cells.append(f"{_three(estimate)} {verdict(estimate, high_bound=target)}")
-            difference = bootstrap_mean([r["methods"][name][count]["preference_error"]
-                                         - r["methods"][reference][count]["preference_error"] for r in results.values()])
-            judged = {"met": "lower", "missed": "higher"}.get(verdict(difference, high_bound=0.0), "not distinguishable")
+            difference = bootstrap_mean(
+                [
+                    r["methods"][name][count]["preference_error"]
+                    - r["methods"][reference][count]["preference_error"]
+                    for r in results.values()
+                ]
+            )
+            judged = {"met": "lower", "missed": "higher"}.get(
+                verdict(difference, high_bound=0.0), "not distinguishable"
+            )
             cells.append("" if name == reference else f"{_three(difference)} {judged}")
             lines.append(f"| {name} | {count} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -216,10 +297,16 @@ def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    columns = [("DP", "1", "DP (no memory)"), ("DP*", "1", "DP* after 1"), (ccdp, "1", f"{ccdp} after 1"),
-               ("DP*", "2", "DP* after 2"), (ccdp, "2", f"{ccdp} after 2")]
-    fig, axes = plt.subplots(len(results), len(columns), figsize=(2.2 * len(columns), 2.2 * len(results)),
-                             squeeze=False)
+    columns = [
+        ("DP", "1", "DP (no memory)"),
+        ("DP*", "1", "DP* after 1"),
+        (ccdp, "1", f"{ccdp} after 1"),
+        ("DP*", "2", "DP* after 2"),
+        (ccdp, "2", f"{ccdp} after 2"),
+    ]
+    fig, axes = plt.subplots(
+        len(results), len(columns), figsize=(2.2 * len(columns), 2.2 * len(results)), squeeze=False
+    )
     colours = plt.get_cmap("tab10")
     for row, (seed, r) in enumerate(sorted(results.items())):
         task = ReachingTask.family_member(seed)
@@ -230,8 +317,13 @@ def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
                 ax.plot(chunk[:, 0], chunk[:, 1], color=colours(goal % 10), lw=0.6, alpha=0.6)
             failed = r["methods"][name][count]["failed"] if name != "DP" else []
             for g, (x, y) in enumerate(task.goals):
-                ax.scatter([x], [y], s=20 + 200 * task.preference[g], color=colours(g % 10),
-                           marker="x" if g in failed else "o")
+                ax.scatter(
+                    [x],
+                    [y],
+                    s=20 + 200 * task.preference[g],
+                    color=colours(g % 10),
+                    marker="x" if g in failed else "o",
+                )
             ax.set_xlim(-1.3, 1.3), ax.set_ylim(-1.3, 1.3), ax.set_xticks([]), ax.set_yticks([])
             if row == 0:
                 ax.set_title(title, fontsize=8)
@@ -250,20 +342,45 @@ def main() -> None:
     parser.add_argument("--head-steps", type=int, default=3000)
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--rows", type=int, default=512)
-    parser.add_argument("--w-z", type=float, nargs="+", default=[1.0],
-                        help="classifier guidance weights to measure (sampling settings: no retraining)")
-    parser.add_argument("--no-classifier", dest="classifier", action="store_false",
-                        help="train and measure no failure-set classifier")
-    parser.add_argument("--set-denoiser", action="store_true",
-                        help="also train and measure the failure-set denoiser (recovery_head=set_denoiser)")
-    parser.add_argument("--redraws", type=int, nargs="+", default=[0],
-                        help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)")
+    parser.add_argument(
+        "--w-z",
+        type=float,
+        nargs="+",
+        default=[1.0],
+        help="classifier guidance weights to measure (sampling settings: no retraining)",
+    )
+    parser.add_argument(
+        "--no-classifier",
+        dest="classifier",
+        action="store_false",
+        help="train and measure no failure-set classifier",
+    )
+    parser.add_argument(
+        "--set-denoiser",
+        action="store_true",
+        help="also train and measure the failure-set denoiser (recovery_head=set_denoiser)",
+    )
+    parser.add_argument(
+        "--redraws",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)",
+    )
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
-    parser.add_argument("--merge", type=Path, nargs="+", default=[],
-                        help="with --report-only: also take the members measured under these --out folders (members "
-                             "run side by side, each with its own --out) into --out's results")
-    parser.add_argument("--adopt", action="store_true",
-                        help="take over an --out made by a version of this script from before ownership markers")
+    parser.add_argument(
+        "--merge",
+        type=Path,
+        nargs="+",
+        default=[],
+        help="with --report-only: also take the members measured under these --out folders (members "
+        "run side by side, each with its own --out) into --out's results",
+    )
+    parser.add_argument(
+        "--adopt",
+        action="store_true",
+        help="take over an --out made by a version of this script from before ownership markers",
+    )
     args = parser.parse_args()
     try:
         claim_output_folder(args.out, "benchmarks/bench_preferences.py", adopt=args.adopt)
@@ -279,10 +396,20 @@ def main() -> None:
     for seed in [] if args.report_only else args.members:
         started = time.perf_counter()
         task = ReachingTask.family_member(seed)
-        print(f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, bend "
-              f"{task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}", flush=True)
-        heads = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes, args.classifier,
-                               args.set_denoiser)
+        print(
+            f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, bend "
+            f"{task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}",
+            flush=True,
+        )
+        heads = prepare_member(
+            seed,
+            args.out,
+            args.base_steps,
+            args.head_steps,
+            args.episodes,
+            args.classifier,
+            args.set_denoiser,
+        )
         root, repo = member_dataset(seed, args.out)
         demos = LeRobotDataset(repo, root=root)
         for k, (head, checkpoint) in enumerate(heads.items()):
@@ -295,14 +422,17 @@ def main() -> None:
         results_path.write_text(json.dumps(results))
         print(f"member {seed} done in {time.perf_counter() - started:.0f} s", flush=True)
     chosen = {seed: results[seed] for seed in args.members}
-    text = f"{table(chosen)}\n\nOver the {len(chosen)} members (95% bootstrap intervals over members):\n\n" \
-           f"{family_summary(chosen)}"
+    text = (
+        f"{table(chosen)}\n\nOver the {len(chosen)} members (95% bootstrap intervals over members):\n\n"
+        f"{family_summary(chosen)}"
+    )
     print(text)
     (args.out / "preferences.md").write_text(
         f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base {args.base_steps} "
         f"steps, heads {args.head_steps} steps (classifier {args.classifier}, set denoiser {args.set_denoiser}), "
         f"guidance weights {args.w_z}, redraws {args.redraws}.\n\n"
-        f"{text}\n")
+        f"{text}\n"
+    )
     shown = ccdp_name(args.w_z[0], args.redraws[0]) if args.classifier else "CCDP set denoiser"
     panel_grid(chosen, args.out / "preferences.png", shown)
 

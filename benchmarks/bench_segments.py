@@ -42,14 +42,23 @@ def agreement(columns: dict[str, np.ndarray], rule: str, tolerance: float) -> tu
 
 def record(task: str, root: Path, episodes: int) -> dict[str, np.ndarray]:
     slug = task_slug(task)
-    subprocess.run([str(BIN / "lerobot-ccdp-record"), f"--config_path={REPO / 'datasets_recipes' / f'{slug}.yaml'}",
-                    f"--dataset.repo_id=local/{slug}", f"--dataset.root={root}", f"--record.n_episodes={episodes}"],
-                   check=True)
+    subprocess.run(
+        [
+            str(BIN / "lerobot-ccdp-record"),
+            f"--config_path={REPO / 'datasets_recipes' / f'{slug}.yaml'}",
+            f"--dataset.repo_id=local/{slug}",
+            f"--dataset.root={root}",
+            f"--record.n_episodes={episodes}",
+        ],
+        check=True,
+    )
     return read_columns(LeRobotDatasetMetadata(f"local/{slug}", root=root), [OBS_STATE, ACTION, "primitive"])
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--tasks", nargs="+", default=["all"])
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--tolerance", type=float, default=0.02, help="metres, pinch point x, y")
@@ -59,10 +68,14 @@ def main(argv: list[str] | None = None) -> None:
         for task in expand_tasks(args.tasks):
             columns = record(task, Path(tmp) / task, args.episodes)
             cells = [agreement(columns, rule, args.tolerance) for rule in SEGMENT_RULES]
-            rows.append(f"| {task} | " + " | ".join(f"{share:.2f} ({per:.1f})" for share, per in cells) + " |")
+            rows.append(
+                f"| {task} | " + " | ".join(f"{share:.2f} ({per:.1f})" for share, per in cells) + " |"
+            )
     header = " | ".join(f"`{r}`" + (" (episode end)" if r == "labels" else "") for r in SEGMENT_RULES)
-    print(f"\nFrames whose label-free end is within {args.tolerance} m of their labelled option's end "
-          f"(segments per episode), {args.episodes} demonstrations per task:\n")
+    print(
+        f"\nFrames whose label-free end is within {args.tolerance} m of their labelled option's end "
+        f"(segments per episode), {args.episodes} demonstrations per task:\n"
+    )
     print(f"| task | {header} |\n|---|" + "---|" * len(SEGMENT_RULES))
     print("\n".join(rows))
 

@@ -110,7 +110,9 @@ def goal_of(positions: np.ndarray) -> np.ndarray:
     return np.argmax(positions @ GOALS.T, axis=-1)
 
 
-def record_reaching_dataset(root: str | Path, repo_id: str = "local/reaching2d", n_episodes: int = 60, seed: int = 0) -> LeRobotDataset:
+def record_reaching_dataset(
+    root: str | Path, repo_id: str = "local/reaching2d", n_episodes: int = 60, seed: int = 0
+) -> LeRobotDataset:
     """Write a LeRobot v3 dataset of demos whose goals follow PREFERENCE exactly in proportion."""
     return FOUR_GOALS.record(root, repo_id, n_episodes, seed)
 
@@ -118,7 +120,9 @@ def record_reaching_dataset(root: str | Path, repo_id: str = "local/reaching2d",
 def main() -> None:
     """`python -m lerobot_ccdp.benchmark.reaching2d --root data/reaching2d`: write the demo dataset for local training."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--root", type=Path, required=True, help="where to write the dataset (must not exist)")
+    parser.add_argument(
+        "--root", type=Path, required=True, help="where to write the dataset (must not exist)"
+    )
     parser.add_argument("--repo-id", default="local/reaching2d")
     parser.add_argument("--n-episodes", type=int, default=60)
     parser.add_argument("--seed", type=int, default=0)
@@ -132,7 +136,9 @@ if __name__ == "__main__":
     main()
 
 
-def chunks_after_failures(policy, preprocessor, postprocessor, failed_goals: list[int], rows: int, seed: int = 0):
+def chunks_after_failures(
+    policy, preprocessor, postprocessor, failed_goals: list[int], rows: int, seed: int = 0
+):
     """Plan one chunk per row from the start state after reporting failures at `failed_goals` in every row.
 
     Returns the chunks in positions (rows, horizon, 2) and the goal each heads to, read from where the chunk

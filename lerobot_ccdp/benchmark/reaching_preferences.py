@@ -50,8 +50,14 @@ class ExactStartClassifier(torch.nn.Module):
     def forward(self, noisy, timestep, state, z, z_mask, keep_s=None):
         """Same inputs as `denoisers.FailureSetClassifier.forward`; logits (R,) of the exact mixture."""
         alpha_bar = self.alphas_cumprod[timestep].clone()[:, None]  # (R, 1)
-        in_f = ((((self.z[None, :, None] - z[:, None]) ** 2).sum(-1) <= self.delta_z) & z_mask[:, None]).any(-1)
-        log_w = -((noisy[:, None] - alpha_bar.sqrt()[..., None, None] * self.chunks[None]) ** 2).flatten(2).sum(-1)
+        in_f = ((((self.z[None, :, None] - z[:, None]) ** 2).sum(-1) <= self.delta_z) & z_mask[:, None]).any(
+            -1
+        )
+        log_w = (
+            -((noisy[:, None] - alpha_bar.sqrt()[..., None, None] * self.chunks[None]) ** 2)
+            .flatten(2)
+            .sum(-1)
+        )
         log_w = log_w / (2 * (1 - alpha_bar))  # (R, E)
         log_in = torch.logsumexp(log_w.masked_fill(~in_f, -1e9), dim=1)
         log_out = torch.logsumexp(log_w.masked_fill(in_f, -1e9), dim=1)
@@ -63,11 +69,14 @@ def failure_z(policy: CCDPPolicy, preprocessor, task: ReachingTask, goal: int, r
     if task.labelled:
         return policy.model.feature.one_hot(torch.full((rows,), goal))
     end = torch.from_numpy(task.goals[goal]).expand(rows, 2)
-    return policy.model.feature.from_frame(preprocessor({"observation.state": end.clone()})["observation.state"])
+    return policy.model.feature.from_frame(
+        preprocessor({"observation.state": end.clone()})["observation.state"]
+    )
 
 
-def planned_positions(policy: CCDPPolicy, pre, post, task: ReachingTask, failed: list[int], rows: int,
-                      seed: int) -> np.ndarray:
+def planned_positions(
+    policy: CCDPPolicy, pre, post, task: ReachingTask, failed: list[int], rows: int, seed: int
+) -> np.ndarray:
     """Plan one chunk per row from the start after the failures `failed`; return its positions (rows, horizon, 2)."""
     torch.manual_seed(seed)
     batch = pre({"observation.state": torch.zeros(rows, 2)})
@@ -126,8 +135,13 @@ def measure(task: ReachingTask, checkpoint, methods: dict[str, Method], rows: in
     noise of this measurement."""
     policy, pre, post = load(checkpoint, recovery_mode="dp")
     reference = goal_shares(task, planned_positions(policy, pre, post, task, [], rows, seed=1))
-    result = {"goals": len(task.goals), "labelled": task.labelled, "dp_shares": reference.tolist(), "methods": {},
-              "positions": {}}
+    result = {
+        "goals": len(task.goals),
+        "labelled": task.labelled,
+        "dp_shares": reference.tolist(),
+        "methods": {},
+        "positions": {},
+    }
     for name, method in methods.items():
         policy, pre, post = load(checkpoint, recovery_mode=method.mode, **method.fields)
         if method.exact_classifier_of is not None:
@@ -137,6 +151,10 @@ def measure(task: ReachingTask, checkpoint, methods: dict[str, Method], rows: in
             share = goal_shares(task, planned)
             failed_share, error = scores(share, reference, failed)
             result["methods"].setdefault(name, {})[count] = {
-                "failed": failed, "shares": share.tolist(), "failed_share": failed_share, "preference_error": error}
+                "failed": failed,
+                "shares": share.tolist(),
+                "failed_share": failed_share,
+                "preference_error": error,
+            }
             result["positions"][f"{name}|{count}"] = planned[:64].tolist()
     return result

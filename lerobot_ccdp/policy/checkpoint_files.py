@@ -31,7 +31,9 @@ logger = logging.getLogger(__name__)
 CONFIG_FILE = "config.json"
 PROCESSOR_FILES = (f"{POLICY_PREPROCESSOR_DEFAULT_NAME}.json", f"{POLICY_POSTPROCESSOR_DEFAULT_NAME}.json")
 TRUSTED_PACKAGES = ("lerobot", "lerobot_ccdp")
-WHERE = "pass the pretrained_model folder lerobot-train wrote (<output_dir>/checkpoints/last/pretrained_model)"
+WHERE = (
+    "pass the pretrained_model folder lerobot-train wrote (<output_dir>/checkpoints/last/pretrained_model)"
+)
 
 
 @contextlib.contextmanager
@@ -55,7 +57,9 @@ def check_checkpoint(path: str | Path) -> None:
         _refuse_unless_repo_id(path)
         return
     if not (folder / CONFIG_FILE).is_file():
-        raise FileNotFoundError(f"{folder} holds no {CONFIG_FILE}, so it is not a policy checkpoint; {WHERE}.")
+        raise FileNotFoundError(
+            f"{folder} holds no {CONFIG_FILE}, so it is not a policy checkpoint; {WHERE}."
+        )
     config = _read_json(folder / CONFIG_FILE)
     if not isinstance(config, dict) or "type" not in config:
         raise _damaged(folder / CONFIG_FILE, "it has no policy 'type' entry")
@@ -146,12 +150,20 @@ def _check_safetensors(file: Path) -> None:
 
 
 def _damaged(file: Path, what: str) -> ValueError:
-    return ValueError(f"Checkpoint file {file} is damaged ({what}). Re-train the checkpoint, or copy or download "
-                      "it again.")
+    return ValueError(
+        f"Checkpoint file {file} is damaged ({what}). Re-train the checkpoint, or copy or download it again."
+    )
 
 
-HUB_DOWNLOAD_KEYS = ("force_download", "resume_download", "proxies", "token", "cache_dir", "local_files_only",
-                     "revision")
+HUB_DOWNLOAD_KEYS = (
+    "force_download",
+    "resume_download",
+    "proxies",
+    "token",
+    "cache_dir",
+    "local_files_only",
+    "revision",
+)
 
 
 def saved_config(path: str | Path, **hub: Any) -> dict:
@@ -163,16 +175,22 @@ def saved_config(path: str | Path, **hub: Any) -> dict:
 def _checkpoint_file(path: str | Path, filename: str, **hub: Any) -> Path:
     """`filename` of the checkpoint: in the local folder, or the Hub file LeRobot has just downloaded (cached)."""
     folder = Path(path)
-    return folder / filename if folder.is_dir() else Path(hf_hub_download(repo_id=str(path), filename=filename, **hub))
+    return (
+        folder / filename
+        if folder.is_dir()
+        else Path(hf_hub_download(repo_id=str(path), filename=filename, **hub))
+    )
 
 
 def refuse_other_checkpoint(config: Any, saved: dict, path: str | Path) -> None:
     """Refuse a checkpoint of another policy type, or one whose action size differs from the dataset's or env's
     (LeRobot sets the output features from them), naming both layouts instead of a state-dict size mismatch."""
     if not isinstance(config, CCDPConfig):
-        raise ValueError(f"{path} is a {saved.get('type')!r} checkpoint, not a ccdp one. Load it with its own policy "
-                         f"class (--policy.type={saved.get('type')}), or pass a checkpoint trained with "
-                         "--policy.type=ccdp.")
+        raise ValueError(
+            f"{path} is a {saved.get('type')!r} checkpoint, not a ccdp one. Load it with its own policy "
+            f"class (--policy.type={saved.get('type')}), or pass a checkpoint trained with "
+            "--policy.type=ccdp."
+        )
     saved_action = _layout(saved.get("output_features", {})).get("action")
     given = config.output_features.get("action")
     if saved_action is None or given is None or saved_action[-1:] == tuple(given.shape)[-1:]:
@@ -196,8 +214,11 @@ def ignore_saved_signal_file(config: Any, saved: dict) -> None:
     named = saved.get("failure_signal_file")
     if named is None or config.failure_signal_file != named or _named_on_command_line(named):
         return
-    logger.warning("The checkpoint's config names failure_signal_file=%r; a checkpoint cannot choose a file for the "
-                   "policy to watch, so it is ignored. Pass --policy.failure_signal_file to use one.", named)
+    logger.warning(
+        "The checkpoint's config names failure_signal_file=%r; a checkpoint cannot choose a file for the "
+        "policy to watch, so it is ignored. Pass --policy.failure_signal_file to use one.",
+        named,
+    )
     config.failure_signal_file = None
 
 
@@ -214,7 +235,9 @@ def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, 
         saved_keys = set(saved.keys())
     missing, unexpected = sorted(set(state) - saved_keys), sorted(saved_keys - set(state))
     if not recovery_trained:
-        missing, unexpected = ([k for k in keys if not k.startswith("model.recovery.")] for keys in (missing, unexpected))
+        missing, unexpected = (
+            [k for k in keys if not k.startswith("model.recovery.")] for keys in (missing, unexpected)
+        )
     if missing or unexpected:
         raise ValueError(
             f"The weights in {path} do not fit the ccdp policy its config describes: {_listed(missing, 'missing')}, "

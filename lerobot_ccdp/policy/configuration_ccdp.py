@@ -28,9 +28,18 @@ TRAINING_STAGES = choices(TrainingStage)
 RECOVERY_HEADS = choices(RecoveryHead)
 Z_REFERENCES = choices(ZReference)
 # Counts and sizes that must be >= 1, and those that must be >= 0 (`_check_numbers`).
-POSITIVE_FIELDS = ("n_obs_steps", "horizon", "n_action_steps", "num_train_timesteps", "num_inference_steps",
-                   "kernel_size", "diffusion_step_embed_dim", "spatial_softmax_num_keypoints",
-                   "dp_star_candidates", "dp_star_rounds")
+POSITIVE_FIELDS = (
+    "n_obs_steps",
+    "horizon",
+    "n_action_steps",
+    "num_train_timesteps",
+    "num_inference_steps",
+    "kernel_size",
+    "diffusion_step_embed_dim",
+    "spatial_softmax_num_keypoints",
+    "dp_star_candidates",
+    "dp_star_rounds",
+)
 NON_NEGATIVE_FIELDS = ("delta_z", "history_length", "ccdp_redraws", "scheduler_warmup_steps")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
@@ -183,14 +192,23 @@ class CCDPConfig(PreTrainedConfig):
             )
         for name in ("w_s", "w_h", "w_z"):
             if getattr(self, name) < 0:
-                raise ValueError(f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(self, name)}.")
+                raise ValueError(
+                    f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(self, name)}."
+                )
         if self.w_h > 0 and self.history_length == 0:
-            raise ValueError("`w_h` > 0 weighs the history term of eq. (4), which needs a history condition: set "
-                             "--policy.history_length to 1 or more, or --policy.w_h=0.")
-        for name, allowed in (("recovery_mode", RECOVERY_MODES), ("failure_feature", FAILURE_FEATURES),
-                              ("failure_state_at", FAILURE_STATES_AT), ("failure_segments", FAILURE_SEGMENTS),
-                              ("training_stage", TRAINING_STAGES), ("recovery_head", RECOVERY_HEADS),
-                              ("z_reference", Z_REFERENCES)):
+            raise ValueError(
+                "`w_h` > 0 weighs the history term of eq. (4), which needs a history condition: set "
+                "--policy.history_length to 1 or more, or --policy.w_h=0."
+            )
+        for name, allowed in (
+            ("recovery_mode", RECOVERY_MODES),
+            ("failure_feature", FAILURE_FEATURES),
+            ("failure_state_at", FAILURE_STATES_AT),
+            ("failure_segments", FAILURE_SEGMENTS),
+            ("training_stage", TRAINING_STAGES),
+            ("recovery_head", RECOVERY_HEADS),
+            ("z_reference", Z_REFERENCES),
+        ):
             self._check_choice(name, allowed)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
         self._check_vision()
@@ -205,10 +223,14 @@ class CCDPConfig(PreTrainedConfig):
             )
         bad_steps = [s for s in self.failure_action_steps if not 0 <= s < self.horizon]
         if bad_steps:
-            raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon}).")
+            raise ValueError(
+                f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon})."
+            )
         if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
-            raise ValueError(f"recovery_head='set_denoiser' trains on one-frame rows of a synthesised dataset: it needs "
-                             f"n_obs_steps=1; got {self.n_obs_steps}. Use --policy.recovery_head=unet.")
+            raise ValueError(
+                f"recovery_head='set_denoiser' trains on one-frame rows of a synthesised dataset: it needs "
+                f"n_obs_steps=1; got {self.n_obs_steps}. Use --policy.recovery_head=unet."
+            )
         if self.horizon % 2 ** len(self.down_dims) != 0:
             raise ValueError(
                 f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = {2 ** len(self.down_dims)}."
@@ -236,27 +258,40 @@ class CCDPConfig(PreTrainedConfig):
             value = getattr(self, f.name)
             values = value if isinstance(value, (list, tuple)) else [value]
             if any(isinstance(v, float) and not math.isfinite(v) for v in values):
-                raise ValueError(f"`{f.name}` must be a finite number; got {value}. Set --policy.{f.name} to a "
-                                 "number (its default is in `lerobot-train --policy.type=ccdp --help`).")
+                raise ValueError(
+                    f"`{f.name}` must be a finite number; got {value}. Set --policy.{f.name} to a "
+                    "number (its default is in `lerobot-train --policy.type=ccdp --help`)."
+                )
         at_least = {name: 1 for name in POSITIVE_FIELDS} | {name: 0 for name in NON_NEGATIVE_FIELDS}
-        small = {name: getattr(self, name) for name, low in at_least.items()
-                 if getattr(self, name) is not None and getattr(self, name) < low}
+        small = {
+            name: getattr(self, name)
+            for name, low in at_least.items()
+            if getattr(self, name) is not None and getattr(self, name) < low
+        }
         small |= {"down_dims": self.down_dims} if not self.down_dims or min(self.down_dims) < 1 else {}
         if small:
-            raise ValueError(f"{', '.join(f'`{k}`' for k in small)} must be >= 1 (`delta_z`, `history_length`, "
-                             f"`ccdp_redraws` and `scheduler_warmup_steps` >= 0, `down_dims` non-empty); got {small}.")
+            raise ValueError(
+                f"{', '.join(f'`{k}`' for k in small)} must be >= 1 (`delta_z`, `history_length`, "
+                f"`ccdp_redraws` and `scheduler_warmup_steps` >= 0, `down_dims` non-empty); got {small}."
+            )
         if self.num_inference_steps is not None and self.num_inference_steps > self.num_train_timesteps:
-            raise ValueError(f"`num_inference_steps` ({self.num_inference_steps}) cannot exceed `num_train_timesteps` "
-                             f"({self.num_train_timesteps}): the reverse diffusion visits training timesteps.")
+            raise ValueError(
+                f"`num_inference_steps` ({self.num_inference_steps}) cannot exceed `num_train_timesteps` "
+                f"({self.num_train_timesteps}): the reverse diffusion visits training timesteps."
+            )
 
     def _check_vision(self) -> None:
         """The checks LeRobot's DiffusionConfig makes of the same fields, and its crop derivation."""
         if not self.vision_backbone.startswith("resnet"):
-            raise ValueError(f"`vision_backbone` must be a torchvision ResNet (e.g. resnet18); got {self.vision_backbone!r}.")
+            raise ValueError(
+                f"`vision_backbone` must be a torchvision ResNet (e.g. resnet18); got {self.vision_backbone!r}."
+            )
         if self.resize_shape is not None and (len(self.resize_shape) != 2 or min(self.resize_shape) <= 0):
             raise ValueError(f"`resize_shape` must be a pair of positive integers; got {self.resize_shape}.")
         if self.vision_backbone_stages not in (1, 2, 3, 4):
-            raise ValueError(f"`vision_backbone_stages` must be 1 to 4 (a ResNet has 4); got {self.vision_backbone_stages}.")
+            raise ValueError(
+                f"`vision_backbone_stages` must be 1 to 4 (a ResNet has 4); got {self.vision_backbone_stages}."
+            )
         if not 0 < self.crop_ratio <= 1.0:
             raise ValueError(f"`crop_ratio` must be in (0, 1]; got {self.crop_ratio}.")
         if self.resize_shape is not None:
@@ -283,8 +318,10 @@ class CCDPConfig(PreTrainedConfig):
             )
         self._validate_images()
         if self.image_features and self.recovery_head == "set_denoiser":
-            raise ValueError("recovery_head='set_denoiser' conditions on the state of synthesised rows, which carry no "
-                             "camera images yet: use --policy.recovery_head=unet with cameras.")
+            raise ValueError(
+                "recovery_head='set_denoiser' conditions on the state of synthesised rows, which carry no "
+                "camera images yet: use --policy.recovery_head=unet with cameras."
+            )
         if self.action_feature is None:
             raise ValueError(f"CCDP needs an {ACTION!r} output feature; the dataset has none.")
         if len(self.action_feature.shape) == 2:
@@ -307,7 +344,9 @@ class CCDPConfig(PreTrainedConfig):
         bad = [d for d in self.failure_action_dims if not 0 <= d < action_dim]
         if self.failure_feature == "action" and bad:
             raise ValueError(f"`failure_action_dims` {bad} do not exist in the {action_dim}-dim action.")
-        self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(FeatureType.STATE, (self.failure_feature_dim,))
+        self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(
+            FeatureType.STATE, (self.failure_feature_dim,)
+        )
 
     def _validate_images(self) -> None:
         """Every camera has the same (C, H, W) shape (one encoder shape, as in LeRobot) and fits the crop."""
@@ -320,7 +359,9 @@ class CCDPConfig(PreTrainedConfig):
         if shapes and self.crop_shape is not None and self.resize_shape is None:
             _, height, width = next(iter(shapes.values()))
             if self.crop_shape[0] > height or self.crop_shape[1] > width:
-                raise ValueError(f"`crop_shape` {self.crop_shape} does not fit in the camera images {shapes}.")
+                raise ValueError(
+                    f"`crop_shape` {self.crop_shape} does not fit in the camera images {shapes}."
+                )
 
     @property
     def state_dim(self) -> int:
@@ -347,7 +388,9 @@ class CCDPConfig(PreTrainedConfig):
         if self.failure_feature == "final_state":
             return len(self.failure_state_dims) or self.input_features[self.failure_state_key].shape[0]
         if self.failure_feature == "action":
-            return (len(self.failure_action_steps) or self.horizon) * (len(self.failure_action_dims) or self.action_dim)
+            return (len(self.failure_action_steps) or self.horizon) * (
+                len(self.failure_action_dims) or self.action_dim
+            )
         return self.num_primitives
 
     @property

@@ -28,10 +28,14 @@ class BaseDenoiser(nn.Module):
         self.state_cond_dim = config.n_obs_steps * config.frame_dim
         self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
         self.unet = with_small_batch_convolutions(
-            DiffusionConditionalUnet1d(config, global_cond_dim=self.state_cond_dim + self.history_cond_dim + 2)
+            DiffusionConditionalUnet1d(
+                config, global_cond_dim=self.state_cond_dim + self.history_cond_dim + 2
+            )
         )
 
-    def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, keep_s: Tensor, history: Tensor, keep_h: Tensor) -> Tensor:
+    def forward(
+        self, noisy: Tensor, timestep: Tensor, state: Tensor, keep_s: Tensor, history: Tensor, keep_h: Tensor
+    ) -> Tensor:
         """noisy (R, horizon, A); state (R, state_cond_dim); history (R, history_cond_dim); keep_* (R, 1)."""
         cond = torch.cat([state * keep_s, keep_s, history * keep_h, keep_h], dim=-1)
         return self.unet(noisy, timestep, global_cond=cond)
@@ -76,20 +80,31 @@ class FailureSetClassifier(nn.Module):
         width, chunk = HIDDEN_WIDTH, config.horizon * config.action_dim
         self.step_embedding = _step_embedding(config, width)
         self.state_embedding = nn.Linear(config.n_obs_steps * config.frame_dim + 1, width)
-        self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
+        self.set_embedding = nn.Sequential(
+            nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width)
+        )
         self.inp = nn.Linear(chunk, width)
         self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(CLASSIFIER_BLOCKS))
         self.logit = nn.Linear(width, 1)
 
     def forward(
-        self, noisy: Tensor, timestep: Tensor, state: Tensor, z: Tensor, z_mask: Tensor, keep_s: Tensor | None = None
+        self,
+        noisy: Tensor,
+        timestep: Tensor,
+        state: Tensor,
+        z: Tensor,
+        z_mask: Tensor,
+        keep_s: Tensor | None = None,
     ) -> Tensor:
         """noisy (R, horizon, A); state (R, state_cond_dim); z (R, N, z_dim) with z_mask (R, N), at least one failure
         per row; keep_s (R, 1) drops the state of some rows while training (default: kept) -> logits (R,)."""
         keep_s = state.new_ones(state.shape[0], 1) if keep_s is None else keep_s
         per_failure = self.set_embedding(z).masked_fill(~z_mask[..., None], float("-inf"))
-        cond = (self.step_embedding(timestep) + self.state_embedding(torch.cat([state * keep_s, keep_s], dim=-1))
-                + per_failure.amax(dim=1))
+        cond = (
+            self.step_embedding(timestep)
+            + self.state_embedding(torch.cat([state * keep_s, keep_s], dim=-1))
+            + per_failure.amax(dim=1)
+        )
         h = self.inp(noisy.flatten(start_dim=1))
         for block in self.blocks:
             h = block(h, cond)
@@ -112,8 +127,12 @@ class FailureSetDenoiser(nn.Module):
         width = HIDDEN_WIDTH
         self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
         base_cond_dim = config.n_obs_steps * config.frame_dim + self.history_cond_dim + 2
-        self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
-        self.unet = with_small_batch_convolutions(DiffusionConditionalUnet1d(config, global_cond_dim=base_cond_dim + width))
+        self.set_embedding = nn.Sequential(
+            nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width)
+        )
+        self.unet = with_small_batch_convolutions(
+            DiffusionConditionalUnet1d(config, global_cond_dim=base_cond_dim + width)
+        )
 
     def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
         """noisy (R, horizon, A); timestep (R,); state (R, state_cond_dim); z (R, N, z_dim) with z_mask (R, N), at

@@ -15,7 +15,11 @@ def nearest_failure_distance(z_candidates: Tensor, z: Tensor, z_mask: Tensor) ->
 
 
 def reject_repeats(
-    draw: Callable[[Tensor], tuple[Tensor, Tensor]], rows: int, rounds: int, delta_z: float, device: torch.device
+    draw: Callable[[Tensor], tuple[Tensor, Tensor]],
+    rows: int,
+    rounds: int,
+    delta_z: float,
+    device: torch.device,
 ) -> Tensor:
     """One chunk per row: the first candidate farther than `delta_z` from every failure of its row.
 
@@ -25,7 +29,9 @@ def reject_repeats(
     the first accepted one is a uniform pick among the accepted.
     """
     pending = torch.arange(rows, device=device)
-    kept = torch.full((rows,), -float("inf"), device=device)  # each row's kept chunk: distance to nearest failure
+    kept = torch.full(
+        (rows,), -float("inf"), device=device
+    )  # each row's kept chunk: distance to nearest failure
     chunks: Tensor | None = None
     for _ in range(rounds):
         candidates, distance = draw(pending)

@@ -19,7 +19,9 @@ from pathlib import Path
 
 logger = logging.getLogger(__name__)
 
-Status = tuple[int, int, int] | None  # (device, inode, modification time in ns) of the file, None while absent
+Status = (
+    tuple[int, int, int] | None
+)  # (device, inode, modification time in ns) of the file, None while absent
 
 
 class FailureSignalFile:
@@ -67,5 +69,9 @@ class FailureSignalFile:
     def _warn(self, what: str) -> None:
         if not self._warned:
             self._warned = True
-            logger.warning("failure_signal_file %s cannot be read (%s): no failure can be signalled through it "
-                           "until that is fixed.", self.path, what)
+            logger.warning(
+                "failure_signal_file %s cannot be read (%s): no failure can be signalled through it "
+                "until that is fixed.",
+                self.path,
+                what,
+            )

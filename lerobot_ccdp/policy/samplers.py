@@ -44,7 +44,9 @@ class PlanRows:
 def plan_dp(model: CCDPModel, rows: PlanRows) -> Tensor:
     """The base policy's plan: what was recorded as failed plays no part."""
     no_failures = rows.z[:, :0], rows.z_mask[:, :0]
-    return model.denoise(rows.initial_noise(model), rows.state, rows.history, *no_failures, generators=rows.streams)
+    return model.denoise(
+        rows.initial_noise(model), rows.state, rows.history, *no_failures, generators=rows.streams
+    )
 
 
 def plan_dp_star(model: CCDPModel, rows: PlanRows) -> Tensor:
@@ -61,7 +63,9 @@ def plan_ccdp(model: CCDPModel, rows: PlanRows) -> Tensor:
     repeats a failure is drawn again (DP*'s lookup: the hybrid "CCDP + k redraws")."""
     sample = rows.initial_noise(model)
     if model.config.ccdp_redraws and rows.z_mask.any():
-        return sample_without_repeats(model, rows, 1, 1 + model.config.ccdp_redraws, guided=True, first_noise=sample)
+        return sample_without_repeats(
+            model, rows, 1, 1 + model.config.ccdp_redraws, guided=True, first_noise=sample
+        )
     return model.denoise(sample, rows.state, rows.history, rows.z, rows.z_mask, generators=rows.streams)
 
 
@@ -72,8 +76,14 @@ SAMPLERS: dict[str, Callable[[CCDPModel, PlanRows], Tensor]] = {
 }
 
 
-def sample_without_repeats(model: CCDPModel, rows: PlanRows, candidates: int, rounds: int, guided: bool,
-                           first_noise: Tensor | None = None) -> Tensor:
+def sample_without_repeats(
+    model: CCDPModel,
+    rows: PlanRows,
+    candidates: int,
+    rounds: int,
+    guided: bool,
+    first_noise: Tensor | None = None,
+) -> Tensor:
     """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round draws
     `candidates` chunks per pending row, from CCDP's composition (`guided`, the first round from `first_noise`) or
     from the base with failures ignored (DP*), and labels them with the outcome of the nearest demonstrated chunk.

@@ -28,8 +28,9 @@ class _SmallBatchConv1d(nn.Conv1d):
         if not _small_batch(input):
             return super()._conv_forward(input, weight, bias)
         kernel, stride, padding = self._args_2d
-        return torch._C._nn.thnn_conv2d(input.contiguous().unsqueeze(2), weight.unsqueeze(2), kernel, bias, stride,
-                                        padding).squeeze(2)
+        return torch._C._nn.thnn_conv2d(
+            input.contiguous().unsqueeze(2), weight.unsqueeze(2), kernel, bias, stride, padding
+        ).squeeze(2)
 
 
 class _SmallBatchConvTranspose1d(nn.ConvTranspose1d):
@@ -39,8 +40,16 @@ class _SmallBatchConvTranspose1d(nn.ConvTranspose1d):
         if output_size is not None or not _small_batch(input):
             return super().forward(input, output_size)
         kernel, stride, padding, output_padding, dilation = self._args_2d
-        return torch._C._nn.slow_conv_transpose2d(input.contiguous().unsqueeze(2), self.weight.unsqueeze(2), kernel,
-                                                  self.bias, stride, padding, output_padding, dilation).squeeze(2)
+        return torch._C._nn.slow_conv_transpose2d(
+            input.contiguous().unsqueeze(2),
+            self.weight.unsqueeze(2),
+            kernel,
+            self.bias,
+            stride,
+            padding,
+            output_padding,
+            dilation,
+        ).squeeze(2)
 
 
 def with_small_batch_convolutions(network: nn.Module) -> nn.Module:
@@ -49,8 +58,11 @@ def with_small_batch_convolutions(network: nn.Module) -> nn.Module:
     if not ATEN_KERNELS:
         return network
     for module in network.modules():
-        if type(module) not in (nn.Conv1d, nn.ConvTranspose1d) or isinstance(module.padding, str) or (
-            module.padding_mode, module.groups, module.dilation) != ("zeros", 1, (1,)):
+        if (
+            type(module) not in (nn.Conv1d, nn.ConvTranspose1d)
+            or isinstance(module.padding, str)
+            or (module.padding_mode, module.groups, module.dilation) != ("zeros", 1, (1,))
+        ):
             continue
         kernel, stride, padding = [1, *module.kernel_size], [1, *module.stride], [0, *module.padding]
         if type(module) is nn.Conv1d:

@@ -24,8 +24,10 @@ def refuse_fresh_training(config: CCDPConfig, dataset_meta: Any) -> None:
     episodes = getattr(dataset_meta, "episodes", None)
     if episodes is None or "dataset_from_index" not in episodes.column_names:
         return
-    lengths = [end - start for start, end in zip(episodes["dataset_from_index"], episodes["dataset_to_index"],
-                                                 strict=True)]
+    lengths = [
+        end - start
+        for start, end in zip(episodes["dataset_from_index"], episodes["dataset_to_index"], strict=True)
+    ]
     drop = config.drop_n_last_frames
     if not any(length > drop for length in lengths):
         raise ValueError(

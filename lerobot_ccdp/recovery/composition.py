@@ -130,7 +130,9 @@ def recovery_conditions(z: Tensor, null_row: bool) -> tuple[Tensor, Tensor]:
     return z_rows, keep_z
 
 
-def guide_away_from_failures(eps: Tensor, no_repeat_gradient: Tensor, alpha_bar: Tensor, w_z: float) -> Tensor:
+def guide_away_from_failures(
+    eps: Tensor, no_repeat_gradient: Tensor, alpha_bar: Tensor, w_z: float
+) -> Tensor:
     """eps - w_z sqrt(1 - alpha_bar_t) grad_{a_t} log P(a_0 outside F | a_t, s)   (classifier guidance)
 
     `recovery_head="classifier"`: p_s(a_t | s) P(a_0 outside F | a_t, s) is the noised p_s restricted to the chunks

@@ -51,9 +51,13 @@ def segment_ends(
     if rule in ("releases", "drops"):
         gripper = actions[:, gripper_dim]
         closed_side = gripper > (gripper.min() + gripper.max()) / 2
-        away = closed_side != closed_side[episode_bounds(episode_index)[0]]  # off the side its episode began on
+        away = (
+            closed_side != closed_side[episode_bounds(episode_index)[0]]
+        )  # off the side its episode began on
         releases = np.flatnonzero(away[:-1] & ~away[1:] & same_episode)
-        if rule == "drops":  # from the opening command (same episode) to the frame before the next non-still one
+        if (
+            rule == "drops"
+        ):  # from the opening command (same episode) to the frame before the next non-still one
             moves = np.flatnonzero(~np.append(still, False))
             releases = moves[np.searchsorted(moves, releases + 2)] - 1
         ends[releases] = True

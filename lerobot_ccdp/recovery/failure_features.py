@@ -97,4 +97,8 @@ def failure_feature_stats(config: CCDPConfig, source_stats: dict[str, dict]) -> 
     stats = source_stats["action"]
     repeats = len(config.failure_action_steps) or config.horizon
     dims = config.failure_action_dims or list(range(len(np.asarray(stats["mean"]))))
-    return {k: np.tile(np.asarray(v)[dims], repeats) for k, v in stats.items() if k in ("mean", "std", "min", "max")}
+    return {
+        k: np.tile(np.asarray(v)[dims], repeats)
+        for k, v in stats.items()
+        if k in ("mean", "std", "min", "max")
+    }

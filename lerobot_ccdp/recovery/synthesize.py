@@ -72,7 +72,9 @@ PAIR_SOURCE = "pair_source"
 RECIPE_COPY = "meta/ccdp_recovery_recipe.yaml"
 SYNTHESISED, FROM_DEMOS = 0, 1
 PAIR_BLOCK = 256  # failures whose eq. (5) masks against the whole pool are computed at once
-EPISODE_ROWS = 1000  # rows per dataset episode (recovery rows have no temporal order; episodes only group them)
+EPISODE_ROWS = (
+    1000  # rows per dataset episode (recovery rows have no temporal order; episodes only group them)
+)
 
 
 @dataclass
@@ -86,7 +88,9 @@ class Samples:
 
     @staticmethod
     def cat(parts: list[Samples]) -> Samples:
-        return Samples(*(torch.cat([getattr(p, name) for p in parts]) for name in Samples.__dataclass_fields__))
+        return Samples(
+            *(torch.cat([getattr(p, name) for p in parts]) for name in Samples.__dataclass_fields__)
+        )
 
     def __len__(self) -> int:
         return self.chunks.shape[0]
@@ -111,8 +115,10 @@ def synthesis_device(saved: str | None, requested: str | None) -> str:
     except ValueError:
         available = False
     if not available:
-        raise ValueError(f"--policy.device={requested} is not available on this machine. Pass --policy.device=cpu (or "
-                         "cuda, mps where present), or leave it out to follow the checkpoint's device.")
+        raise ValueError(
+            f"--policy.device={requested} is not available on this machine. Pass --policy.device=cpu (or "
+            "cuda, mps where present), or leave it out to follow the checkpoint's device."
+        )
     return requested
 
 
@@ -121,28 +127,39 @@ def check_demo_root(root: str | Path) -> None:
     root = Path(root)
     if not (root / "meta" / "info.json").is_file():
         problem = "the folder does not exist" if not root.exists() else "it has no meta/info.json"
-        raise FileNotFoundError(f"No LeRobot dataset at --dataset.root={root}: {problem}. Record the demos there first "
-                                "(lerobot-ccdp-record) or fix the path.")
+        raise FileNotFoundError(
+            f"No LeRobot dataset at --dataset.root={root}: {problem}. Record the demos there first "
+            "(lerobot-ccdp-record) or fix the path."
+        )
 
 
 def load_checkpoint(
     policy_path: str | Path, device: str | None = None
 ) -> tuple[CCDPPolicy, dict[str, dict[str, Tensor]]]:
     """The base policy on the device `synthesis_device` picks, and the normalisation stats of its saved preprocessor."""
-    with checkpoint_loading(policy_path):  # names a missing or damaged folder; refuses unknown processor classes
+    with checkpoint_loading(
+        policy_path
+    ):  # names a missing or damaged folder; refuses unknown processor classes
         config = PreTrainedConfig.from_pretrained(policy_path)
     if not isinstance(config, CCDPConfig):
-        raise ValueError(f"{policy_path} holds a {config.type!r} policy; synthesis needs a ccdp base checkpoint "
-                         "(lerobot-train --policy.type=ccdp on the demo dataset).")
+        raise ValueError(
+            f"{policy_path} holds a {config.type!r} policy; synthesis needs a ccdp base checkpoint "
+            "(lerobot-train --policy.type=ccdp on the demo dataset)."
+        )
     config.device = synthesis_device(config.device, device)
     policy = CCDPPolicy.from_pretrained(policy_path, config=config).eval()
     # The saved preprocessor names the training device, which this machine may lack (LeRobot's scripts override it too).
-    pre = PolicyProcessorPipeline.from_pretrained(policy_path, config_filename="policy_preprocessor.json",
-                                                  overrides={"device_processor": {"device": config.device}})
+    pre = PolicyProcessorPipeline.from_pretrained(
+        policy_path,
+        config_filename="policy_preprocessor.json",
+        overrides={"device_processor": {"device": config.device}},
+    )
     normalizers = [s for s in pre.steps if isinstance(s, NormalizerProcessorStep)]
     if not normalizers or not normalizers[0].stats:
-        raise ValueError(f"{policy_path} has no normaliser stats in policy_preprocessor.json; save the checkpoint "
-                         "with its processors (lerobot-train does).")
+        raise ValueError(
+            f"{policy_path} has no normaliser stats in policy_preprocessor.json; save the checkpoint "
+            "with its processors (lerobot-train does)."
+        )
     stats = {k: {s: torch.as_tensor(v) for s, v in d.items()} for k, d in normalizers[0].stats.items()}
     return policy, stats
 
@@ -154,8 +171,10 @@ def check_recipe_matches(recipe: RecoveryRecipe, config: CCDPConfig, source: str
     if mismatched:
         details = ", ".join(f"{k}: recipe {v!r} vs checkpoint {c!r}" for k, (v, c) in mismatched.items())
         flags = " ".join(f"--policy.{k}={v}" for k, v in wanted.items())
-        raise ValueError(f"The recipe {source} and the base checkpoint define z differently ({details}). Train the "
-                         f"base with `{flags}`, or edit the recipe's `recovery:` section to match the checkpoint.")
+        raise ValueError(
+            f"The recipe {source} and the base checkpoint define z differently ({details}). Train the "
+            f"base with `{flags}`, or edit the recipe's `recovery:` section to match the checkpoint."
+        )
 
 
 def check_features_match(config: CCDPConfig, meta: LeRobotDatasetMetadata) -> None:
@@ -168,9 +187,11 @@ def check_features_match(config: CCDPConfig, meta: LeRobotDatasetMetadata) -> No
         return ", ".join(f"{k} {tuple(features[k].shape) if k in features else 'absent'}" for k in keys)
 
     if layout(expected) != layout(found):
-        raise ValueError(f"The base checkpoint expects {layout(expected)}; dataset {meta.repo_id} has "
-                         f"{layout(found)}. Pass the checkpoint trained on these demos (--policy.path), or "
-                         "the demos it was trained on (--dataset.root).")
+        raise ValueError(
+            f"The base checkpoint expects {layout(expected)}; dataset {meta.repo_id} has "
+            f"{layout(found)}. Pass the checkpoint trained on these demos (--policy.path), or "
+            "the demos it was trained on (--dataset.root)."
+        )
 
 
 def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) -> Demos:
@@ -187,12 +208,15 @@ def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) ->
     return Demos(
         windows=torch.from_numpy(demo_chunks(episodes, frames, start, config.n_obs_steps)),
         chunks=torch.from_numpy(demo_chunks(episodes, normalized[ACTION].numpy(), start, config.horizon)),
-        starts=torch.from_numpy(option_starts(config, episodes, normalized[ACTION].numpy(),
-                                              columns.get(config.primitive_key))),
+        starts=torch.from_numpy(
+            option_starts(config, episodes, normalized[ACTION].numpy(), columns.get(config.primitive_key))
+        ),
     )
 
 
-def option_starts(config: CCDPConfig, episodes: np.ndarray, actions: np.ndarray, labels: np.ndarray | None) -> np.ndarray:
+def option_starts(
+    config: CCDPConfig, episodes: np.ndarray, actions: np.ndarray, labels: np.ndarray | None
+) -> np.ndarray:
     """The first frame of every demonstrated option: each episode's first frame and the frame after each end of an
     option (`demo_segments.segment_ends` under `failure_segments`, the rule that gives z its final state). An attempt
     starts at such a state, and after a failure the env puts the robot back there: on tasks with two decisions per
@@ -202,8 +226,13 @@ def option_starts(config: CCDPConfig, episodes: np.ndarray, actions: np.ndarray,
 
 
 def synthesised_samples(
-    policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator, progress: bool = True,
-    images: Callable[[Tensor], Tensor] | None = None, among: Tensor | None = None,
+    policy: CCDPPolicy,
+    recipe: RecoveryRecipe,
+    demos: Demos,
+    generator: torch.Generator,
+    progress: bool = True,
+    images: Callable[[Tensor], Tensor] | None = None,
+    among: Tensor | None = None,
 ) -> Samples:
     """Eq. (6) and (7): demo states x_s perturbed by N(0, sigma^2), `chunks_per_state` chunks sampled at each.
 
@@ -221,7 +250,9 @@ def synthesised_samples(
         condition = x if images is None else torch.cat([x, images(batch).repeat_interleave(k, dim=0)], dim=-1)
         noise = torch.randn(len(x), cfg.horizon, cfg.action_dim, generator=generator)
         condition, noise = condition.flatten(start_dim=1).to(device), noise.to(device)
-        chunks = policy.model.sample_exploratory(condition, recipe.w_s, noise)  # eq. (7), on the policy's device
+        chunks = policy.model.sample_exploratory(
+            condition, recipe.w_s, noise
+        )  # eq. (7), on the policy's device
         if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
             near = policy.model.outcomes.rms_distance(chunks) <= recipe.outcome_radius
             x, chunks = x[near.cpu()], chunks[near]
@@ -230,7 +261,9 @@ def synthesised_samples(
     return Samples.cat(parts)
 
 
-def camera_encoder(policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata) -> Callable[[Tensor], Tensor]:
+def camera_encoder(
+    policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata
+) -> Callable[[Tensor], Tensor]:
     """Demo frame indices -> the base's encoding of their camera windows (b, n_obs, F), as at run time."""
     cameras = list(policy.config.image_features)
     windows = CameraWindows(meta, cameras, policy.config.n_obs_steps)
@@ -243,8 +276,13 @@ def camera_encoder(policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata
     return encode
 
 
-def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator,
-                 among: Tensor | None = None) -> Samples:
+def demo_samples(
+    policy: CCDPPolicy,
+    recipe: RecoveryRecipe,
+    demos: Demos,
+    generator: torch.Generator,
+    among: Tensor | None = None,
+) -> Samples:
     """Up to `demo_frames` demonstrated chunks (among the frames `among` names, if given), with their z computed like
     any other chunk's."""
     among = torch.arange(len(demos.windows)) if among is None else among
@@ -254,13 +292,17 @@ def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, gener
     return Samples(demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS))
 
 
-def recovery_pairs(pool: Samples, recipe: RecoveryRecipe, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+def recovery_pairs(
+    pool: Samples, recipe: RecoveryRecipe, generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
     """Eq. (5) over the whole pool: every sample is a failure (a_f, x_f); up to `pairs_per_failure` recoveries
     are drawn uniformly among the pool samples that satisfy eq. (5) against it. Returns (failure, recovery) indices."""
     states = pool.windows.flatten(start_dim=1)
     failures, recoveries = [], []
     for block in torch.arange(len(pool)).split(PAIR_BLOCK):
-        mask = recovery_pair_mask(pool.z[block], states[block], pool.z, states, recipe.delta_z, recipe.delta_x)
+        mask = recovery_pair_mask(
+            pool.z[block], states[block], pool.z, states, recipe.delta_z, recipe.delta_x
+        )
         row, _, j = pick_pairs(mask[:, None], recipe.pairs_per_failure, generator)
         failures.append(block[row])
         recoveries.append(j)
@@ -302,8 +344,10 @@ def synthesize_recovery_dataset(
     config = policy.config
     check_recipe_matches(recipe, config, recipe_source)
     if config.failure_feature != "action" and len(policy.model.outcomes) == 0:
-        raise ValueError(f"{policy_path} holds no demonstrated outcomes, so z of a sampled chunk is unknown; "
-                         "train the base stage from the demo dataset with lerobot-train.")
+        raise ValueError(
+            f"{policy_path} holds no demonstrated outcomes, so z of a sampled chunk is unknown; "
+            "train the base stage from the demo dataset with lerobot-train."
+        )
     meta = LeRobotDatasetMetadata(demo_repo_id, root=demo_root)
     check_features_match(config, meta)
     demos = load_demos(config, stats, meta)
@@ -313,21 +357,34 @@ def synthesize_recovery_dataset(
     images = camera_encoder(policy, stats, meta) if config.image_features else None
     # The set denoiser learns from the chunks where attempts start (`attempt_start_rows`); eq. (4)'s eps_z from pairs.
     among = demos.starts if config.recovery_head == "set_denoiser" else None
-    parts = [synthesised_samples(policy, recipe, demos, generator, progress, images, among)] if recipe.n_states else []
+    parts = (
+        [synthesised_samples(policy, recipe, demos, generator, progress, images, among)]
+        if recipe.n_states
+        else []
+    )
     sampling_seconds = time.perf_counter() - sampling_started
     if recipe.demo_frames:
         parts.append(demo_samples(policy, recipe, demos, generator, among))
     pool = Samples.cat(parts)
     if recipe.n_states and recipe.outcome_radius and not (pool.source == SYNTHESISED).any():
-        raise ValueError(f"Every sampled chunk lies farther than outcome_radius={recipe.outcome_radius} from the "
-                         "demonstrated chunks, so none has an outcome to borrow. Raise outcome_radius (0 keeps all) "
-                         "or train the base checkpoint longer.")
-    failure, recovery = attempt_start_rows(pool) if among is not None else recovery_pairs(pool, recipe, generator)
+        raise ValueError(
+            f"Every sampled chunk lies farther than outcome_radius={recipe.outcome_radius} from the "
+            "demonstrated chunks, so none has an outcome to borrow. Raise outcome_radius (0 keeps all) "
+            "or train the base checkpoint longer."
+        )
+    failure, recovery = (
+        attempt_start_rows(pool) if among is not None else recovery_pairs(pool, recipe, generator)
+    )
     if len(failure) == 0:
-        raise ValueError(f"No pair satisfies eq. (5) with delta_z={recipe.delta_z}, delta_x={recipe.delta_x}: the "
-                         "sampled chunks never differ in z at nearby states. Lower delta_z, raise delta_x, sigma or "
-                         "chunks_per_state, or lower w_s to widen the proposals.")
-    stats = {**stats, FAILURE_FEATURE_KEY: {k: torch.as_tensor(v) for k, v in failure_feature_stats(config, stats).items()}}
+        raise ValueError(
+            f"No pair satisfies eq. (5) with delta_z={recipe.delta_z}, delta_x={recipe.delta_x}: the "
+            "sampled chunks never differ in z at nearby states. Lower delta_z, raise delta_x, sigma or "
+            "chunks_per_state, or lower w_s to widen the proposals."
+        )
+    stats = {
+        **stats,
+        FAILURE_FEATURE_KEY: {k: torch.as_tensor(v) for k, v in failure_feature_stats(config, stats).items()},
+    }
     result = {
         "rows": len(failure),
         "sampled": recipe.n_states * recipe.chunks_per_state,
@@ -346,21 +403,39 @@ def synthesize_recovery_dataset(
             "result": result,
         }
         (path / RECIPE_COPY).write_text(yaml.safe_dump(record, sort_keys=False))
-    logger.info("Wrote %d recovery pairs from a pool of %d synthesised and %d demonstrated chunks to %s in %.1f s",
-                result["rows"], result["pool_synthesised"], result["pool_demo"], out_root, result["seconds"])
+    logger.info(
+        "Wrote %d recovery pairs from a pool of %d synthesised and %d demonstrated chunks to %s in %.1f s",
+        result["rows"],
+        result["pool_synthesised"],
+        result["pool_demo"],
+        out_root,
+        result["seconds"],
+    )
     return Path(out_root)
 
 
-def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pool: Samples, failure: Tensor,
-           recovery: Tensor, meta: LeRobotDatasetMetadata) -> None:
+def _write(
+    path: Path,
+    repo_id: str,
+    config: CCDPConfig,
+    stats: dict,
+    pool: Samples,
+    failure: Tensor,
+    recovery: Tensor,
+    meta: LeRobotDatasetMetadata,
+) -> None:
     """One dataset row per (failure, recovery) pair, in raw units, with the checkpoint's stats."""
     keys = [OBS_STATE] + ([OBS_ENV_STATE] if config.env_state_feature else [])
     sizes = [config.input_features[k].shape[0] for k in keys]
-    raw = unnormalize_batch(config, stats, {
-        **dict(zip(keys, pool.windows[recovery, -1].split(sizes, dim=-1), strict=True)),
-        FAILURE_FEATURE_KEY: pool.z[failure],
-        ACTION: pool.chunks[recovery],
-    })
+    raw = unnormalize_batch(
+        config,
+        stats,
+        {
+            **dict(zip(keys, pool.windows[recovery, -1].split(sizes, dim=-1), strict=True)),
+            FAILURE_FEATURE_KEY: pool.z[failure],
+            ACTION: pool.chunks[recovery],
+        },
+    )
     raw[FAILURE_ACTION] = unnormalize_batch(config, stats, {ACTION: pool.chunks[failure]})[ACTION]
     raw[PAIR_SOURCE] = pool.source[recovery][:, None]
     chunk_spec = {"dtype": "float32", "shape": tuple(pool.chunks.shape[1:]), "names": None}
@@ -394,9 +469,17 @@ def main(args: list[str] | None = None) -> None:
     cfg = parse_cli(SynthesizeConfig, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     source = parser.parse_arg("config_path", args) or "given by --recovery.* flags"
-    synthesize_recovery_dataset(cfg.recovery, cfg.dataset.repo_id, cfg.dataset.root, cfg.policy.path,
-                                cfg.output.repo_id, cfg.output.root, overwrite=cfg.overwrite, recipe_source=source,
-                                device=cfg.policy.device)
+    synthesize_recovery_dataset(
+        cfg.recovery,
+        cfg.dataset.repo_id,
+        cfg.dataset.root,
+        cfg.policy.path,
+        cfg.output.repo_id,
+        cfg.output.root,
+        overwrite=cfg.overwrite,
+        recipe_source=source,
+        device=cfg.policy.device,
+    )
 
 
 if __name__ == "__main__":

@@ -23,8 +23,14 @@ def episodes(successes: int, repeats: int = 0, shift: int = 0) -> Episodes:
     failure, the last `repeats` with one repeated failure."""
     success = (np.arange(N) - shift) % N < successes
     repeated = (np.arange(N) >= N - repeats).astype(int)
-    return Episodes(success=success, attempts=np.full(N, 3), repeated_failures=repeated,
-                    preference_matched=success, attempts_after_failure=np.full(N, 2.0), failures=np.ones(N))
+    return Episodes(
+        success=success,
+        attempts=np.full(N, 3),
+        repeated_failures=repeated,
+        preference_matched=success,
+        attempts_after_failure=np.full(N, 2.0),
+        failures=np.ones(N),
+    )
 
 
 def test_a_higher_mean_success_within_noise_keeps_the_first_setting():

@@ -97,8 +97,10 @@ def test_inf_in_an_observation_is_refused_before_it_reaches_the_actions():
 
 def test_a_dataset_with_nan_actions_is_refused_before_training():
     config = make_policy().config
-    stats = {"observation.state": {"mean": torch.zeros(2), "std": torch.ones(2)},
-             "action": {"mean": torch.tensor([0.0, float("nan")]), "std": torch.ones(2)}}
+    stats = {
+        "observation.state": {"mean": torch.zeros(2), "std": torch.ones(2)},
+        "action": {"mean": torch.tensor([0.0, float("nan")]), "std": torch.ones(2)},
+    }
     with pytest.raises(ValueError, match=r"mean of 'action' is not finite.*NaN or inf in 'action'"):
         CCDPPolicy(config, dataset_stats=stats)
 
@@ -143,9 +145,15 @@ def test_a_full_disk_while_writing_a_dataset_is_named_and_leaves_nothing(tmp_pat
     disk, and no destructor run after the failure writes a new partial folder."""
     writes = fill_the_disk(monkeypatch, at_open)
     out = tmp_path / "out"
-    with pytest.raises(OSError, match=f"No space left on device in {out} while writing demos.*Free space") as error:
-        record_dataset(RecordRecipe(task="DoorOpening-lite-v0", n_episodes=2, seed=0), "local/d", out / "demos",
-                       progress=False)
+    with pytest.raises(
+        OSError, match=f"No space left on device in {out} while writing demos.*Free space"
+    ) as error:
+        record_dataset(
+            RecordRecipe(task="DoorOpening-lite-v0", n_episodes=2, seed=0),
+            "local/d",
+            out / "demos",
+            progress=False,
+        )
     assert error.value.errno == errno.ENOSPC and writes[0] >= 3
     del error
     gc.collect()

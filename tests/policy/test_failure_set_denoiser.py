@@ -8,14 +8,22 @@ from lerobot_ccdp.recovery.failure_buffer import draw_failure_sets
 
 from fixtures.policy_factory import make_policy
 
-SETTINGS = {"failure_feature": "primitive", "num_primitives": 3, "recovery_head": "set_denoiser", "history_length": 0}
+SETTINGS = {
+    "failure_feature": "primitive",
+    "num_primitives": 3,
+    "recovery_head": "set_denoiser",
+    "history_length": 0,
+}
 
 
 def test_start_from_copies_the_base_so_the_head_begins_as_eps_s_whatever_the_failures():
     torch.manual_seed(0)
     policy = make_policy(**SETTINGS)
     noisy, step, state = torch.randn(5, 16, 2), torch.randint(0, 100, (5,)), torch.randn(5, 2)
-    z, z_mask = torch.eye(3)[torch.randint(0, 3, (5, 2))], torch.tensor([[True, False]] * 3 + [[True, True]] * 2)
+    z, z_mask = (
+        torch.eye(3)[torch.randint(0, 3, (5, 2))],
+        torch.tensor([[True, False]] * 3 + [[True, True]] * 2),
+    )
     ones, no_history = torch.ones(5, 1), torch.zeros(5, 0)
     eps_s = policy.model.base(noisy, step, state, ones, no_history, 0 * ones)
     assert not torch.allclose(policy.model.recovery(noisy, step, state, z, z_mask), eps_s, atol=1e-3)

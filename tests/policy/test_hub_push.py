@@ -57,10 +57,13 @@ def _client(phase: str, hub, work: Path, home: Path) -> subprocess.CompletedProc
         "HF_HUB_DOWNLOAD_TIMEOUT": "5",
         "NO_PROXY": "127.0.0.1,localhost",
     }
-    result = subprocess.run([sys.executable, str(HERE), phase, REPO_ID, str(work)], env=env,
-                            capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, str(HERE), phase, REPO_ID, str(work)], env=env, capture_output=True, text=True
+    )
     if result.returncode != 0:
-        pytest.fail(f"{phase} subprocess failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}")
+        pytest.fail(
+            f"{phase} subprocess failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
+        )
     return result
 
 
@@ -68,14 +71,21 @@ def test_push_to_hub_uploads_a_complete_loadable_policy(hub, tmp_path):
     _client("push", hub, tmp_path, tmp_path / "home_push")
     commits = hub.commits(REPO_ID)
     assert len(commits) == 4, [c.summary for c in commits]
-    assert [c.summary for c in commits[:2]] == ["Upload policy", "Upload policy weights, train config and readme"]
+    assert [c.summary for c in commits[:2]] == [
+        "Upload policy",
+        "Upload policy weights, train config and readme",
+    ]
 
     # 1. policy.push_to_hub: config and weights, the weights through LFS as on the real Hub.
     first = commits[0]
     assert sorted(first.changed) == ["config.json", "model.safetensors"]
     assert "model.safetensors" in first.lfs
     config = json.loads(first.files["config.json"])
-    assert config["type"] == "ccdp" and config["failure_feature"] == "primitive" and config["num_primitives"] == 4
+    assert (
+        config["type"] == "ccdp"
+        and config["failure_feature"] == "primitive"
+        and config["num_primitives"] == 4
+    )
     assert len(first.files["model.safetensors"]) > 100_000
 
     # 2. push_model_to_hub: + model card (validated through the loopback server) and train config.
@@ -101,8 +111,13 @@ def test_push_to_hub_uploads_a_complete_loadable_policy(hub, tmp_path):
     # Resolved = HEAD (metadata) then GET unless the blob is already cached (the two stats files are identical).
     downloads = [p for m, p in hub.log[n_requests:] if m in ("HEAD", "GET") and "/resolve/" in p]
     assert any(p.endswith("/model.safetensors") for m, p in hub.log[n_requests:] if m == "GET")
-    for name in ("config.json", "model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json",
-                 *stats_files):
+    for name in (
+        "config.json",
+        "model.safetensors",
+        "policy_preprocessor.json",
+        "policy_postprocessor.json",
+        *stats_files,
+    ):
         assert any(p.endswith(f"/{name}") for p in downloads), f"{name} was not resolved: {downloads}"
     # The reload of commit 1 (push_to_hub alone) asked for that revision.
     assert any(f"/resolve/{first.sha}/model.safetensors" in p for p in downloads)
@@ -168,7 +183,11 @@ def _make_policy_and_processors():
     config = CCDPConfig(
         input_features={"observation.state": PolicyFeature(FeatureType.STATE, (2,))},
         output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))},
-        device="cpu", failure_feature="primitive", num_primitives=4, push_to_hub=True, repo_id=REPO_ID,
+        device="cpu",
+        failure_feature="primitive",
+        num_primitives=4,
+        push_to_hub=True,
+        repo_id=REPO_ID,
     )
     policy = CCDPPolicy(config)
     # A checkpoint as after both stages: an outcome table (kept in the state dict) and a trained eps_z.
@@ -176,10 +195,18 @@ def _make_policy_and_processors():
     policy.model.outcomes.fill(torch.randn(n, chunk), torch.randn(n, 2), torch.randint(0, 4, (n,)))
     policy.model.recovery_trained.fill_(True)
     stats = {
-        "observation.state": {"min": torch.tensor([-1.1, -1.2]), "max": torch.tensor([1.3, 1.4]),
-                              "mean": torch.tensor([0.1, 0.2]), "std": torch.tensor([0.5, 0.6])},
-        "action": {"min": torch.tensor([-1.0, -0.9]), "max": torch.tensor([1.05, 0.95]),
-                   "mean": torch.tensor([0.0, 0.1]), "std": torch.tensor([0.4, 0.45])},
+        "observation.state": {
+            "min": torch.tensor([-1.1, -1.2]),
+            "max": torch.tensor([1.3, 1.4]),
+            "mean": torch.tensor([0.1, 0.2]),
+            "std": torch.tensor([0.5, 0.6]),
+        },
+        "action": {
+            "min": torch.tensor([-1.0, -0.9]),
+            "max": torch.tensor([1.05, 0.95]),
+            "mean": torch.tensor([0.0, 0.1]),
+            "std": torch.tensor([0.4, 0.45]),
+        },
     }
     preprocessor, postprocessor = make_ccdp_pre_post_processors(config, stats)
     return policy, preprocessor, postprocessor
@@ -192,11 +219,15 @@ def _push(repo_id: str, work: Path) -> None:
 
     policy, preprocessor, postprocessor = _make_policy_and_processors()
     policy.push_to_hub(repo_id)
-    policy.push_model_to_hub(TrainPipelineConfig(dataset=DatasetConfig(repo_id="local/reaching2d"), policy=policy.config))
+    policy.push_model_to_hub(
+        TrainPipelineConfig(dataset=DatasetConfig(repo_id="local/reaching2d"), policy=policy.config)
+    )
     preprocessor.push_to_hub(repo_id)
     postprocessor.push_to_hub(repo_id)
     # References for the reload.
-    save_file({k: v.contiguous() for k, v in policy.state_dict().items()}, str(work / "ref_policy.safetensors"))
+    save_file(
+        {k: v.contiguous() for k, v in policy.state_dict().items()}, str(work / "ref_policy.safetensors")
+    )
     policy.config.save_pretrained(work / "ref")
     save_file(preprocessor.steps[-1].state_dict(), str(work / "ref_pre.safetensors"))
     save_file(postprocessor.steps[0].state_dict(), str(work / "ref_post.safetensors"))
@@ -232,8 +263,10 @@ def _reload(repo_id: str, work: Path) -> None:
 
     pre = PolicyProcessorPipeline.from_pretrained(repo_id, config_filename="policy_preprocessor.json")
     post = PolicyProcessorPipeline.from_pretrained(
-        repo_id, config_filename="policy_postprocessor.json",
-        to_transition=policy_action_to_transition, to_output=transition_to_policy_action,
+        repo_id,
+        config_filename="policy_postprocessor.json",
+        to_transition=policy_action_to_transition,
+        to_output=transition_to_policy_action,
     )
     for pipeline, ref_file in ((pre, "ref_pre.safetensors"), (post, "ref_post.safetensors")):
         ref = load_file(str(work / ref_file))

@@ -66,8 +66,14 @@ class ExactClassifier(ExactMixture):
 
 def planned_shares(head: str, failed: list[int]) -> Tensor:
     torch.manual_seed(0)
-    policy = make_policy(failure_feature="primitive", num_primitives=4, recovery_head=head, history_length=0,
-                         horizon=16, n_action_steps=8)
+    policy = make_policy(
+        failure_feature="primitive",
+        num_primitives=4,
+        recovery_head=head,
+        history_length=0,
+        horizon=16,
+        n_action_steps=8,
+    )
     alphas, horizon = policy.model.noise_scheduler.alphas_cumprod, policy.config.horizon
     policy.model.base = ExactBase(alphas, horizon)
     policy.model.recovery = (ExactSetDenoiser if head == "set_denoiser" else ExactClassifier)(alphas, horizon)

@@ -39,13 +39,18 @@ def member_checkpoint(seed: int, tmp: Path) -> tuple[Path, LeRobotDataset]:
     task = ReachingTask.family_member(seed)
     repo, data = f"local/reaching_family_{seed}", tmp / "data"
     task.record(data, repo, EPISODES, seed)
-    z = ({"failure_feature": "primitive", "num_primitives": len(task.goals)} if task.labelled
-         else {"failure_feature": "final_state"})
+    z = (
+        {"failure_feature": "primitive", "num_primitives": len(task.goals)}
+        if task.labelled
+        else {"failure_feature": "final_state"}
+    )
     base = train_stage(CCDPConfig(device="cpu", **z), repo, data, tmp / "base", BASE_STEPS, 64)
     head_config = PreTrainedConfig.from_pretrained(base)
     head_config.pretrained_path = str(base)
     head_config.training_stage, head_config.recovery_head = "recovery", "classifier"
-    return train_stage(head_config, repo, data, tmp / "classifier", HEAD_STEPS, 64), LeRobotDataset(repo, root=data)
+    return train_stage(head_config, repo, data, tmp / "classifier", HEAD_STEPS, 64), LeRobotDataset(
+        repo, root=data
+    )
 
 
 @pytest.fixture(scope="module")
@@ -53,17 +58,23 @@ def measured(tmp_path_factory) -> dict[int, dict]:
     results = {}
     for seed in (0, 1):
         checkpoint, demos = member_checkpoint(seed, tmp_path_factory.mktemp(f"m{seed}"))
-        methods = {"DP": Method("dp", {}), "CCDP": Method("ccdp", {"w_z": 1.0}),
-                   "CCDP +3 redraws": Method("ccdp", {"w_z": 1.0, "ccdp_redraws": 3}),
-                   "CCDP exact": Method("ccdp", {"w_z": 1.0}, demos)}
+        methods = {
+            "DP": Method("dp", {}),
+            "CCDP": Method("ccdp", {"w_z": 1.0}),
+            "CCDP +3 redraws": Method("ccdp", {"w_z": 1.0, "ccdp_redraws": 3}),
+            "CCDP exact": Method("ccdp", {"w_z": 1.0}, demos),
+        }
         results[seed] = measure(ReachingTask.family_member(seed), checkpoint, methods, ROWS)
     return results
 
 
 def test_classifier_guidance_avoids_failed_goals_where_dp_repeats_them(measured):
-    scores = {(seed, method, count): (round(m["failed_share"], 3), round(m["preference_error"], 3))
-              for seed, result in measured.items() for method in ("DP", "CCDP", "CCDP +3 redraws", "CCDP exact")
-              for count, m in result["methods"][method].items()}
+    scores = {
+        (seed, method, count): (round(m["failed_share"], 3), round(m["preference_error"], 3))
+        for seed, result in measured.items()
+        for method in ("DP", "CCDP", "CCDP +3 redraws", "CCDP exact")
+        for count, m in result["methods"][method].items()
+    }
     report = f"(failed share, preference error) per (member, method, failures): {scores}"
     print(report)
     for seed in measured:

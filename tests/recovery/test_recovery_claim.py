@@ -42,15 +42,32 @@ def recovery_checkpoint(reaching_root, tmp_path_factory) -> Path:
     tmp = tmp_path_factory.mktemp("recovery")
     run_cli(*train_args(reaching_root, tmp / "base", 1000, "--save_freq=1000", batch_size=64))
     checkpoint = tmp / "base" / "checkpoints" / "last" / "pretrained_model"
-    run_cli("lerobot-ccdp-synthesize", f"--config_path={RECIPE}", f"--dataset.repo_id={REACHING_REPO_ID}",
-            f"--dataset.root={reaching_root}", f"--policy.path={checkpoint}",
-            "--output.repo_id=local/reaching2d_recovery", f"--output.root={tmp / 'data'}")
-    run_cli("lerobot-train", f"--policy.path={checkpoint}", "--policy.training_stage=recovery",
-            f"--policy.w_z={W_Z}",
-            "--dataset.repo_id=local/reaching2d_recovery", f"--dataset.root={tmp / 'data'}",
-            f"--output_dir={tmp / 'run'}", f"--steps={RECOVERY_STEPS}", "--batch_size=64",
-            f"--save_freq={RECOVERY_STEPS}", "--policy.push_to_hub=false", "--num_workers=0",
-            "--wandb.enable=false", "--log_freq=100", "--seed=0")
+    run_cli(
+        "lerobot-ccdp-synthesize",
+        f"--config_path={RECIPE}",
+        f"--dataset.repo_id={REACHING_REPO_ID}",
+        f"--dataset.root={reaching_root}",
+        f"--policy.path={checkpoint}",
+        "--output.repo_id=local/reaching2d_recovery",
+        f"--output.root={tmp / 'data'}",
+    )
+    run_cli(
+        "lerobot-train",
+        f"--policy.path={checkpoint}",
+        "--policy.training_stage=recovery",
+        f"--policy.w_z={W_Z}",
+        "--dataset.repo_id=local/reaching2d_recovery",
+        f"--dataset.root={tmp / 'data'}",
+        f"--output_dir={tmp / 'run'}",
+        f"--steps={RECOVERY_STEPS}",
+        "--batch_size=64",
+        f"--save_freq={RECOVERY_STEPS}",
+        "--policy.push_to_hub=false",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--log_freq=100",
+        "--seed=0",
+    )
     return tmp / "run" / "checkpoints" / "last" / "pretrained_model"
 
 
