@@ -45,8 +45,9 @@ SOURCES = ("first", "latest")
 def label_audit(source: str) -> Iterator[collections.Counter]:
     """Counts (true failed option, recorded z label) pairs while lerobot-eval runs in this process.
 
-    Each label is paired with the failure its row flagged last: a failure that ends an episode is never seen by
-    the policy, so pairing a row's failures and labels in order would shift every later pair of that row."""
+    Each label is paired with the failure its row flagged last: a failure that ends an episode is never seen
+    by the policy, so pairing a row's failures and labels in order would shift every later pair of that
+    row."""
     rows: dict[int, int] = {}
     flagged: dict[int, int] = {}
     pairs: collections.Counter = collections.Counter()

@@ -11,10 +11,10 @@ inputs: a 2-D robot state plus a small environment state (stock diffusion needs 
 
 (a) Planning latency: one call that samples a chunk for --plan-batch rows (`predict_action_chunk`, no grad;
     lerobot-eval plans for its eval batch, a robot for 1 row), median over --repeats calls after warm-up. The
-    failure feature is `primitive` (4 options) with an outcome table of OUTCOME_ROWS demonstrated chunks, so DP*
-    (and CCDP with redraws) pay for the outcome lookup as on the Panda tasks. CCDP runs with
-    recovery_mode=ccdp, its head marked trained (`recovery_trained.fill_(True)`, so the failure terms are really
-    evaluated) and N = 0, 1, 2, 4, 8 failures recorded with `report_failure`; DP* (--dp-star-candidates
+    failure feature is `primitive` (4 options) with an outcome table of OUTCOME_ROWS demonstrated chunks, so
+    DP* (and CCDP with redraws) pay for the outcome lookup as on the Panda tasks. CCDP runs with
+    recovery_mode=ccdp, its head marked trained (`recovery_trained.fill_(True)`, so the failure terms are
+    really evaluated) and N = 0, 1, 2, 4, 8 failures recorded with `report_failure`; DP* (--dp-star-candidates
     candidates, up to --dp-star-rounds rounds), the compute-matched DP* (--matched-candidates candidates, one
     round) and DP at N = 4 share the same weights. Calls of all configurations are interleaved round-robin so
     background load hits them alike.
@@ -396,13 +396,16 @@ def table(results: dict) -> str:
                 f"{'<= %s' % TRAIN_TARGET if name == 'ccdp' else ''} |"
             )
     verdict = [
-        f"planning N=4: {lat['ratio_at_n4']:.2f}x ({'OK' if lat['ratio_at_n4'] <= LATENCY_TARGET else 'ABOVE'} target {LATENCY_TARGET}x)",
-        f"train step: {train['ratio']:.2f}x ({'OK' if train['ratio'] <= TRAIN_TARGET else 'ABOVE'} target {TRAIN_TARGET}x)",
+        f"planning N=4: {lat['ratio_at_n4']:.2f}x "
+        f"({'OK' if lat['ratio_at_n4'] <= LATENCY_TARGET else 'ABOVE'} target {LATENCY_TARGET}x)",
+        f"train step: {train['ratio']:.2f}x "
+        f"({'OK' if train['ratio'] <= TRAIN_TARGET else 'ABOVE'} target {TRAIN_TARGET}x)",
     ]
     if cli:
         r = cli["ratio_step_time"]
         verdict.append(
-            f"lerobot-train step time: {r:.2f}x ({'OK' if r <= TRAIN_TARGET else 'ABOVE'} target {TRAIN_TARGET}x)"
+            f"lerobot-train step time: {r:.2f}x "
+            f"({'OK' if r <= TRAIN_TARGET else 'ABOVE'} target {TRAIN_TARGET}x)"
         )
     p = lat["params"]
     notes = (

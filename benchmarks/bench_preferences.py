@@ -3,24 +3,26 @@
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_preferences.py [--members 0 1 ... 11] [--w-z 1 2 4] \
         [--no-classifier] [--redraws 0 1] [--set-denoiser] [--out outputs/preferences]
 
-Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences, bent
-paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a LeRobot
-dataset, its base is trained with lerobot-train, and the failure-set classifier (`--policy.recovery_head=classifier`)
-is trained from that base on the demonstrations with lerobot-train as a user would. Failed share and preference
-error after one and after two failures (`lerobot_ccdp/benchmark/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
-rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z with each count of
---redraws (sampling settings, set as lerobot-eval's --policy.w_z and --policy.ccdp_redraws would: every combination
-runs on the same checkpoint and seeds). Prints the table,
-writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferences.png`
-under --out (CCDP with the first weight and redraw count). Members run side by side each with its own
---out are tabulated together with `--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
-family; settings are chosen on the development members 100-103 (`--members 100 101 102 103`).
+Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences,
+bent paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a
+LeRobot dataset, its base is trained with lerobot-train, and the failure-set classifier
+(`--policy.recovery_head=classifier`) is trained from that base on the demonstrations with lerobot-train as a
+user would. Failed share and preference error after one and after two failures
+(`lerobot_ccdp/benchmark/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
+rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z with each count
+of --redraws (sampling settings, set as lerobot-eval's --policy.w_z and --policy.ccdp_redraws would: every
+combination runs on the same checkpoint and seeds). Prints the table, writes `preferences.md`, `results.json`
+and a Fig. 2-style panel grid `preferences.png` under --out (CCDP with the first weight and redraw count).
+Members run side by side each with its own --out are tabulated together with
+`--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs
+did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test family; settings are chosen
+on the development members 100-103 (`--members 100 101 102 103`).
 
 With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifier, unless
---no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its rows (SET_RECIPE: chunks the
-base samples at the episodes' first states), lerobot-train trains the failure-set denoiser on them for --head-steps,
-and "CCDP set denoiser" (w_z = 1, one sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost"
-(`dp_star_matched`'s 2 candidates, 1 round) on the same base and seeds.
+--no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its
+rows (SET_RECIPE: chunks the base samples at the episodes' first states), lerobot-train trains the failure-set
+denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one sample per plan) is measured beside
+DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1 round) on the same base and seeds.
 """
 
 from __future__ import annotations
@@ -54,13 +56,14 @@ BASELINES = {
     "DP*": Method("dp_star", {"dp_star_candidates": 32, "dp_star_rounds": 4}),
 }
 MATCHED = {"DP* at CCDP's cost": Method("dp_star", MATCHED_DP_STAR)}
-# The failure-set denoiser's rows (RecoveryRecipe fields besides z): 512 first states x 16 base samples at w_s = 1.
+# The failure-set denoiser's rows (RecoveryRecipe fields besides z): 512 first states x 16 base samples at
+# w_s = 1.
 SET_RECIPE = {"n_states": 512, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0, "demo_frames": 4096}
 
 
 def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobotDataset) -> dict[str, Method]:
-    """The methods measured on `head` ("classifier" or "set_denoiser"); DP and DP* on the first head only (the heads
-    share the base)."""
+    """The methods measured on `head` ("classifier" or "set_denoiser"); DP and DP* on the first head only (the
+    heads share the base)."""
     baselines = BASELINES if first else {}
     if head == "set_denoiser":  # one sample per plan
         return {**baselines, **MATCHED, "CCDP set denoiser": Method("ccdp", {"w_z": 1.0})}
@@ -69,17 +72,20 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
         for w in sampling.w_z
         for n in sampling.redraws
     }
-    # The reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start chunks.
+    # The reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start
+    # chunks.
     return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
 def ccdp_name(w_z: float, redraws: int) -> str:
-    """The table's name of CCDP guided by the classifier at weight `w_z`, redrawing repeats up to `redraws` times."""
+    """The table's name of CCDP guided by the classifier at weight `w_z`, redrawing repeats up to `redraws`
+    times."""
     return f"CCDP classifier w_z={w_z:g}" + (f" +{redraws} redraws" if redraws else "")
 
 
 def train(name: str, out: Path, args: list[str], upstream: str | None, book: StampBook) -> tuple[Path, str]:
-    """lerobot-train into `out` unless the checkpoint there was made by the same command from the same upstream."""
+    """lerobot-train into `out` unless the checkpoint there was made by the same command from the same
+    upstream."""
     command = [
         "lerobot-train",
         *args,
@@ -179,7 +185,8 @@ def prepare_member(
 def train_set_denoiser(
     root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int, book: StampBook
 ) -> Path:
-    """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE), then lerobot-train it on them."""
+    """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE), then lerobot-train it on
+    them."""
     z = (
         {"failure_feature": "primitive", "num_primitives": len(task.goals)}
         if task.labelled
@@ -290,8 +297,8 @@ def measured_members(out: Path) -> dict[int, dict]:
 
 
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
-    """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`) after
-    one and two failures."""
+    """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`)
+    after one and two failures."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -397,8 +404,8 @@ def main() -> None:
         started = time.perf_counter()
         task = ReachingTask.family_member(seed)
         print(
-            f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, bend "
-            f"{task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}",
+            f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, "
+            f"bend {task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}",
             flush=True,
         )
         heads = prepare_member(
@@ -428,10 +435,9 @@ def main() -> None:
     )
     print(text)
     (args.out / "preferences.md").write_text(
-        f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base {args.base_steps} "
-        f"steps, heads {args.head_steps} steps (classifier {args.classifier}, set denoiser {args.set_denoiser}), "
-        f"guidance weights {args.w_z}, redraws {args.redraws}.\n\n"
-        f"{text}\n"
+        f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base "
+        f"{args.base_steps} steps, heads {args.head_steps} steps (classifier {args.classifier}, set denoiser "
+        f"{args.set_denoiser}), guidance weights {args.w_z}, redraws {args.redraws}.\n\n{text}\n"
     )
     shown = ccdp_name(args.w_z[0], args.redraws[0]) if args.classifier else "CCDP set denoiser"
     panel_grid(chosen, args.out / "preferences.png", shown)

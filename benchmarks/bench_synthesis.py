@@ -1,4 +1,5 @@
-"""Recovery synthesis and recovery training: throughput, recovery-set size, training time, and the paper's Fig. 2.
+"""Recovery synthesis and recovery training: throughput, recovery-set size, training time, and the paper's
+Fig. 2.
 
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_synthesis.py \
         [--tasks reaching2d DoorOpening-v0 ...] [--base-steps 1000] [--recovery-steps 3000] [--w-z 3] \
@@ -8,8 +9,8 @@ For every task: record the demos (`lerobot-ccdp-record`, or the 2-D recorder), t
 `lerobot-train` (or take `--base TASK=<pretrained_model>`), run `lerobot-ccdp-synthesize` with the task's
 recipe in datasets_recipes/, and train the recovery stage with `lerobot-train`. Prints one table (synthesis
 pairs/s, rows synthesised and drawn from demos, wall times of every stage) and, on the 2-D task, saves
-fig2_reaching2d.png: sampled chunks from DP, then CCDP after one and after two failed goals (the paper's Fig. 2).
-Everything is kept under --work (ignored by git).
+fig2_reaching2d.png: sampled chunks from DP, then CCDP after one and after two failed goals (the paper's
+Fig. 2). Everything is kept under --work (ignored by git).
 """
 
 from __future__ import annotations
@@ -127,7 +128,8 @@ def bench_task(
 
 
 def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
-    """Sampled chunks on the 2-D task: DP, CCDP after goal 0 failed, after goals 0 and 1 failed (paper Fig. 2)."""
+    """Sampled chunks on the 2-D task: DP, CCDP after goal 0 failed, after goals 0 and 1 failed (paper
+    Fig. 2)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -185,7 +187,7 @@ def sampler_shares(checkpoint: Path) -> dict[str, dict[str, list[float]]]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--tasks", nargs="+", default=["reaching2d", *TASK_GROUPS["all"]], choices=list(RECIPES)
     )
@@ -233,31 +235,34 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{task}: {rows[-1]}", flush=True)
     print(
         f"\nMachine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
-        f"{torch.get_num_threads()} threads; base {args.base_steps} steps, recovery {args.recovery_steps} steps\n"
+        f"{torch.get_num_threads()} threads; base {args.base_steps} steps, "
+        f"recovery {args.recovery_steps} steps\n"
     )
     print(
-        "| task | pool: sampled + demo chunks | chunks sampled/s (eq. 7) | recovery rows | rows/s (whole command) "
-        "| synthesis (s) | base train (s) | recovery train (s) |"
+        "| task | pool: sampled + demo chunks | chunks sampled/s (eq. 7) | recovery rows "
+        "| rows/s (whole command) | synthesis (s) | base train (s) | recovery train (s) |"
     )
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(
-            f"| {r['task']} | {r['pool_synthesised']} + {r['pool_demo']} | {r['chunks_per_s']:.0f} | {r['rows']} | "
-            f"{r['pairs_per_s']:.0f} | {r['seconds']:.1f} | {r.get('base_train_s', float('nan')):.0f} | "
-            f"{r['recovery_train_s']:.0f} |"
+            f"| {r['task']} | {r['pool_synthesised']} + {r['pool_demo']} | {r['chunks_per_s']:.0f} | "
+            f"{r['rows']} | {r['pairs_per_s']:.0f} | {r['seconds']:.1f} | "
+            f"{r.get('base_train_s', float('nan')):.0f} | {r['recovery_train_s']:.0f} |"
         )
     if "reaching2d" in args.tasks:
         shares = fig2(
             Path(rows[args.tasks.index("reaching2d")]["checkpoint"]), args.work / "fig2_reaching2d.png"
         )
         print(
-            f"\nFig. 2 saved to {args.work / 'fig2_reaching2d.png'}; goal shares (demonstrated 0.4/0.3/0.2/0.1):"
+            f"\nFig. 2 saved to {args.work / 'fig2_reaching2d.png'}; "
+            "goal shares (demonstrated 0.4/0.3/0.2/0.1):"
         )
         for title, share in shares.items():
             print(f"  {title}: {', '.join(f'{s:.2f}' for s in share)}")
         table = sampler_shares(Path(rows[args.tasks.index("reaching2d")]["checkpoint"]))
         print(
-            f"\nGoal shares of {SHARE_ROWS} chunks by reverse sampler (10 steps; demonstrated 0.4/0.3/0.2/0.1):"
+            f"\nGoal shares of {SHARE_ROWS} chunks by reverse sampler "
+            "(10 steps; demonstrated 0.4/0.3/0.2/0.1):"
         )
         print("| chunks | DDIM | DDPM |\n|---|---|---|")
         for label, by_scheduler in table.items():

@@ -5,24 +5,27 @@
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/benchmark \
         --tasks ButtonSearch-v0 --method ccdp --grid ccdp_redraws=0,3 [--write]
 
-Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy fields
-on each task's recovery checkpoint of a `make benchmark` run (or `python -m lerobot_ccdp.benchmark.pipeline --train-only`),
-through lerobot-eval with the task's eval config and the method's other settings from `methods.json`, but on the
-development seeds (`--seed`, default 1000: episode i uses seed + i; the configs' test seeds start at 2000), without
-rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
-why episodes were lost, evaluation time; success and repeats also as paired differences against the grid's first
-setting) and picks one setting for the tasks given, their episodes pooled: the grid's first setting (list the
-default or the cheapest value first) unless another beats it, paired, with a 95% interval clear of 0, on success
-(the highest mean success of those that do) or, where none does, on repeats without a success interval wholly below
-0 (the fewest mean repeats). A tie keeps the first setting. With `--write` it stores the pick under the method's
-key of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
-lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
+Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy
+fields on each task's recovery checkpoint of a `make benchmark` run (or
+`python -m lerobot_ccdp.benchmark.pipeline --train-only`), through lerobot-eval with the task's eval config
+and the method's other settings from `methods.json`, but on the development seeds (`--seed`, default 1000:
+episode i uses seed + i; the configs' test seeds start at 2000), without rendering. Prints one markdown table
+(success, repeats per attempt after a failure, attempts of successful episodes, why episodes were lost,
+evaluation time; success and repeats also as paired differences against the grid's first setting) and picks
+one setting for the tasks given, their episodes pooled: the grid's first setting (list the default or the
+cheapest value first) unless another beats it, paired, with a 95% interval clear of 0, on success (the highest
+mean success of those that do) or, where none does, on repeats without a success interval wholly below 0 (the
+fewest mean repeats). A tie keeps the first setting. With `--write` it stores the pick under the method's key
+of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
+lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabulates an earlier run's
+evaluations.
 
-`--checkpoint NAME=PATH` adds another recovery checkpoint of the same base (a different recovery head, trained with
-lerobot-train from `<out>/<task>/base`), evaluated with every grid setting on the same seeds, so the heads compare
-paired; `--write` refuses a pick on such a checkpoint, as the head is chosen in the task's train_base.json.
-`--heads NAME ...` evaluates only the heads named (`recovery` is the run's own), where another head's grid needs
-settings the run's own head has no use for; the differences are then against the first named head's first setting.
+`--checkpoint NAME=PATH` adds another recovery checkpoint of the same base (a different recovery head, trained
+with lerobot-train from `<out>/<task>/base`), evaluated with every grid setting on the same seeds, so the
+heads compare paired; `--write` refuses a pick on such a checkpoint, as the head is chosen in the task's
+train_base.json. `--heads NAME ...` evaluates only the heads named (`recovery` is the run's own), where
+another head's grid needs settings the run's own head has no use for; the differences are then against the
+first named head's first setting.
 """
 
 from __future__ import annotations
@@ -99,9 +102,8 @@ def table_rows(grid: list[Setting], checkpoints: dict[str, str], heads: list[str
             f"--heads names {unknown}, which are not heads of this run: choose from {known} "
             "(add a head with --checkpoint NAME=PATH)."
         )
-    return [
-        (name, setting) for name in dict.fromkeys(heads or known) for setting in grid
-    ]  # a head named twice runs once
+    # a head named twice runs once
+    return [(name, setting) for name in dict.fromkeys(heads or known) for setting in grid]
 
 
 def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, seed: int) -> Path:
@@ -111,7 +113,8 @@ def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, se
 
 
 def checkpoint_path(files: TaskFiles, checkpoints: dict[str, str], name: str) -> Path:
-    """The recovery checkpoint `name` of one task: the run's own, or a `--checkpoint` path with `{slug}` filled."""
+    """The recovery checkpoint `name` of one task: the run's own, or a `--checkpoint` path with `{slug}`
+    filled."""
     return (
         files.out / "recovery" / CHECKPOINT
         if name == OWN
@@ -122,8 +125,8 @@ def checkpoint_path(files: TaskFiles, checkpoints: dict[str, str], name: str) ->
 def evaluate(
     files: TaskFiles, method: str, checkpoint: Path, name: str, setting: Setting, seed: int
 ) -> float:
-    """`method` with `setting` on one task's recovery `checkpoint`, evaluated as the benchmark evaluates it but
-    unrendered, into `run_dir`: the evaluation's wall time."""
+    """`method` with `setting` on one task's recovery `checkpoint`, evaluated as the benchmark evaluates it
+    but unrendered, into `run_dir`: the evaluation's wall time."""
     out = run_dir(files, method, name, setting, seed)
     shutil.rmtree(out, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
     flags = files.method_flags(method, dict(setting)) + ["--env.render_mode=null"]
@@ -209,9 +212,9 @@ def main(argv: list[str] | None = None) -> None:
     args.tasks = expand_tasks(args.tasks)
     if owner(args.out.resolve()) != CREATED_BY:  # its evaluations are written, and replaced, inside --out
         raise SystemExit(
-            f"--out {args.out} is not an output folder of the pipeline (no {MARKER} of it there). Name "
-            "a `make benchmark` folder; one made before ownership markers is marked, with nothing "
-            "rerun, by `python -m lerobot_ccdp.benchmark.pipeline --tasks ... --out <it> --train-only --adopt`."
+            f"--out {args.out} is not an output folder of the pipeline (no {MARKER} of it there). Name a "
+            "`make benchmark` folder; one made before ownership markers is marked, with nothing rerun, by "
+            "`python -m lerobot_ccdp.benchmark.pipeline --tasks ... --out <it> --train-only --adopt`."
         )
     checkpoints = dict(item.split("=", 1) for item in args.checkpoint if "=" in item)
     if len(checkpoints) != len(args.checkpoint) or OWN in checkpoints:
@@ -228,7 +231,8 @@ def main(argv: list[str] | None = None) -> None:
     if missing:
         raise SystemExit(
             f"No recovery checkpoint at {missing}; run `make benchmark` or "
-            "`python -m lerobot_ccdp.benchmark.pipeline --train-only` first, and check the --checkpoint paths."
+            "`python -m lerobot_ccdp.benchmark.pipeline --train-only` first, and check the --checkpoint "
+            "paths."
         )
     for task, f in files.items():
         config = f.eval_config()
@@ -262,8 +266,9 @@ def main(argv: list[str] | None = None) -> None:
             print(rows[-1], flush=True)
     print(
         f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "
-        f"{row_label(rows_of[0])}\n\n| task | setting | success | difference | repeats per attempt after a failure | "
-        f"difference | attempts (successes) | {LOST_HEADER} | eval s |\n|---|---|---|---|---|---|---|---|---|\n"
+        f"{row_label(rows_of[0])}\n\n"
+        "| task | setting | success | difference | repeats per attempt after a failure | difference "
+        f"| attempts (successes) | {LOST_HEADER} | eval s |\n|---|---|---|---|---|---|---|---|---|\n"
         + "\n".join(rows)
     )
 

@@ -1,17 +1,19 @@
-"""`python -m lerobot_ccdp.benchmark.pipeline`: the CCDP main job end to end through the real CLIs, and the paper's comparison.
+"""`python -m lerobot_ccdp.benchmark.pipeline`: the CCDP main job end to end through the real CLIs, and the
+paper's comparison.
 
 Per task: record demos (lerobot-ccdp-record), train the base stage (lerobot-train), synthesise the recovery
 dataset (lerobot-ccdp-synthesize), train the recovery stage (lerobot-train), evaluate every method on the same
-seeds (lerobot-eval --policy.recovery_mode=...), run the no-repeat oracle on those seeds, and report the metrics
-with 95% intervals (`lerobot_ccdp.benchmark.comparison`) as markdown, JSON and a bar chart.
+seeds (lerobot-eval --policy.recovery_mode=...), run the no-repeat oracle on those seeds, and report the
+metrics with 95% intervals (`lerobot_ccdp.benchmark.comparison`) as markdown, JSON and a bar chart.
 
 Settings live in files a user can run by hand: `configs/<task>/{train_base,train_recovery,eval}.json` and
-`datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from `configs/<task>_pixels/`
-and `datasets_recipes/<task>_pixels.yaml`, `--label-free` the variant without labels (z where an option ends) from
-`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
-checkpoints, eval_info.json, logs). A stage whose output exists is skipped, so an interrupted run resumes;
-`--fresh` starts over. The pipeline writes only into a folder it created or adopted, marked as its own
-(`lerobot_ccdp.datasets.ownership`), and deletes nothing else.
+`datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from
+`configs/<task>_pixels/` and `datasets_recipes/<task>_pixels.yaml`, `--label-free` the variant without labels
+(z where an option ends) from `configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`. The
+pipeline only moves every output under `--out/<task>/` (datasets, checkpoints, eval_info.json, logs). A stage
+whose output exists is skipped, so an interrupted run resumes; `--fresh` starts over. The pipeline writes only
+into a folder it created or adopted, marked as its own (`lerobot_ccdp.datasets.ownership`), and deletes
+nothing else.
 """
 
 from __future__ import annotations
@@ -53,22 +55,24 @@ from lerobot_ccdp.envs.tasks import is_lite
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 
 METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp")
-# The recovery_mode each method evaluates with. "dp_star_matched" is the compute-matched baseline: DP* with the
-# candidates that fit in CCDP's measured per-plan cost (MATCHED_DP_STAR unless methods.json names its own), so that
-# CCDP - matched DP* shows what composition buys over rejection at equal compute.
+# The recovery_mode each method evaluates with. "dp_star_matched" is the compute-matched baseline: DP* with
+# the candidates that fit in CCDP's measured per-plan cost (MATCHED_DP_STAR unless methods.json names its
+# own), so that CCDP - matched DP* shows what composition buys over rejection at equal compute.
 RECOVERY_MODE = {"dp": "dp", "dp_star": "dp_star", "dp_star_matched": "dp_star", "ccdp": "ccdp"}
 MATCHED_DP_STAR = {"dp_star_candidates": 2, "dp_star_rounds": 1}
-# Every method's evaluation runs with `--env.render_mode=null`, so its wall time measures the method alone (on the
-# Panda each rendered frame costs about 40 ms, and LeRobot renders 10 envs at every step of the first batch). The
-# pair `lerobot_ccdp.benchmark.watch` shows side by side, DP and CCDP, is rendered in a stage of its own: the first
-# VIDEO_EPISODES episodes again, on the same seeds and noise streams, under `<task>/videos/<method>/`.
+# Every method's evaluation runs with `--env.render_mode=null`, so its wall time measures the method alone (on
+# the Panda each rendered frame costs about 40 ms, and LeRobot renders 10 envs at every step of the first
+# batch). The pair `lerobot_ccdp.benchmark.watch` shows side by side, DP and CCDP, is rendered in a stage of
+# its own: the first VIDEO_EPISODES episodes again, on the same seeds and noise streams, under
+# `<task>/videos/<method>/`.
 VIDEO_METHODS = ("dp", "ccdp")
 VIDEO_EPISODES = 10
-# Every method is evaluated on common random numbers: each episode's plans draw from the same per-row noise streams
-# (`lerobot_ccdp.policy.noise_streams`), so DP, DP* and CCDP act alike until an episode's first failure and the paired
-# differences measure recovery, not the luck of the plans before it.
+# Every method is evaluated on common random numbers: each episode's plans draw from the same per-row noise
+# streams (`lerobot_ccdp.policy.noise_streams`), so DP, DP* and CCDP act alike until an episode's first
+# failure and the paired differences measure recovery, not the luck of the plans before it.
 COMMON_NOISE = "--policy.row_noise_streams=true"
-# Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric versions.
+# Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric
+# versions.
 TASK_GROUPS = {
     "all": [t for t in TASKS if not is_lite(t)],
     "lite": [t for t in TASKS if is_lite(t)],
@@ -164,9 +168,9 @@ class TaskFiles:
         return json.loads(self.train_base.read_text()).get("policy", {}).get("recovery_head", "unet")
 
     def method_settings(self, method: str) -> dict[str, Any]:
-        """Policy fields with which `method` is evaluated, from the optional `methods.json` beside the eval config
-        ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared checkpoint does
-        not hold."""
+        """Policy fields with which `method` is evaluated, from the optional `methods.json` beside the eval
+        config ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared
+        checkpoint does not hold."""
         path = self.eval.with_name("methods.json")
         settings = json.loads(path.read_text()) if path.is_file() else {}
         unknown = sorted(set(settings) - set(METHODS))
@@ -175,18 +179,19 @@ class TaskFiles:
         return settings.get(method, MATCHED_DP_STAR if method == "dp_star_matched" else {})
 
     def method_flags(self, method: str, overrides: dict[str, Any] | None = None) -> list[str]:
-        """`method_settings`, with `overrides` on top (a setting being tuned), as lerobot-eval's `--policy.*` flags."""
+        """`method_settings`, with `overrides` on top (a setting being tuned), as lerobot-eval's `--policy.*`
+        flags."""
         settings = {**self.method_settings(method), **(overrides or {})}
         return [f"--policy.{key}={value}" for key, value in settings.items()]
 
     def eval_command(
         self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str], videos: bool = False
     ) -> list[str]:
-        """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`, on common
-        random numbers (`COMMON_NOISE`): unrendered, or (`videos`) the first VIDEO_EPISODES episodes (at most the
-        config's) rendered as the eval config says, in one batch. Episode i has seed `seed + i` and its row's noise
-        stream whatever the batch size, so the rendered episodes are the evaluated ones (up to the floating-point
-        differences of other batch sizes)."""
+        """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`, on
+        common random numbers (`COMMON_NOISE`): unrendered, or (`videos`) the first VIDEO_EPISODES episodes
+        (at most the config's) rendered as the eval config says, in one batch. Episode i has seed `seed + i`
+        and its row's noise stream whatever the batch size, so the rendered episodes are the evaluated ones
+        (up to the floating-point differences of other batch sizes)."""
         n = min(VIDEO_EPISODES, self.eval_config()["eval"]["n_episodes"])
         render = (
             [f"--eval.n_episodes={n}", f"--eval.batch_size={n}"] if videos else ["--env.render_mode=null"]
@@ -410,8 +415,8 @@ def run_with_progress(command: list[str], log: Path, label: str, every: float = 
             stdout=handle,
             stderr=subprocess.STDOUT,
             env=env,
-            preexec_fn=functools.partial(die_with_parent, os.getpid()),
-        )  # noqa: PLW1509 (no locks)
+            preexec_fn=functools.partial(die_with_parent, os.getpid()),  # noqa: PLW1509 (no locks)
+        )
         shown = ""
         while True:
             try:
@@ -479,10 +484,8 @@ def method_forms(runs: list[TaskRun]) -> str:
             "delta_z": c["delta_z"],
             **r.files.method_settings("dp_star"),
         }
-        ccdp = {
-            **c,
-            **r.files.method_settings("ccdp"),
-        }  # the checkpoint's settings, as CCDP's flags changed them
+        # the checkpoint's settings, as CCDP's flags changed them
+        ccdp = {**c, **r.files.method_settings("ccdp")}
         if ccdp.get("recovery_head") == "classifier":
             form = (
                 f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance, "
@@ -515,8 +518,8 @@ def method_forms(runs: list[TaskRun]) -> str:
 
 
 def z_description(settings: dict[str, Any]) -> str:
-    """What z was: the feature, for `action` which steps and dims, and for `final_state` which dims and where a
-    failure's z was read."""
+    """What z was: the feature, for `action` which steps and dims, and for `final_state` which dims and where
+    a failure's z was read."""
     if settings["failure_feature"] == "action":
         steps, dims = (
             settings.get("failure_action_steps") or "all",
@@ -550,20 +553,20 @@ def write_report(
         f"Command: `{command}`  \nMachine: {machine()}",
         markdown_table(results),
         "## What ran",
-        "Seeds: episode i of every method and of the oracle uses seed `first + i`, and every method draws episode "
-        "i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). The CCDP row of "
-        "the composition is eq. (4) as `lerobot_ccdp/recovery/composition.py` computes it with the evaluated checkpoint's "
-        "weights (`docs/method.md`).",
+        "Seeds: episode i of every method and of the oracle uses seed `first + i`, and every method draws "
+        "episode i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). "
+        "The CCDP row of the composition is eq. (4) as `lerobot_ccdp/recovery/composition.py` computes it "
+        "with the evaluated checkpoint's weights (`docs/method.md`).",
         method_forms(runs),
         "## Targets",
         "Judged from paired 95% intervals (same seeds for every method): `docs/evaluation.md`.",
         target_checks(episodes),
         "## Lost episodes",
-        "Whether recovery or execution costs success: a lost episode repeated a failed option, or never had an "
-        "attempt fail (the policy did not complete one before the time limit), or failed distinct options only. "
-        "Before an episode's first failure DP, DP* and CCDP sample the same base policy from the same noise, so "
-        "their episodes solved without a failure match up to floating-point differences of batched network calls, "
-        "and recovery shows among the episodes with one.",
+        "Whether recovery or execution costs success: a lost episode repeated a failed option, or never had "
+        "an attempt fail (the policy did not complete one before the time limit), or failed distinct options "
+        "only. Before an episode's first failure DP, DP* and CCDP sample the same base policy from the same "
+        "noise, so their episodes solved without a failure match up to floating-point differences of batched "
+        "network calls, and recovery shows among the episodes with one.",
         lost_table(episodes),
         "## Time per stage (s)",
         time_breakdown(runs),
@@ -587,7 +590,10 @@ def publish_report(report: str, out: Path, target: Path) -> None:
     if chart.exists():
         shutil.copyfile(chart, target.with_suffix(".png"))
         report = report.replace("](comparison.png)", f"]({target.with_suffix('.png').name})")
-    note = f"<!-- Written by the command below ({time.strftime('%Y-%m-%d')}); rerun it rather than editing. -->\n"
+    note = (
+        f"<!-- Written by the command below ({time.strftime('%Y-%m-%d')}); "
+        "rerun it rather than editing. -->\n"
+    )
     target.write_text(note + report)
 
 
@@ -610,7 +616,7 @@ def run_tasks(
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--tasks",
         nargs="+",

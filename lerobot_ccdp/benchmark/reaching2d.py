@@ -1,10 +1,11 @@
 """Synthetic 2-D multimodal reaching tasks: the smallest data on which failure recovery can be seen.
 
-The agent starts near the origin and moves to one of several goals, chosen with a fixed preference. The default
-task has four goals on straight paths (east most often, south least); `ReachingTask.family_member(seed)` draws the
-seeded family of issue 17 (3 to 6 goals at random angles, random preferences, bent paths, with or without option
-labels). A goal is "blocked" at run time in the recovery tests; a policy that remembers the failure must then
-pick among the other goals in their demonstrated proportions.
+The agent starts near the origin and moves to one of several goals, chosen with a fixed preference. The
+default task has four goals on straight paths (east most often, south least);
+`ReachingTask.family_member(seed)` draws the seeded family of issue 17 (3 to 6 goals at random angles, random
+preferences, bent paths, with or without option labels). A goal is "blocked" at run time in the recovery
+tests; a policy that remembers the failure must then pick among the other goals in their demonstrated
+proportions.
 Used by the tests, the benchmarks and the README's train-on-a-local-dataset example.
 """
 
@@ -32,7 +33,8 @@ FEATURES = {
 @dataclass(frozen=True)
 class ReachingTask:
     """A 2-D reaching task: goals on the unit circle, a preference over them, paths bent sideways by `bend` (a
-    fraction of the reach, 0 for straight lines), with or without the goal's `primitive` label in the dataset."""
+    fraction of the reach, 0 for straight lines), with or without the goal's `primitive` label in the
+    dataset."""
 
     goals: np.ndarray
     preference: np.ndarray
@@ -118,7 +120,8 @@ def record_reaching_dataset(
 
 
 def main() -> None:
-    """`python -m lerobot_ccdp.benchmark.reaching2d --root data/reaching2d`: write the demo dataset for local training."""
+    """`python -m lerobot_ccdp.benchmark.reaching2d --root data/reaching2d`: write the demo dataset for local
+    training."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--root", type=Path, required=True, help="where to write the dataset (must not exist)"

@@ -1,11 +1,11 @@
 """Common random numbers: one noise stream per batch row of each rollout.
 
-Methods compared on the same seeds (DP, DP*, CCDP) sample the same base policy until an episode's first failure;
-with torch's global generator their plans still differ from the first one, because each method has consumed a
-different amount of noise by then (DP*'s candidates, CCDP's redraws, earlier rollouts). Drawing each row's plans
-from a generator seeded from (torch's seed, the rollout's index, the row) gives every method the same noise for
-the same episode, so a paired comparison measures what happens after failures, not the luck before them. It also
-makes a row's plans independent of the other rows in the batch.
+Methods compared on the same seeds (DP, DP*, CCDP) sample the same base policy until an episode's first
+failure; with torch's global generator their plans still differ from the first one, because each method has
+consumed a different amount of noise by then (DP*'s candidates, CCDP's redraws, earlier rollouts). Drawing
+each row's plans from a generator seeded from (torch's seed, the rollout's index, the row) gives every method
+the same noise for the same episode, so a paired comparison measures what happens after failures, not the luck
+before them. It also makes a row's plans independent of the other rows in the batch.
 """
 
 from __future__ import annotations
@@ -35,5 +35,6 @@ def first_candidates(streams: list[torch.Generator] | None, candidates: int) -> 
 def draw_noise(
     shape: tuple[int, ...], generators: list[torch.Generator] | None, device: torch.device
 ) -> torch.Tensor:
-    """Gaussian noise of `shape`, row i from `generators[i]`, or from torch's global generator without them."""
+    """Gaussian noise of `shape`, row i from `generators[i]`, or from torch's global generator without
+    them."""
     return randn_tensor(shape, generator=generators, device=device)

@@ -13,8 +13,9 @@ from lerobot_ccdp.policy.image_encoder import ImageEncoder
 
 logger = logging.getLogger(__name__)
 
-# Per normalisation mode: the stats whose difference is the spread LeRobot divides by (replaced by its eps where 0),
-# and the normalised value of every frame of a dimension whose spread is 0 (x == min gives -1, x == mean gives 0).
+# Per normalisation mode: the stats whose difference is the spread LeRobot divides by (replaced by its eps
+# where 0), and the normalised value of every frame of a dimension whose spread is 0 (x == min gives -1,
+# x == mean gives 0).
 _ZERO_SPREAD = {
     NormalizationMode.MIN_MAX: (("max", "min"), -1.0),
     NormalizationMode.QUANTILES: (("q99", "q01"), -1.0),
@@ -29,13 +30,15 @@ def vector_keys(config: CCDPConfig) -> list[str]:
 
 
 class ConstantInputs(nn.Module):
-    """Vector input dimensions that held one value throughout the training data, kept at that value at run time.
+    """Vector input dimensions that held one value throughout the training data, kept at that value at run
+    time.
 
-    LeRobot's normaliser divides by the dimension's spread, replaced by 1e-8 where it is 0. A dimension constant in
-    the demonstrations (the Bartender's `cup3_filled`: the demonstrator fills cup 3 last, so no frame shows it full)
-    becomes 2e8 the first time it changes at run time, and every chunk planned from that frame is garbage. The
-    dimension told the networks nothing in training, so it is held at the value it always had. The mask is a
-    buffer: a checkpoint carries it, and checkpoints saved before it existed load with nothing held.
+    LeRobot's normaliser divides by the dimension's spread, replaced by 1e-8 where it is 0. A dimension
+    constant in the demonstrations (the Bartender's `cup3_filled`: the demonstrator fills cup 3 last, so no
+    frame shows it full) becomes 2e8 the first time it changes at run time, and every chunk planned from that
+    frame is garbage. The dimension told the networks nothing in training, so it is held at the value it
+    always had. The mask is a buffer: a checkpoint carries it, and checkpoints saved before it existed load
+    with nothing held.
     """
 
     def __init__(self, config: CCDPConfig):
@@ -69,7 +72,8 @@ class ConstantInputs(nn.Module):
         self.value.copy_(torch.cat(value))
 
     def forward(self, vector: Tensor) -> Tensor:
-        """`vector` (..., dim) with the held dimensions at their training value; the first change is logged once."""
+        """`vector` (..., dim) with the held dimensions at their training value; the first change is logged
+        once."""
         if not bool(self.held.any()):
             return vector
         if not self._warned:
@@ -95,8 +99,8 @@ def observation_frames(
     constant: ConstantInputs | None = None,
 ) -> Tensor:
     """Observation frames (B, [T,] frame_dim): robot state, environment state, then the encoded cameras.
-    `batch` holds normalised inputs, one frame (B, ...) or a window (B, T, ...) each; `constant` holds the vector
-    dimensions that never varied in training at their training value."""
+    `batch` holds normalised inputs, one frame (B, ...) or a window (B, T, ...) each; `constant` holds the
+    vector dimensions that never varied in training at their training value."""
     parts = []
     for key in vector_keys(config):
         value = _input(config, batch, key)
@@ -126,13 +130,14 @@ def observation_frames(
 
 
 def refuse_unknown_cameras(config: CCDPConfig, batch: dict[str, Tensor]) -> None:
-    """A camera dataset given to a checkpoint that never saw those cameras would silently train without them."""
+    """A camera dataset given to a checkpoint that never saw those cameras would silently train without
+    them."""
     unknown = [k for k in _camera_keys(batch) if k not in config.image_features]
     if unknown:
         raise ValueError(
-            f"The dataset has cameras {unknown} that this policy does not encode (its inputs: {_inputs(config)}). "
-            "To use them, train a new base stage on this dataset (--policy.type=ccdp, no --policy.path); to train "
-            "without them, use a dataset without those cameras."
+            f"The dataset has cameras {unknown} that this policy does not encode (its inputs: "
+            f"{_inputs(config)}). To use them, train a new base stage on this dataset (--policy.type=ccdp, "
+            "no --policy.path); to train without them, use a dataset without those cameras."
         )
 
 
@@ -150,8 +155,8 @@ def refuse_non_finite_stats(config: CCDPConfig, stats: dict) -> None:
 
 def refuse_non_finite_batch(batch: dict[str, Tensor], otherwise: str) -> None:
     """Raise for a batch that made a non-finite loss or frame: a ValueError naming its NaN or inf keys, else
-    FloatingPointError(`otherwise`). The policy must neither train on them (LeRobot trains on to a NaN checkpoint
-    and exits 0) nor act on them (NaN actions sent to the robot)."""
+    FloatingPointError(`otherwise`). The policy must neither train on them (LeRobot trains on to a NaN
+    checkpoint and exits 0) nor act on them (NaN actions sent to the robot)."""
     bad = sorted(
         key
         for key, value in batch.items()
@@ -171,8 +176,8 @@ def _input(config: CCDPConfig, batch: dict[str, Tensor], key: str) -> Tensor:
         hint = ""
         if cameras and key not in config.image_features:
             hint = (
-                f" The batch holds cameras {cameras} instead: this checkpoint was trained on other observations "
-                "(for a ccdp task, evaluate it with the --env.obs_type it was trained with)."
+                f" The batch holds cameras {cameras} instead: this checkpoint was trained on other "
+                "observations (for a ccdp task, evaluate it with the --env.obs_type it was trained with)."
             )
         raise KeyError(
             f"CCDP needs {key!r} in every batch (it was trained with inputs {_inputs(config)}); got keys "
@@ -189,9 +194,9 @@ def _camera(config: CCDPConfig, batch: dict[str, Tensor], key: str, lead: torch.
     expected = tuple(config.image_features[key].shape)
     if tuple(image.shape[-3:]) != expected or image.shape[:-3] != lead:
         raise ValueError(
-            f"{key!r} has shape {tuple(image.shape)}; the policy expects {(*lead, *expected)} (channels, height, "
-            "width as in its training data). Render or resize this camera to that size (for a ccdp task: "
-            "--env.observation_height/--env.observation_width), or train on images of this size."
+            f"{key!r} has shape {tuple(image.shape)}; the policy expects {(*lead, *expected)} (channels, "
+            "height, width as in its training data). Render or resize this camera to that size (for a ccdp "
+            "task: --env.observation_height/--env.observation_width), or train on images of this size."
         )
     return image
 
@@ -201,7 +206,8 @@ def _inputs(config: CCDPConfig) -> list[str]:
 
 
 def _camera_keys(batch: dict[str, Tensor]) -> list[str]:
-    """The batch's camera entries (`observation.image` or `observation.images.<name>`, not their pad masks)."""
+    """The batch's camera entries (`observation.image` or `observation.images.<name>`, not their pad
+    masks)."""
     return sorted(
         k for k in batch if (k.startswith(f"{OBS_IMAGES}.") or k == OBS_IMAGE) and not k.endswith("_is_pad")
     )

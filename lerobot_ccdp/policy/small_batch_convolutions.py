@@ -2,10 +2,11 @@
 
 On CPU, oneDNN's 1-D convolution is slower than ATen's for this UNet at 2-4 rows with more than one thread
 (benchmarks/bench_policy.py); composed sampling runs exactly such small batches, one row per score term.
-`torch.backends.mkldnn.flags(enabled=False)` would select ATen's kernel, but it sets a process-wide flag (ATen's
-global context, not thread-local): other threads' convolutions lose oneDNN meanwhile, and two threads saving and
-restoring it can leave it off for good. So the choice is made per call, inside the convolution modules: they call
-the 2-D kernel that convolution itself uses for a 1-D input with oneDNN off (same results, bit for bit).
+`torch.backends.mkldnn.flags(enabled=False)` would select ATen's kernel, but it sets a process-wide flag
+(ATen's global context, not thread-local): other threads' convolutions lose oneDNN meanwhile, and two threads
+saving and restoring it can leave it off for good. So the choice is made per call, inside the convolution
+modules: they call the 2-D kernel that convolution itself uses for a 1-D input with oneDNN off (same results,
+bit for bit).
 """
 
 import torch
@@ -53,8 +54,8 @@ class _SmallBatchConvTranspose1d(nn.ConvTranspose1d):
 
 
 def with_small_batch_convolutions(network: nn.Module) -> nn.Module:
-    """Turn a network's plain 1-D convolutions (zero padding given as numbers, one group, no dilation) into the
-    small-batch classes above, in place; parameters and state dict are unchanged."""
+    """Turn a network's plain 1-D convolutions (zero padding given as numbers, one group, no dilation) into
+    the small-batch classes above, in place; parameters and state dict are unchanged."""
     if not ATEN_KERNELS:
         return network
     for module in network.modules():

@@ -54,8 +54,9 @@ def read_columns(
     missing = [k for k in required if k not in meta.features]
     if missing:
         raise ValueError(
-            f"Dataset {meta.repo_id!r} at {meta.root} lacks column(s) {missing} (it has {sorted(meta.features)}). "
-            "Record it with the needed features, or change the policy's failure feature settings."
+            f"Dataset {meta.repo_id!r} at {meta.root} lacks column(s) {missing} (it has "
+            f"{sorted(meta.features)}). Record it with the needed features, or change the policy's failure "
+            "feature settings."
         )
     data = LeRobotDataset(meta.repo_id, root=meta.root).hf_dataset.with_format("numpy")
     keys = dict.fromkeys([*required, *(k for k in optional if k in meta.features)])

@@ -1,13 +1,14 @@
-"""`lerobot-ccdp-synthesize`: turn demonstrations and a base checkpoint into a recovery dataset (paper eq. 5-7).
+"""`lerobot-ccdp-synthesize`: turn demonstrations and a base checkpoint into a recovery dataset
+(paper eq. 5-7).
 
 It builds a pool of chunks with their states and failure features z: `n_states` demo states x_s, perturbed
 (x = x_s + xi, xi ~ N(0, sigma^2), eq. 6), with `chunks_per_state` chunks sampled at each from the base
 composition of eq. (7), plus up to `demo_frames` demonstrated chunks ("pairs straight from the demos"). z of
 every chunk comes from the policy's own `FailureFeature`; a sampled chunk borrows the outcome of its nearest
 demonstrated chunk, so with `outcome_radius` > 0 sampled chunks farther than that from every demonstrated
-chunk (RMS per action element) are dropped: no demonstration says what they lead to. Every pool sample then serves as a failure
-(a_f, x_f), and up to `pairs_per_failure` recoveries are drawn among the pool samples that satisfy eq. (5)
-against it. Every row holds one pair:
+chunk (RMS per action element) are dropped: no demonstration says what they lead to. Every pool sample then
+serves as a failure (a_f, x_f), and up to `pairs_per_failure` recoveries are drawn among the pool samples that
+satisfy eq. (5) against it. Every row holds one pair:
 
     action                       the recovery chunk a (horizon, action_dim), raw units
     observation.failure_feature  z of the failed chunk, raw units (stats from `failure_feature_stats`)
@@ -27,7 +28,8 @@ dataset; it carries the cameras' normalisation stats, which the recovery checkpo
     lerobot-ccdp-synthesize --config_path=datasets_recipes/door_opening.yaml \
         --dataset.repo_id=local/door_opening --dataset.root=data/door_opening \
         --policy.path=<base run>/checkpoints/last/pretrained_model \
-        --output.repo_id=local/door_opening_recovery --output.root=data/door_opening_recovery [--recovery.sigma=0.05]
+        --output.repo_id=local/door_opening_recovery --output.root=data/door_opening_recovery
+        [--recovery.sigma=0.05]
 """
 
 from __future__ import annotations
@@ -72,14 +74,14 @@ PAIR_SOURCE = "pair_source"
 RECIPE_COPY = "meta/ccdp_recovery_recipe.yaml"
 SYNTHESISED, FROM_DEMOS = 0, 1
 PAIR_BLOCK = 256  # failures whose eq. (5) masks against the whole pool are computed at once
-EPISODE_ROWS = (
-    1000  # rows per dataset episode (recovery rows have no temporal order; episodes only group them)
-)
+# rows per dataset episode (recovery rows have no temporal order; episodes only group them)
+EPISODE_ROWS = 1000
 
 
 @dataclass
 class Samples:
-    """Chunks with the state they were taken in and their failure feature, in the policy's normalised space."""
+    """Chunks with the state they were taken in and their failure feature, in the policy's normalised
+    space."""
 
     windows: Tensor  # (R, n_obs_steps, state_dim): the observation window the chunk starts from
     chunks: Tensor  # (R, horizon, A)
@@ -106,8 +108,8 @@ class Demos:
 
 
 def synthesis_device(saved: str | None, requested: str | None) -> str:
-    """`requested` (--policy.device) if this machine has it; else the checkpoint's saved device, or the CPU where that
-    one is absent (a base trained on a GPU is synthesised from on any machine)."""
+    """`requested` (--policy.device) if this machine has it; else the checkpoint's saved device, or the CPU
+    where that one is absent (a base trained on a GPU is synthesised from on any machine)."""
     if requested is None:
         return saved if saved and is_torch_device_available(saved) else "cpu"
     try:
@@ -123,7 +125,8 @@ def synthesis_device(saved: str | None, requested: str | None) -> str:
 
 
 def check_demo_root(root: str | Path) -> None:
-    """The demos must be a local dataset: named here, a wrong --dataset.root is not mistaken for a Hub download."""
+    """The demos must be a local dataset: named here, a wrong --dataset.root is not mistaken for a Hub
+    download."""
     root = Path(root)
     if not (root / "meta" / "info.json").is_file():
         problem = "the folder does not exist" if not root.exists() else "it has no meta/info.json"
@@ -136,10 +139,10 @@ def check_demo_root(root: str | Path) -> None:
 def load_checkpoint(
     policy_path: str | Path, device: str | None = None
 ) -> tuple[CCDPPolicy, dict[str, dict[str, Tensor]]]:
-    """The base policy on the device `synthesis_device` picks, and the normalisation stats of its saved preprocessor."""
-    with checkpoint_loading(
-        policy_path
-    ):  # names a missing or damaged folder; refuses unknown processor classes
+    """The base policy on the device `synthesis_device` picks, and the normalisation stats of its saved
+    preprocessor."""
+    # names a missing or damaged folder; refuses unknown processor classes
+    with checkpoint_loading(policy_path):
         config = PreTrainedConfig.from_pretrained(policy_path)
     if not isinstance(config, CCDPConfig):
         raise ValueError(
@@ -148,7 +151,8 @@ def load_checkpoint(
         )
     config.device = synthesis_device(config.device, device)
     policy = CCDPPolicy.from_pretrained(policy_path, config=config).eval()
-    # The saved preprocessor names the training device, which this machine may lack (LeRobot's scripts override it too).
+    # The saved preprocessor names the training device, which this machine may lack (LeRobot's scripts
+    # override it too).
     pre = PolicyProcessorPipeline.from_pretrained(
         policy_path,
         config_filename="policy_preprocessor.json",
@@ -217,10 +221,10 @@ def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) ->
 def option_starts(
     config: CCDPConfig, episodes: np.ndarray, actions: np.ndarray, labels: np.ndarray | None
 ) -> np.ndarray:
-    """The first frame of every demonstrated option: each episode's first frame and the frame after each end of an
-    option (`demo_segments.segment_ends` under `failure_segments`, the rule that gives z its final state). An attempt
-    starts at such a state, and after a failure the env puts the robot back there: on tasks with two decisions per
-    episode (packing, the Bartender) the second decision's start is one too."""
+    """The first frame of every demonstrated option: each episode's first frame and the frame after each end
+    of an option (`demo_segments.segment_ends` under `failure_segments`, the rule that gives z its final
+    state). An attempt starts at such a state, and after a failure the env puts the robot back there: on tasks
+    with two decisions per episode (packing, the Bartender) the second decision's start is one too."""
     ends = segment_ends(config.failure_segments, episodes.reshape(-1), actions, labels)
     return np.flatnonzero(np.r_[True, ends[:-1]])
 
@@ -236,9 +240,9 @@ def synthesised_samples(
 ) -> Samples:
     """Eq. (6) and (7): demo states x_s perturbed by N(0, sigma^2), `chunks_per_state` chunks sampled at each.
 
-    The states are drawn among every demo frame, or among the frames `among` names. `images` maps demo frame indices
-    to their encoded camera windows (b, n_obs, F), for checkpoints with cameras. Random draws come from `generator`
-    on the CPU, so a seed gives the same inputs on every device.
+    The states are drawn among every demo frame, or among the frames `among` names. `images` maps demo frame
+    indices to their encoded camera windows (b, n_obs, F), for checkpoints with cameras. Random draws come
+    from `generator` on the CPU, so a seed gives the same inputs on every device.
     """
     cfg, k, device = policy.config, recipe.chunks_per_state, torch.device(policy.config.device)
     among = torch.arange(len(demos.windows)) if among is None else among
@@ -250,9 +254,8 @@ def synthesised_samples(
         condition = x if images is None else torch.cat([x, images(batch).repeat_interleave(k, dim=0)], dim=-1)
         noise = torch.randn(len(x), cfg.horizon, cfg.action_dim, generator=generator)
         condition, noise = condition.flatten(start_dim=1).to(device), noise.to(device)
-        chunks = policy.model.sample_exploratory(
-            condition, recipe.w_s, noise
-        )  # eq. (7), on the policy's device
+        # eq. (7), on the policy's device
+        chunks = policy.model.sample_exploratory(condition, recipe.w_s, noise)
         if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
             near = policy.model.outcomes.rms_distance(chunks) <= recipe.outcome_radius
             x, chunks = x[near.cpu()], chunks[near]
@@ -283,8 +286,8 @@ def demo_samples(
     generator: torch.Generator,
     among: Tensor | None = None,
 ) -> Samples:
-    """Up to `demo_frames` demonstrated chunks (among the frames `among` names, if given), with their z computed like
-    any other chunk's."""
+    """Up to `demo_frames` demonstrated chunks (among the frames `among` names, if given), with their z
+    computed like any other chunk's."""
     among = torch.arange(len(demos.windows)) if among is None else among
     pick = among[torch.randperm(len(among), generator=generator)[: recipe.demo_frames]]
     chunks = demos.chunks[pick]
@@ -296,7 +299,8 @@ def recovery_pairs(
     pool: Samples, recipe: RecoveryRecipe, generator: torch.Generator
 ) -> tuple[Tensor, Tensor]:
     """Eq. (5) over the whole pool: every sample is a failure (a_f, x_f); up to `pairs_per_failure` recoveries
-    are drawn uniformly among the pool samples that satisfy eq. (5) against it. Returns (failure, recovery) indices."""
+    are drawn uniformly among the pool samples that satisfy eq. (5) against it. Returns (failure, recovery)
+    indices."""
     states = pool.windows.flatten(start_dim=1)
     failures, recoveries = [], []
     for block in torch.arange(len(pool)).split(PAIR_BLOCK):
@@ -310,9 +314,10 @@ def recovery_pairs(
 
 
 def attempt_start_rows(pool: Samples) -> tuple[Tensor, Tensor]:
-    """For `recovery_head=set_denoiser`: every pool sample is a row of its own (its z is its own outcome), with no
-    pairing. Drawn where attempts start, at w_s = 1 they are the base's own plans there, which the set denoiser
-    learns to restrict to the options outside a failure set; the same (failure, recovery) indices as `recovery_pairs`."""
+    """For `recovery_head=set_denoiser`: every pool sample is a row of its own (its z is its own outcome),
+    with no pairing. Drawn where attempts start, at w_s = 1 they are the base's own plans there, which the set
+    denoiser learns to restrict to the options outside a failure set; the same (failure, recovery) indices as
+    `recovery_pairs`."""
     rows = torch.arange(len(pool))
     return rows, rows
 
@@ -330,8 +335,8 @@ def synthesize_recovery_dataset(
     recipe_source: str = "recipe",
     device: str | None = None,
 ) -> Path:
-    """Write the recovery dataset of `recipe` at `out_root` (atomically) and return `out_root`. The pool and the
-    dataset are built on the CPU; the policy's networks run on `device` (see `synthesis_device`)."""
+    """Write the recovery dataset of `recipe` at `out_root` (atomically) and return `out_root`. The pool and
+    the dataset are built on the CPU; the policy's networks run on `device` (see `synthesis_device`)."""
     started = time.perf_counter()
     # Before minutes of loading and sampling, not after.
     inputs = {"--dataset.root": demo_root}
@@ -355,7 +360,8 @@ def synthesize_recovery_dataset(
     torch.manual_seed(recipe.seed)
     sampling_started = time.perf_counter()
     images = camera_encoder(policy, stats, meta) if config.image_features else None
-    # The set denoiser learns from the chunks where attempts start (`attempt_start_rows`); eq. (4)'s eps_z from pairs.
+    # The set denoiser learns from the chunks where attempts start (`attempt_start_rows`); eq. (4)'s eps_z
+    # from pairs.
     among = demos.starts if config.recovery_head == "set_denoiser" else None
     parts = (
         [synthesised_samples(policy, recipe, demos, generator, progress, images, among)]
@@ -456,7 +462,8 @@ def _write(
             dataset.save_episode()
     finally:
         dataset.finalize()
-    # The chunk columns' per-frame stats are meaningless for the normaliser: use the checkpoint's, per action dim.
+    # The chunk columns' per-frame stats are meaningless for the normaliser: use the checkpoint's, per action
+    # dim.
     written = {**dataset.meta.stats}
     for key in [*keys, *config.image_features, ACTION, FAILURE_FEATURE_KEY]:
         written[key] = {k: v.numpy() for k, v in stats[key].items()}
@@ -465,7 +472,8 @@ def _write(
 
 
 def main(args: list[str] | None = None) -> None:
-    """`lerobot-ccdp-synthesize --config_path=<recipe yaml> --dataset.* --policy.path=... --output.*` (see --help)."""
+    """`lerobot-ccdp-synthesize --config_path=<recipe yaml> --dataset.* --policy.path=... --output.*` (see
+    --help)."""
     cfg = parse_cli(SynthesizeConfig, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     source = parser.parse_arg("config_path", args) or "given by --recovery.* flags"

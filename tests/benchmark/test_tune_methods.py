@@ -1,5 +1,6 @@
-"""`benchmarks/tune_methods.py` keeps the grid's first setting unless a paired interval says another is better: a
-higher mean that the development seeds cannot tell from noise is a tie, not a win (issue 17's honest comparison)."""
+"""`benchmarks/tune_methods.py` keeps the grid's first setting unless a paired interval says another is
+better: a higher mean that the development seeds cannot tell from noise is a tie, not a win (issue 17's honest
+comparison)."""
 
 import importlib.util
 from pathlib import Path

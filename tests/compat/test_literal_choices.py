@@ -1,4 +1,5 @@
-"""`Literal` config fields parse from LeRobot's command line and checkpoints, and a value outside them is named."""
+"""`Literal` config fields parse from LeRobot's command line and checkpoints, and a value outside them is
+named."""
 
 from dataclasses import dataclass
 from typing import Literal

@@ -80,8 +80,8 @@ def test_camera_windows_pad_episode_starts_like_lerobot(pixel_root):
 
 @pytest.fixture(scope="module", params=list(Z_SETTINGS))
 def synthesised(request, pixel_root, tmp_path_factory):
-    """A recovery dataset from an untrained camera base, with every eq. (7) condition the recipe sampled with and
-    the demo frame each condition was built from."""
+    """A recovery dataset from an untrained camera base, with every eq. (7) condition the recipe sampled with
+    and the demo frame each condition was built from."""
     settings = Z_SETTINGS[request.param]
     tmp = tmp_path_factory.mktemp(f"pixel_synth_{request.param}")
     checkpoint = untrained_checkpoint(pixel_root, tmp / "base", repo_id=REPO_ID, **ENCODER, **settings)
@@ -128,7 +128,8 @@ def test_camera_rows_store_the_policys_z_of_the_failed_chunk(synthesised):
 
 
 def test_eq7_conditions_perturb_the_state_and_reuse_the_frames_images(synthesised, pixel_root):
-    """Each condition is [that demo frame's state + N(0, sigma^2), the base's encoding of that frame's image]."""
+    """Each condition is [that demo frame's state + N(0, sigma^2), the base's encoding of that frame's
+    image]."""
     checkpoint, _, conditions, frames = synthesised
     policy = CCDPPolicy.from_pretrained(checkpoint).eval()
     pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
@@ -143,7 +144,8 @@ def test_eq7_conditions_perturb_the_state_and_reuse_the_frames_images(synthesise
         encoded = policy.model.images([demo[CAMERA]])
     state_dim = policy.config.state_dim
     assert conditions.shape == (len(frames), state_dim + encoded.shape[1])
-    # The image part is the recorded frame's encoding (to the round-off of encoding in batches of another size).
+    # The image part is the recorded frame's encoding (to the round-off of encoding in batches of another
+    # size).
     torch.testing.assert_close(conditions[:, state_dim:], encoded, atol=1e-3, rtol=1e-3)
     assert torch.cdist(encoded, encoded).max() > 0.1, "the frames' encodings differ, so the check can fail"
     offsets = conditions[:, :state_dim] - demo[OBS_STATE]
@@ -158,8 +160,8 @@ def test_synthesis_record_names_the_camera_dataset(synthesised):
 
 
 def test_a_one_frame_window_from_lerobot_dataset_trains(pixel_root, tmp_path):
-    """n_obs_steps=1 without history: LeRobotDataset squeezes the one-frame video window to (C, H, W) while the
-    state keeps its window axis; the policy restores the axis instead of refusing the camera."""
+    """n_obs_steps=1 without history: LeRobotDataset squeezes the one-frame video window to (C, H, W) while
+    the state keeps its window axis; the policy restores the axis instead of refusing the camera."""
     checkpoint = untrained_checkpoint(
         pixel_root,
         tmp_path,
@@ -180,7 +182,7 @@ def test_a_one_frame_window_from_lerobot_dataset_trains(pixel_root, tmp_path):
     assert torch.isfinite(loss)
 
 
-# ----- bad input ---------------------------------------------------------------------------------------------
+# ----- bad input --------------------------------------------------------------------------------------------
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,6 @@
 """Loading a checkpoint never reads a dataset: lerobot-record hands make_policy the metadata of a new, empty
-recording dataset, which has no label column; the outcome table must come from the checkpoint. Weights that do not
-fit are refused, not left at random values."""
+recording dataset, which has no label column; the outcome table must come from the checkpoint. Weights that do
+not fit are refused, not left at random values."""
 
 import shutil
 
@@ -69,6 +69,9 @@ def test_weights_that_do_not_fit_are_refused_with_the_fix(untrained_primitive_ch
     save_file(
         {key.removeprefix("model."): value for key, value in weights.items()}, old / "model.safetensors"
     )
-    expected = r"do not fit the ccdp policy its config describes: \d+ missing \(model\.base\..*unexpected \(base\..*retrain"
+    expected = (
+        r"do not fit the ccdp policy its config describes: \d+ missing \(model\.base\..*"
+        r"unexpected \(base\..*retrain"
+    )
     with pytest.raises(ValueError, match=expected):
         CCDPPolicy.from_pretrained(old)

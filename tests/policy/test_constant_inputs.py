@@ -1,5 +1,6 @@
-"""An input dimension that never varied in the training data is held at its training value: LeRobot's normaliser
-turns its first change into 2e8 (a spread of 0 replaced by 1e-8), which would make every planned chunk garbage."""
+"""An input dimension that never varied in the training data is held at its training value: LeRobot's
+normaliser turns its first change into 2e8 (a spread of 0 replaced by 1e-8), which would make every planned
+chunk garbage."""
 
 import logging
 

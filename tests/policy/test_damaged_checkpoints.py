@@ -1,5 +1,6 @@
-"""A missing, damaged or untrusted checkpoint folder is refused with its path and the fix, before LeRobot reads it:
-through CCDPPolicy.from_pretrained (also what lerobot-eval and lerobot-record call) and lerobot-ccdp-synthesize."""
+"""A missing, damaged or untrusted checkpoint folder is refused with its path and the fix, before LeRobot
+reads it: through CCDPPolicy.from_pretrained (also what lerobot-eval and lerobot-record call) and
+lerobot-ccdp-synthesize."""
 
 import json
 import shutil
@@ -59,7 +60,8 @@ def test_a_damaged_checkpoint_file_is_named_with_the_fix(
 
 @pytest.mark.parametrize("missing", ["does/not/exist", "outputs/base"])
 def test_a_missing_checkpoint_folder_is_named_not_taken_for_a_repo_id(reaching_root, tmp_path, missing):
-    """`outputs/base` has a repo id's form: the Hub is asked (offline here), then the missing folder is named."""
+    """`outputs/base` has a repo id's form: the Hub is asked (offline here), then the missing folder is
+    named."""
     message = f"Checkpoint folder {missing} does not exist .*checkpoints/last/pretrained_model"
     with pytest.raises(FileNotFoundError, match=message):
         CCDPPolicy.from_pretrained(missing)

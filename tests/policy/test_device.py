@@ -1,5 +1,5 @@
-"""Devices: a checkpoint saved from CUDA loads and is synthesised from on a CPU-only machine; --policy.device picks
-the synthesis device and names the fix when this machine lacks it. Nothing here needs a GPU."""
+"""Devices: a checkpoint saved from CUDA loads and is synthesised from on a CPU-only machine; --policy.device
+picks the synthesis device and names the fix when this machine lacks it. Nothing here needs a GPU."""
 
 import json
 from pathlib import Path
@@ -29,9 +29,8 @@ SMALL = {
     "delta_z": 0.1,
 }
 PREPROCESSOR = "policy_preprocessor.json"
-HERE = (
-    "cuda" if torch.cuda.is_available() else "cpu"
-)  # where a checkpoint saved from CUDA runs on this machine
+# where a checkpoint saved from CUDA runs on this machine
+HERE = "cuda" if torch.cuda.is_available() else "cpu"
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +74,8 @@ def test_a_checkpoint_saved_from_cuda_loads_where_this_machine_runs_it(cuda_chec
 
 
 def test_a_cuda_checkpoint_acts_in_a_loop_that_loads_its_processors_like_lerobot(cuda_checkpoint):
-    """LeRobot's loops load the processors with the policy's device as an override; a custom loop does the same."""
+    """LeRobot's loops load the processors with the policy's device as an override; a custom loop does the
+    same."""
     policy = CCDPPolicy.from_pretrained(cuda_checkpoint)
     device = {"device_processor": {"device": policy.config.device}}
     pre = PolicyProcessorPipeline.from_pretrained(

@@ -67,9 +67,8 @@ def test_dp_star_falls_back_to_the_farthest_candidate_over_all_rounds():
     draws = ScriptedDraws([torch.tensor([[0.01, 0.3, 0.02]]), torch.tensor([[0.2, 0.1, 0.0]])])
     chunks = reject_repeats(draws, rows=1, rounds=2, delta_z=0.5, device=torch.device("cpu"))
     assert chunks[0, 0].tolist() == [0.0, 1.0]  # 0.3 in round 0 beats round 1's best, 0.2
-    one_round = ScriptedDraws(
-        [torch.zeros(1, 3)]
-    )  # one-hot z: every candidate repeats the failure, distances tie
+    # one-hot z: every candidate repeats the failure, distances tie
+    one_round = ScriptedDraws([torch.zeros(1, 3)])
     chunks = reject_repeats(one_round, rows=1, rounds=1, delta_z=0.5, device=torch.device("cpu"))
     assert chunks[0, 0].tolist() == [0.0, 0.0]
 

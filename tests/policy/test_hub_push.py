@@ -1,14 +1,14 @@
 """Pushing a CCDP policy to the Hub uploads a complete, loadable policy.
 
-The real huggingface_hub client talks to a small in-memory Hub on 127.0.0.1 (tests/fixtures/hub_server.py). Because
-huggingface_hub reads HF_ENDPOINT when it is imported, the push and the reload each run in a fresh
+The real huggingface_hub client talks to a small in-memory Hub on 127.0.0.1 (tests/fixtures/hub_server.py).
+Because huggingface_hub reads HF_ENDPOINT when it is imported, the push and the reload each run in a fresh
 subprocess (this file run as a script) with HF_ENDPOINT pointing at the server, HF_HUB_OFFLINE=0, a dummy
 token and their own HF_HOME, so the reload really downloads from the server.
 
 Loopback only: the subprocesses install, through huggingface_hub's public `configure_http_backend`, a
 requests session that refuses every host but the loopback server. The one hard-coded Hub URL the client
-uses, `RepoCard.validate()`'s https://huggingface.co/api/validate-yaml (LeRobot's generate_model_card calls it),
-is sent to the loopback server instead.
+uses, `RepoCard.validate()`'s https://huggingface.co/api/validate-yaml (LeRobot's generate_model_card calls
+it), is sent to the loopback server instead.
 
 What is pushed, one commit each, to one repo:
   1. policy.push_to_hub(repo_id)          -> config.json, model.safetensors (LeRobot's HubMixin; no card)
@@ -62,7 +62,8 @@ def _client(phase: str, hub, work: Path, home: Path) -> subprocess.CompletedProc
     )
     if result.returncode != 0:
         pytest.fail(
-            f"{phase} subprocess failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
+            f"{phase} subprocess failed ({result.returncode}):\n"
+            f"{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
         )
     return result
 
@@ -108,7 +109,8 @@ def test_push_to_hub_uploads_a_complete_loadable_policy(hub, tmp_path):
     (tmp_path / "commits.json").write_text(json.dumps([c.sha for c in commits]))
     n_requests = len(hub.log)
     _client("reload", hub, tmp_path, tmp_path / "home_reload")
-    # Resolved = HEAD (metadata) then GET unless the blob is already cached (the two stats files are identical).
+    # Resolved = HEAD (metadata) then GET unless the blob is already cached (the two stats files are
+    # identical).
     downloads = [p for m, p in hub.log[n_requests:] if m in ("HEAD", "GET") and "/resolve/" in p]
     assert any(p.endswith("/model.safetensors") for m, p in hub.log[n_requests:] if m == "GET")
     for name in (
@@ -125,7 +127,8 @@ def test_push_to_hub_uploads_a_complete_loadable_policy(hub, tmp_path):
 
 
 def _check_model_card(card: str) -> None:
-    """The card tells a reader what the policy is, how to install it, train it in two stages and evaluate it."""
+    """The card tells a reader what the policy is, how to install it, train it in two stages and evaluate
+    it."""
     assert "library_name: lerobot" in card and "model_name: ccdp" in card and "- ccdp" in card
     assert "local/reaching2d" in card  # the training dataset, in the metadata
     assert "not recognized" not in card
@@ -140,7 +143,8 @@ def _check_model_card(card: str) -> None:
     assert "recovery head trained" in card and "failure feature `primitive`" in card
 
 
-# ----- the client side (run in a subprocess: python tests/policy/test_hub_push.py push|reload REPO_ID WORK) ------
+# ----- the client side --------------------------------------------------------------------------------
+# (run in a subprocess: python tests/policy/test_hub_push.py push|reload REPO_ID WORK)
 
 
 def _loopback_only_http_backend() -> None:

@@ -1,6 +1,7 @@
-"""Both training stages of ccdp under LeRobot's multi-process launcher, as a user with several GPUs or machines runs
-them (`accelerate launch --multi_gpu --num_processes N lerobot-train ...`, README "Several GPUs or machines"), here as 2-process DDP on
-the CPU: the base stage trains, the recovery stage trains the head and leaves the base's weights as they were."""
+"""Both training stages of ccdp under LeRobot's multi-process launcher, as a user with several GPUs or
+machines runs them (`accelerate launch --multi_gpu --num_processes N lerobot-train ...`, README "Several GPUs
+or machines"), here as 2-process DDP on the CPU: the base stage trains, the recovery stage trains the head and
+leaves the base's weights as they were."""
 
 from pathlib import Path
 
@@ -23,9 +24,8 @@ def test_both_stages_train_as_two_process_ddp(reaching_root, tmp_path):
         str(BIN / "lerobot-train"),
         *train_args(reaching_root, base, 40, "--save_freq=40", "--policy.device=cpu")[1:],
     )
-    assert (
-        "Effective batch size: 32 x 2 = 64" in result.stdout + result.stderr
-    )  # two processes, one batch each
+    # two processes, one batch each
+    assert "Effective batch size: 32 x 2 = 64" in result.stdout + result.stderr
     checkpoint = base / "checkpoints" / "last" / "pretrained_model"
     run_cli(
         "lerobot-ccdp-synthesize",

@@ -1,9 +1,9 @@
 """Adversarial inputs to the policy, as a careful user and a hostile checkpoint author would try them.
 
-A checkpoint never makes the policy delete or watch a file; every non-finite setting, input, z and batch is refused
-where it enters; a training that cannot work is refused before its first step; a config error is the last line
-of a LeRobot command's output (issue "Nothing a user types destroys data"). The NaN observation was refused
-before; every other test here failed (or, for the short dataset, hung) before that issue's change.
+A checkpoint never makes the policy delete or watch a file; every non-finite setting, input, z and batch is
+refused where it enters; a training that cannot work is refused before its first step; a config error is the
+last line of a LeRobot command's output (issue "Nothing a user types destroys data"). The NaN observation was
+refused before; every other test here failed (or, for the short dataset, hung) before that issue's change.
 """
 
 import json
@@ -45,13 +45,14 @@ def _crafted(checkpoint, tmp_path, **fields):
 
 
 def _load_as_lerobot_does(checkpoint, reaching_root, *cli_overrides):
-    """lerobot-eval / lerobot-record: the config with the command line's overrides, then LeRobot's make_policy."""
+    """lerobot-eval / lerobot-record: the config with the command line's overrides, then LeRobot's
+    make_policy."""
     config = PreTrainedConfig.from_pretrained(checkpoint, cli_overrides=list(cli_overrides))
     config.pretrained_path = checkpoint
     return lerobot_make_policy(config, ds_meta=LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root))
 
 
-# ----- a checkpoint cannot name a file ----------------------------------------------------------------------------
+# ----- a checkpoint cannot name a file ----------------------------------------------------------------------
 
 
 def test_a_checkpoint_naming_a_signal_file_neither_deletes_nor_watches_it(
@@ -77,12 +78,11 @@ def test_the_signal_file_comes_from_the_command_line_and_is_never_saved(
     assert policy.failure_signal is not None and policy.failure_signal.path == signal
     policy.save_pretrained(tmp_path / "saved")
     assert json.loads((tmp_path / "saved" / "config.json").read_text())["failure_signal_file"] is None
-    assert policy.config.failure_signal_file == str(
-        signal
-    )  # saving leaves the running policy's setting alone
+    # saving leaves the running policy's setting alone
+    assert policy.config.failure_signal_file == str(signal)
 
 
-# ----- the signal file: read, never deleted ------------------------------------------------------------------------
+# ----- the signal file: read, never deleted -----------------------------------------------------------------
 
 
 def test_an_existing_signal_file_with_content_is_kept_and_is_no_failure(tmp_path):
@@ -118,7 +118,7 @@ def test_a_signal_file_that_becomes_a_folder_mid_episode_warns_once_and_acts_on(
     assert policy.failure_count().tolist() == [0]
 
 
-# ----- non-finite numbers ------------------------------------------------------------------------------------------
+# ----- non-finite numbers -----------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("name", ["w_s", "w_z", "w_h", "delta_z", "optimizer_lr", "crop_ratio"])
@@ -194,7 +194,7 @@ def test_report_failure_refuses_negative_rows_and_takes_an_empty_list_as_no_fail
     assert policy.failure_count().tolist() == [0, 0, 0]
 
 
-# ----- trainings that cannot work, refused before the first step ---------------------------------------------------
+# ----- trainings that cannot work, refused before the first step --------------------------------------------
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
@@ -207,7 +207,8 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_lerobot_train_refuses_a_dataset_shorter_than_a_chunk(reaching_root, tmp_path):
-    """Its 32-frame episodes leave no window for a 48-step chunk: lerobot-train used to wait for a batch forever."""
+    """Its 32-frame episodes leave no window for a 48-step chunk: lerobot-train used to wait for a batch
+    forever."""
     result = _run(
         *train_args(reaching_root, tmp_path / "out", 10, "--policy.horizon=48", "--policy.n_action_steps=1")
     )
@@ -246,14 +247,13 @@ def test_a_config_error_is_the_last_line_of_lerobot_train(reaching_root, tmp_pat
     assert result.stderr.strip().splitlines()[-1].startswith("ValueError: `w_z` must be a finite number")
 
 
-# ----- a checkpoint of another kind ---------------------------------------------------------------------------------
+# ----- a checkpoint of another kind -------------------------------------------------------------------------
 
 
 def test_a_checkpoint_of_another_action_size_names_both_layouts(untrained_primitive_checkpoint):
     config = PreTrainedConfig.from_pretrained(untrained_primitive_checkpoint)
-    config.output_features = {
-        "action": PolicyFeature(FeatureType.ACTION, (7,))
-    }  # what make_policy sets from an env
+    # what make_policy sets from an env
+    config.output_features = {"action": PolicyFeature(FeatureType.ACTION, (7,))}
     with pytest.raises(ValueError, match=r"action \(2,\).*action \(7,\)"):
         CCDPPolicy.from_pretrained(untrained_primitive_checkpoint, config=config)
 

@@ -144,7 +144,8 @@ def mixture_policy(**overrides):
 
 
 def mode_shares(policy, modes, failed: list[int], rows: int = 1024) -> torch.Tensor:
-    """Share of each mode among `rows` chunks planned after the modes `failed` were reported, in that order."""
+    """Share of each mode among `rows` chunks planned after the modes `failed` were reported, in that
+    order."""
     obs = {"observation.state": torch.zeros(rows, 2)}
     policy.reset()
     policy.predict_action_chunk(obs)
@@ -157,10 +158,10 @@ def mode_shares(policy, modes, failed: list[int], rows: int = 1024) -> torch.Ten
 
 
 def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_failed_in_proportion():
-    """With the exact noisy-chunk classifier, guidance (under LeRobot's inference mode) draws the remaining modes in
-    their demonstrated proportions after one and after two failures, unlike the per-failure sums of eq. (4) below,
-    asking about each distinct failure (a repeated failure counts once); in a batch where only some rows failed, the
-    others keep the base's shares."""
+    """With the exact noisy-chunk classifier, guidance (under LeRobot's inference mode) draws the remaining
+    modes in their demonstrated proportions after one and after two failures, unlike the per-failure sums of
+    eq. (4) below, asking about each distinct failure (a repeated failure counts once); in a batch where only
+    some rows failed, the others keep the base's shares."""
     policy, modes = mixture_policy(recovery_head="classifier")
     torch.manual_seed(1)
     for failed in ([0], [0, 1], [2], [1, 3, 1]):
@@ -185,9 +186,10 @@ def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_faile
 
 
 def test_ccdp_redraws_drop_repeats_and_keep_the_remaining_shares():
-    """ccdp_redraws: a row whose chunk repeats a failure (its outcome looked up as DP* does) plans again. With the
-    guidance off (w_z = 0) CCDP samples the base, and three redraws leave about 0.4^4 of the failed mode's 0.4 while
-    the other modes keep their demonstrated proportions; without redraws the failed mode keeps its 0.4."""
+    """ccdp_redraws: a row whose chunk repeats a failure (its outcome looked up as DP* does) plans again. With
+    the guidance off (w_z = 0) CCDP samples the base, and three redraws leave about 0.4^4 of the failed mode's
+    0.4 while the other modes keep their demonstrated proportions; without redraws the failed mode keeps its
+    0.4."""
     shares = {}
     for redraws in (0, 3):
         policy, modes = mixture_policy(recovery_head="classifier", w_z=0.0, ccdp_redraws=redraws)
@@ -221,7 +223,10 @@ def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_p
 
     dp, one, two = shares([]), shares([0]), shares([0, 1])
     rounded = [[round(x, 2) for x in shares.tolist()] for shares in (dp, one, two)]
-    report = f"{z_reference} w_z={w_z}: no failure {rounded[0]}, after mode 0 {rounded[1]}, after modes 0 and 1 {rounded[2]}"
+    report = (
+        f"{z_reference} w_z={w_z}: no failure {rounded[0]}, after mode 0 {rounded[1]}, "
+        f"after modes 0 and 1 {rounded[2]}"
+    )
     print(report)
     assert (dp - DEMONSTRATED).abs().max() < 0.05, report
     assert one[0] < 0.02 and one[1] > one[2] > one[3], report
@@ -301,7 +306,8 @@ def test_demonstrated_end_z_is_where_the_followed_demonstration_ended_not_where_
     monkeypatch,
 ):
     """A pick that slips mid-lift stops far from where any pick is demonstrated to end; with
-    `failure_state_at="demonstrated_end"` its z is the end of the demonstration whose chunk it was executing."""
+    `failure_state_at="demonstrated_end"` its z is the end of the demonstration whose chunk it was
+    executing."""
     policy = make_policy(
         failure_feature="final_state",
         failure_state_dims=[1],
@@ -310,9 +316,8 @@ def test_demonstrated_end_z_is_where_the_followed_demonstration_ended_not_where_
     )
     towards = torch.stack([torch.full((HORIZON, ACTION_DIM), -1.0), torch.full((HORIZON, ACTION_DIM), 1.0)])
     policy.model.outcomes.fill(towards, torch.tensor([[-0.8], [0.6]]), torch.tensor([0, 0]))
-    planned = iter(
-        [towards[:1] * 0.9, towards[1:] * 0.9, towards[:1] * 0.9]
-    )  # the last one after the failure
+    # the last one after the failure
+    planned = iter([towards[:1] * 0.9, towards[1:] * 0.9, towards[:1] * 0.9])
     monkeypatch.setattr(policy, "_sample", lambda rows, noise: next(planned))
     obs = {"observation.state": torch.tensor([[0.0, 0.3]])}
     for _ in range(3):  # plans the first chunk, executes it, then re-plans towards the second demonstration

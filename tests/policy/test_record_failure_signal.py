@@ -1,10 +1,11 @@
 """A failure reaches ccdp inside lerobot-record's loop through `--policy.failure_signal_file`.
 
-The policy and processors are made exactly as `lerobot-record --policy.path=... --policy.failure_signal_file=...`
-makes them (config with the CLI override, make_policy on the new recording dataset's metadata,
-make_pre_post_processors), and LeRobot's own `record_loop` drives a simulated 2-D robot with the methods the
-loop calls (get_observation, send_action, robot_type). The robot's "detector" creates the file mid-episode,
-as a robot owner's script or key handler would.
+The policy and processors are made exactly as
+`lerobot-record --policy.path=... --policy.failure_signal_file=...` makes them (config with the CLI override,
+make_policy on the new recording dataset's metadata, make_pre_post_processors), and LeRobot's own
+`record_loop` drives a simulated 2-D robot with the methods the loop calls (get_observation, send_action,
+robot_type). The robot's "detector" creates the file mid-episode, as a robot owner's script or key handler
+would.
 """
 
 import logging
@@ -94,9 +95,9 @@ def _episode(robot: SimReacher, events: dict, policy, pre, post, dataset) -> Non
         policy=policy,
         preprocessor=pre,
         postprocessor=post,
-        control_time_s=10_000,
+        control_time_s=10_000,  # the robot ends the episode, not the clock
         single_task="reach",
-    )  # the robot ends the episode, not the clock
+    )
 
 
 def test_a_failure_signal_file_reaches_ccdp_inside_lerobot_record(action_checkpoint, tmp_path):

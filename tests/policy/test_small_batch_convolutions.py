@@ -1,4 +1,5 @@
-"""The UNet's small CPU batches run on ATen's convolution per call, leaving the process-wide oneDNN switch alone."""
+"""The UNet's small CPU batches run on ATen's convolution per call, leaving the process-wide oneDNN switch
+alone."""
 
 import copy
 import threading

@@ -45,9 +45,9 @@ def test_recovery_stage_freezes_the_base_and_learns_eps_z():
 
 
 def test_classifier_stage_learns_from_demo_windows_which_chunks_repeat_a_failure_set():
-    """recovery_head=classifier reads demonstration windows (as the base does), draws each row's failure set from the
-    other rows and learns P(repeat | a_t, s): with two options, told which one failed, it ranks that option's noisy
-    chunks above the other's. The base stays frozen."""
+    """recovery_head=classifier reads demonstration windows (as the base does), draws each row's failure set
+    from the other rows and learns P(repeat | a_t, s): with two options, told which one failed, it ranks that
+    option's noisy chunks above the other's. The base stays frozen."""
     torch.manual_seed(0)
     policy = make_policy(
         training_stage="recovery",

@@ -12,9 +12,8 @@ import torch
 
 from lerobot_ccdp.recovery.composition import CompositionWeights, compose_eps
 
-SIGMA = (
-    1.0  # noise level of the step: high enough that every mode has weight at x (the mixture weights matter)
-)
+# noise level of the step: high enough that every mode has weight at x (the mixture weights matter)
+SIGMA = 1.0
 SHAPE = (4, 2)  # one action chunk: horizon x action_dim
 
 
@@ -95,9 +94,8 @@ def test_unconditional_term_may_be_skipped_only_when_its_weight_vanishes():
     weights = CompositionWeights(1.0, 0.0, 1.0)
     assert not weights.uses_unconditional(torch.zeros(4))
     torch.testing.assert_close(compose_eps(weights, None, eps_of(P_S, x)), eps_of(P_S, x))
-    assert weights.uses_unconditional(
-        torch.tensor([0, 1, 0, 0])
-    )  # eq. (4): eps_a's weight is 1 - w_s - w_z N
+    # eq. (4): eps_a's weight is 1 - w_s - w_z N
+    assert weights.uses_unconditional(torch.tensor([0, 1, 0, 0]))
 
 
 def test_failure_terms_against_the_null_estimate_need_it_and_not_eps_a():
@@ -126,11 +124,8 @@ def test_a_weighted_term_that_was_not_evaluated_is_an_error():
     [
         (CompositionWeights(1.0, 0.0, 1.0, "eps_a"), [0, 0], ["s"]),  # eps_a's coefficient 1 - w_s is 0
         (CompositionWeights(1.0, 0.0, 1.0, "eps_a"), [0, 2], ["a", "s"]),  # -2 w_z for the row with failures
-        (
-            CompositionWeights(1.0, 0.0, 3.0, "eps_z_null"),
-            [4, 1],
-            ["s"],
-        ),  # failures measured against eps_z_null
+        # failures measured against eps_z_null
+        (CompositionWeights(1.0, 0.0, 3.0, "eps_z_null"), [4, 1], ["s"]),
         (CompositionWeights(1.0, 0.5, 1.0, "eps_z_null"), [0, 0], ["a", "s", "h"]),
         (CompositionWeights(0.0, 0.0, 0.0), [0], ["a"]),
     ],

@@ -1,4 +1,5 @@
-"""Where demonstrated options end without labels: at gripper releases or at pauses, never across an episode."""
+"""Where demonstrated options end without labels: at gripper releases or at pauses, never across an
+episode."""
 
 import importlib.util
 from pathlib import Path
@@ -54,9 +55,8 @@ def test_release_is_a_return_to_the_side_the_gripper_started_on():
 def test_pauses_end_where_every_action_dim_held_still_long_enough():
     # The position holds at frames 2, 5 and 11, but the gripper changes there: no frame is still.
     assert ends_of("pauses") == [7, 12]
-    held = np.stack(
-        [POSITION, np.zeros_like(POSITION)], axis=1
-    )  # the same path with the gripper never moving
+    # the same path with the gripper never moving
+    held = np.stack([POSITION, np.zeros_like(POSITION)], axis=1)
     assert np.flatnonzero(segment_ends("pauses", EPISODES, held, pause_steps=1)).tolist() == [
         2,
         5,
@@ -95,8 +95,8 @@ def test_unknown_rules_and_impossible_settings_are_refused_with_the_fix():
 
 
 def test_the_policy_gives_each_demonstrated_chunk_the_state_where_its_gripper_let_go(tmp_path):
-    """`--policy.failure_segments=drops` reaches the outcome table a checkpoint keeps: a frame's final state is the
-    normalised state where its option's release ends, not at its episode's end."""
+    """`--policy.failure_segments=drops` reaches the outcome table a checkpoint keeps: a frame's final state
+    is the normalised state where its option's release ends, not at its episode's end."""
     features = {
         "observation.state": {"dtype": "float32", "shape": (2,), "names": None},
         "action": {"dtype": "float32", "shape": (2,), "names": None},
@@ -154,9 +154,7 @@ def test_bench_segments_scores_the_frames_whose_label_free_end_misses_their_labe
         "primitive": labels,
     }
     share, per_episode = bench.agreement(columns, "releases", tolerance=0.02)
-    assert (share, per_episode) == (
-        pytest.approx(10 / 13),
-        2.0,
-    )  # frames 8-10 end at 1, their label's end at 2
+    # frames 8-10 end at 1, their label's end at 2
+    assert (share, per_episode) == (pytest.approx(10 / 13), 2.0)
     # Without labels, frames 0-4 end with their episode at 5, where their labelled option ends at 3.
     assert bench.agreement(columns, "labels", tolerance=0.02) == (pytest.approx(8 / 13), 1.0)

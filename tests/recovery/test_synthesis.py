@@ -1,4 +1,5 @@
-"""lerobot-ccdp-synthesize: recipe checks, z identical to the policy's, LeRobot loading and training, atomicity."""
+"""lerobot-ccdp-synthesize: recipe checks, z identical to the policy's, LeRobot loading and training,
+atomicity."""
 
 from pathlib import Path
 
@@ -119,7 +120,8 @@ def test_every_row_satisfies_eq5(synthesised):
     assert (distance > synthesised[2].delta_z - 1e-4).all()
 
 
-# Real lerobot-train runs for a z of several dims and for one of one dim (a scalar column in LeRobot's batches).
+# Real lerobot-train runs for a z of several dims and for one of one dim (a scalar column in LeRobot's
+# batches).
 @pytest.mark.parametrize("synthesised", ["primitive", "final_state_1d"], indirect=True)
 def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tmp_path):
     checkpoint, root, _ = synthesised
@@ -183,8 +185,9 @@ def test_interrupted_synthesis_leaves_nothing(reaching_root, tmp_path, monkeypat
 
 
 def test_outcome_radius_keeps_only_sampled_chunks_near_a_demonstration(reaching_root, tmp_path):
-    """Sampled chunks borrow the outcome of their nearest demonstrated chunk; with outcome_radius those farther
-    than the radius from every demonstrated chunk leave the pool, while demonstrated chunks all stay."""
+    """Sampled chunks borrow the outcome of their nearest demonstrated chunk; with outcome_radius those
+    farther than the radius from every demonstrated chunk leave the pool, while demonstrated chunks all
+    stay."""
     settings = FEATURE_SETTINGS["primitive"]
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
     policy = CCDPPolicy.from_pretrained(checkpoint)
@@ -306,9 +309,8 @@ def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
 
 def test_every_task_recipe_has_a_valid_recovery_section():
     recipes = sorted(Path(__file__).parents[2].joinpath("datasets_recipes").glob("*.yaml"))
-    assert (
-        len(recipes) == len(TASKS) + 10
-    )  # every task, four also with cameras, five without labels, the 2-D task
+    # every task, four also with cameras, five without labels, the 2-D task
+    assert len(recipes) == len(TASKS) + 10
     for path in recipes:
         RecoveryRecipe.load(path)
 
@@ -316,9 +318,9 @@ def test_every_task_recipe_has_a_valid_recovery_section():
 def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_through_lerobot_train(
     reaching_root, tmp_path
 ):
-    """With `recovery_head=set_denoiser` every row is one chunk of its own, sampled (or demonstrated) where an option
-    starts (here one per episode: its first state), perturbed by eq. 6, with its own z; lerobot-train's recovery stage then trains eps_{s,F} from the
-    copied base while the base stays frozen."""
+    """With `recovery_head=set_denoiser` every row is one chunk of its own, sampled (or demonstrated) where an
+    option starts (here one per episode: its first state), perturbed by eq. 6, with its own z; lerobot-train's
+    recovery stage then trains eps_{s,F} from the copied base while the base stays frozen."""
     settings = {**FEATURE_SETTINGS["primitive"], "recovery_head": "set_denoiser", "history_length": 0}
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
     recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "sigma": 0.0})
@@ -334,13 +336,11 @@ def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_thr
     demos = LeRobotDataset(REACHING_REPO_ID, root=reaching_root).hf_dataset.with_format("torch")[:]
     starts = demos[OBS_STATE][demos["frame_index"].flatten() == 0]
     rows = LeRobotDataset("local/recovery", root=root)
-    assert rows.num_frames == 16 * 6 + len(
-        starts
-    )  # every sampled chunk, and each episode's first demonstrated chunk
+    # every sampled chunk, and each episode's first demonstrated chunk
+    assert rows.num_frames == 16 * 6 + len(starts)
     states = rows.hf_dataset.with_format("torch")[:][OBS_STATE]
-    assert (
-        torch.cdist(states, starts).min(dim=1).values.max() < 1e-4
-    )  # sigma 0: exactly the episodes' first states
+    # sigma 0: exactly the episodes' first states
+    assert torch.cdist(states, starts).min(dim=1).values.max() < 1e-4
     policy, normalized = normalized_rows(checkpoint, root, chunk_column=ACTION)
     torch.testing.assert_close(
         normalized[FAILURE_FEATURE_KEY],
@@ -366,25 +366,23 @@ def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_thr
     after = load_file(out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors")
     assert bool(after["model.recovery_trained"])
     assert all(torch.equal(after[k], v) for k, v in before.items() if k.startswith("model.base."))
-    unet = (
-        "model.recovery.unet.mid_modules.0.conv1.block.0.weight"  # the head started as a copy of the base ...
-    )
-    assert not torch.equal(
-        after[unet], after[unet.replace("model.recovery.", "model.base.")]
-    )  # ... and trained away from it
+    # the head started as a copy of the base ...
+    unet = "model.recovery.unet.mid_modules.0.conv1.block.0.weight"
+    # ... and trained away from it
+    assert not torch.equal(after[unet], after[unet.replace("model.recovery.", "model.base.")])
 
 
 def test_set_denoiser_rows_start_at_every_demonstrated_option_not_only_at_episode_starts():
-    """Packing and the Bartender decide twice per episode: after a failed second decision the env restores the robot
-    where that option began, so the set denoiser's rows are drawn there too. Options end where `failure_segments`
-    says (labels here, gripper drops without labels)."""
+    """Packing and the Bartender decide twice per episode: after a failed second decision the env restores the
+    robot where that option began, so the set denoiser's rows are drawn there too. Options end where
+    `failure_segments` says (labels here, gripper drops without labels)."""
     episodes = np.array([0, 0, 0, 0, 0, 1, 1, 1])
     labels = np.array([3, 3, 1, 1, 1, 2, 2, 2])
     labelled = CCDPConfig(failure_feature="primitive", num_primitives=4)
     assert synthesize.option_starts(labelled, episodes, np.zeros((8, 2)), labels).tolist() == [0, 2, 5]
     assert synthesize.option_starts(labelled, episodes, np.zeros((8, 2)), None).tolist() == [0, 5]
-    # Episode 0 closes the gripper, opens it at frame 3 (the drop's option ends there, with its opening command) and
-    # starts a second option at frame 4; episode 1 drops its object at its last frame.
+    # Episode 0 closes the gripper, opens it at frame 3 (the drop's option ends there, with its opening
+    # command) and starts a second option at frame 4; episode 1 drops its object at its last frame.
     gripper = np.array([-1, 1, 1, -1, 1, -1, 1, -1.0])
     actions = np.stack([np.arange(8.0), gripper], axis=1)  # the arm never holds still
     dropped = CCDPConfig(failure_feature="final_state", failure_segments="drops")
