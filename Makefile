@@ -17,6 +17,7 @@ install: $(VENV)/.installed
 
 lint: install
 	$(VENV)/bin/ruff check lerobot_ccdp tests benchmarks lerobot_policy_ccdp.py
+	$(VENV)/bin/ruff format --check lerobot_ccdp tests benchmarks lerobot_policy_ccdp.py
 
 test: install
 	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=15

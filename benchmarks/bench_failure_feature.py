@@ -45,8 +45,9 @@ SOURCES = ("first", "latest")
 def label_audit(source: str) -> Iterator[collections.Counter]:
     """Counts (true failed option, recorded z label) pairs while lerobot-eval runs in this process.
 
-    Each label is paired with the failure its row flagged last: a failure that ends an episode is never seen by
-    the policy, so pairing a row's failures and labels in order would shift every later pair of that row."""
+    Each label is paired with the failure its row flagged last: a failure that ends an episode is never seen
+    by the policy, so pairing a row's failures and labels in order would shift every later pair of that
+    row."""
     rows: dict[int, int] = {}
     flagged: dict[int, int] = {}
     pairs: collections.Counter = collections.Counter()
@@ -71,7 +72,11 @@ def label_audit(source: str) -> Iterator[collections.Counter]:
         chunk = attempt_chunk if source == "first" else latest_chunk
         return of_failure(feature, frame, attempt_chunk, chunk, outcomes)
 
-    CCDPTaskEnv.step, CCDPPolicy._record_failures, FailureFeature.of_failure = audited_step, audited_record, labelled
+    CCDPTaskEnv.step, CCDPPolicy._record_failures, FailureFeature.of_failure = (
+        audited_step,
+        audited_record,
+        labelled,
+    )
     try:
         yield pairs
     finally:
@@ -82,8 +87,14 @@ def run_eval(args: argparse.Namespace, mode: str, out: Path) -> MethodMetrics:
     from lerobot.scripts.lerobot_eval import main as lerobot_eval
 
     argv = sys.argv
-    sys.argv = ["lerobot-eval", f"--config_path={args.eval_config}", f"--policy.path={args.policy_path}",
-                f"--policy.recovery_mode={mode}", f"--eval.n_episodes={args.episodes}", f"--output_dir={out}"]
+    sys.argv = [
+        "lerobot-eval",
+        f"--config_path={args.eval_config}",
+        f"--policy.path={args.policy_path}",
+        f"--policy.recovery_mode={mode}",
+        f"--eval.n_episodes={args.episodes}",
+        f"--output_dir={out}",
+    ]
     try:
         lerobot_eval()
     finally:
@@ -108,21 +119,32 @@ def option_shares(args: argparse.Namespace) -> str:
     def shares(weights: CompositionWeights, failed: int | None) -> str:
         policy.model.weights = weights
         _, options = options_after_failures(policy, batch, [] if failed is None else [failed])
-        return " / ".join(f"{v:.2f}" for v in (torch.bincount(options, minlength=k).float() / args.rows).tolist())
+        return " / ".join(
+            f"{v:.2f}" for v in (torch.bincount(options, minlength=k).float() / args.rows).tolist()
+        )
 
-    rows = ["| failed option | sampler | option shares |", "|---|---|---|",
-            f"| none | DP | {shares(CompositionWeights(ccdp.w_s, ccdp.w_h, 0.0), None)} |"]
+    rows = [
+        "| failed option | sampler | option shares |",
+        "|---|---|---|",
+        f"| none | DP | {shares(CompositionWeights(ccdp.w_s, ccdp.w_h, 0.0), None)} |",
+    ]
     for failed in range(k):
-        rows.append(f"| {failed} | recovery head alone | {shares(CompositionWeights(0.0, 0.0, 1.0), failed)} |")
+        rows.append(
+            f"| {failed} | recovery head alone | {shares(CompositionWeights(0.0, 0.0, 1.0), failed)} |"
+        )
         for reference in ("eps_a", "eps_z_null"):
             weights = CompositionWeights(ccdp.w_s, ccdp.w_h, ccdp.w_z, reference)
-            rows.append(f"| {failed} | CCDP (w_z = {ccdp.w_z}, against {reference}) | {shares(weights, failed)} |")
+            rows.append(
+                f"| {failed} | CCDP (w_z = {ccdp.w_z}, against {reference}) | {shares(weights, failed)} |"
+            )
     return "\n".join(rows)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--policy-path", required=True, help="a trained recovery-stage checkpoint (primitive z)")
+    parser.add_argument(
+        "--policy-path", required=True, help="a trained recovery-stage checkpoint (primitive z)"
+    )
     parser.add_argument("--eval-config", required=True, help="the task's configs/<task>/eval.json")
     parser.add_argument("--modes", nargs="+", default=["dp_star", "ccdp"], choices=["dp_star", "ccdp"])
     parser.add_argument("--episodes", type=int, default=50)
@@ -133,8 +155,10 @@ def main() -> None:
     if args.shares:
         print(option_shares(args))
         return
-    rows = ["| mode | z label from | failures matched | label accuracy | success | repeated-failure rate |",
-            "|---|---|---|---|---|---|"]
+    rows = [
+        "| mode | z label from | failures matched | label accuracy | success | repeated-failure rate |",
+        "|---|---|---|---|---|---|",
+    ]
     with tempfile.TemporaryDirectory() as tmp:
         for mode in args.modes:
             for source in SOURCES:
@@ -142,8 +166,10 @@ def main() -> None:
                     metrics = run_eval(args, mode, Path(tmp) / f"{mode}_{source}")
                 matched = sum(pairs.values())
                 right = sum(n for (true, z), n in pairs.items() if true == z)
-                rows.append(f"| {mode} | {source} chunk | {matched} | {right / max(matched, 1):.3f} | "
-                            f"{metrics.success} | {metrics.repeated_failure_rate} |")
+                rows.append(
+                    f"| {mode} | {source} chunk | {matched} | {right / max(matched, 1):.3f} | "
+                    f"{metrics.success} | {metrics.repeated_failure_rate} |"
+                )
     print("\n".join(rows))
 
 

@@ -11,10 +11,10 @@ inputs: a 2-D robot state plus a small environment state (stock diffusion needs 
 
 (a) Planning latency: one call that samples a chunk for --plan-batch rows (`predict_action_chunk`, no grad;
     lerobot-eval plans for its eval batch, a robot for 1 row), median over --repeats calls after warm-up. The
-    failure feature is `primitive` (4 options) with an outcome table of OUTCOME_ROWS demonstrated chunks, so DP*
-    (and CCDP with redraws) pay for the outcome lookup as on the Panda tasks. CCDP runs with
-    recovery_mode=ccdp, its head marked trained (`recovery_trained.fill_(True)`, so the failure terms are really
-    evaluated) and N = 0, 1, 2, 4, 8 failures recorded with `report_failure`; DP* (--dp-star-candidates
+    failure feature is `primitive` (4 options) with an outcome table of OUTCOME_ROWS demonstrated chunks, so
+    DP* (and CCDP with redraws) pay for the outcome lookup as on the Panda tasks. CCDP runs with
+    recovery_mode=ccdp, its head marked trained (`recovery_trained.fill_(True)`, so the failure terms are
+    really evaluated) and N = 0, 1, 2, 4, 8 failures recorded with `report_failure`; DP* (--dp-star-candidates
     candidates, up to --dp-star-rounds rounds), the compute-matched DP* (--matched-candidates candidates, one
     round) and DP at N = 4 share the same weights. Calls of all configurations are interleaved round-robin so
     background load hits them alike.
@@ -57,8 +57,16 @@ STATE, ENV, ACTION = "observation.state", "observation.environment_state", "acti
 FAILURE_COUNTS = (0, 1, 2, 4, 8)
 OUTCOME_ROWS, OPTIONS = 10000, 4
 SHARED = dict(  # the UNet and sampling settings both policies use
-    n_obs_steps=1, horizon=16, n_action_steps=8, down_dims=(32, 64, 128), diffusion_step_embed_dim=32,
-    kernel_size=5, n_groups=8, noise_scheduler_type="DDIM", num_train_timesteps=100, num_inference_steps=10,
+    n_obs_steps=1,
+    horizon=16,
+    n_action_steps=8,
+    down_dims=(32, 64, 128),
+    diffusion_step_embed_dim=32,
+    kernel_size=5,
+    n_groups=8,
+    noise_scheduler_type="DDIM",
+    num_train_timesteps=100,
+    num_inference_steps=10,
 )
 ENV_REPO_ID = "local/reaching2d_env"
 LATENCY_TARGET, TRAIN_TARGET = 1.5, 1.2
@@ -74,15 +82,21 @@ def make_ccdp(env_dim: int, **overrides) -> CCDPPolicy:
     settings = {"failure_feature": "primitive", "num_primitives": OPTIONS, **SHARED, **overrides}
     policy = CCDPPolicy(CCDPConfig(input_features=inputs, output_features=outputs, device="cpu", **settings))
     chunk = policy.config.horizon * policy.config.action_dim
-    policy.model.outcomes.fill(torch.rand(OUTCOME_ROWS, chunk) * 2 - 1, torch.zeros(OUTCOME_ROWS, 2),
-                         torch.randint(0, OPTIONS, (OUTCOME_ROWS,)))
+    policy.model.outcomes.fill(
+        torch.rand(OUTCOME_ROWS, chunk) * 2 - 1,
+        torch.zeros(OUTCOME_ROWS, 2),
+        torch.randint(0, OPTIONS, (OUTCOME_ROWS,)),
+    )
     return policy
 
 
 def make_diffusion(env_dim: int, **overrides) -> DiffusionPolicy:
     inputs, outputs = features(env_dim)
-    return DiffusionPolicy(DiffusionConfig(input_features=inputs, output_features=outputs, device="cpu",
-                                           **{**SHARED, **overrides}))
+    return DiffusionPolicy(
+        DiffusionConfig(
+            input_features=inputs, output_features=outputs, device="cpu", **{**SHARED, **overrides}
+        )
+    )
 
 
 def n_params(module: torch.nn.Module) -> int:
@@ -151,10 +165,19 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Nam
     ccdp_policies = {n: with_failures(make(env_dim).eval(), n) for n in FAILURE_COUNTS}
     for n, policy in ccdp_policies.items():
         calls[f"ccdp N={n}"] = lambda p=policy: p.predict_action_chunk(dict(obs))
-    dp_star = with_failures(make(env_dim, recovery_mode="dp_star", dp_star_candidates=args.dp_star_candidates,
-                                 dp_star_rounds=args.dp_star_rounds), 4)
-    matched = with_failures(make(env_dim, recovery_mode="dp_star", dp_star_candidates=args.matched_candidates,
-                                 dp_star_rounds=1), 4)
+    dp_star = with_failures(
+        make(
+            env_dim,
+            recovery_mode="dp_star",
+            dp_star_candidates=args.dp_star_candidates,
+            dp_star_rounds=args.dp_star_rounds,
+        ),
+        4,
+    )
+    matched = with_failures(
+        make(env_dim, recovery_mode="dp_star", dp_star_candidates=args.matched_candidates, dp_star_rounds=1),
+        4,
+    )
     dp = with_failures(make(env_dim, recovery_mode="dp"), 4)
     calls["dp_star N=4"] = lambda: dp_star.predict_action_chunk(dict(obs))
     calls["dp_star matched N=4"] = lambda: matched.predict_action_chunk(dict(obs))
@@ -178,12 +201,17 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Nam
         medians = interleaved_medians(calls, repeats, warmup)
     base = medians["diffusion"]
     rows = [{"name": name, "median_ms": ms, "ratio_vs_diffusion": ms / base} for name, ms in medians.items()]
-    rows[-1]["ratio_vs_diffusion"] = medians["ccdp select_action after reset"] / medians["diffusion select_action after reset"]
+    rows[-1]["ratio_vs_diffusion"] = (
+        medians["ccdp select_action after reset"] / medians["diffusion select_action after reset"]
+    )
     rows[-2]["ratio_vs_diffusion"] = 1.0
     return {
         "rows": rows,
-        "params": {"diffusion": n_params(diffusion), "ccdp_base_unet": n_params(ccdp.model.base),
-                   "ccdp_recovery_head": n_params(ccdp.model.recovery)},
+        "params": {
+            "diffusion": n_params(diffusion),
+            "ccdp_base_unet": n_params(ccdp.model.base),
+            "ccdp_recovery_head": n_params(ccdp.model.recovery),
+        },
         "ratio_at_n4": medians["ccdp N=4"] / base,
     }
 
@@ -194,16 +222,22 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Nam
 def ccdp_batch(policy: CCDPPolicy, batch_size: int, env_dim: int) -> dict:
     cfg = policy.config
     frames, steps = cfg.history_length + cfg.n_obs_steps, cfg.history_length + cfg.horizon
-    return {STATE: torch.rand(batch_size, frames, 2) * 2 - 1, ENV: torch.rand(batch_size, frames, env_dim) * 2 - 1,
-            ACTION: torch.rand(batch_size, steps, 2) * 2 - 1, "action_is_pad": torch.zeros(batch_size, steps, dtype=torch.bool)}
+    return {
+        STATE: torch.rand(batch_size, frames, 2) * 2 - 1,
+        ENV: torch.rand(batch_size, frames, env_dim) * 2 - 1,
+        ACTION: torch.rand(batch_size, steps, 2) * 2 - 1,
+        "action_is_pad": torch.zeros(batch_size, steps, dtype=torch.bool),
+    }
 
 
 def diffusion_batch(policy: DiffusionPolicy, batch_size: int, env_dim: int) -> dict:
     cfg = policy.config
-    return {STATE: torch.rand(batch_size, cfg.n_obs_steps, 2) * 2 - 1,
-            ENV: torch.rand(batch_size, cfg.n_obs_steps, env_dim) * 2 - 1,
-            ACTION: torch.rand(batch_size, cfg.horizon, 2) * 2 - 1,
-            "action_is_pad": torch.zeros(batch_size, cfg.horizon, dtype=torch.bool)}
+    return {
+        STATE: torch.rand(batch_size, cfg.n_obs_steps, 2) * 2 - 1,
+        ENV: torch.rand(batch_size, cfg.n_obs_steps, env_dim) * 2 - 1,
+        ACTION: torch.rand(batch_size, cfg.horizon, 2) * 2 - 1,
+        "action_is_pad": torch.zeros(batch_size, cfg.horizon, dtype=torch.bool),
+    }
 
 
 def training_step_time(env_dim: int, batch_size: int, steps: int, warmup: int) -> dict:
@@ -221,6 +255,7 @@ def training_step_time(env_dim: int, batch_size: int, steps: int, warmup: int) -
             loss.backward()
             torch.nn.utils.clip_grad_norm_(policy.parameters(), 10.0)
             optimizer.step()
+
         return step
 
     calls = {}
@@ -229,9 +264,14 @@ def training_step_time(env_dim: int, batch_size: int, steps: int, warmup: int) -
         params = params if isinstance(params, list) else list(params)
         calls[name] = step_fn(policy, batch, torch.optim.Adam(params, lr=1e-4))
     medians = interleaved_medians(calls, steps, warmup)
-    return {"median_ms": medians, "ratio": medians["ccdp"] / medians["diffusion"],
-            "trainable_params": {name: sum(p.numel() for p in pol.parameters() if p.requires_grad)
-                                 for name, (pol, _) in setups.items()}}
+    return {
+        "median_ms": medians,
+        "ratio": medians["ccdp"] / medians["diffusion"],
+        "trainable_params": {
+            name: sum(p.numel() for p in pol.parameters() if p.requires_grad)
+            for name, (pol, _) in setups.items()
+        },
+    }
 
 
 # ----- (b') real lerobot-train runs -----------------------------------------------------------------------
@@ -253,23 +293,47 @@ def record_env_dataset(root: Path, n_episodes: int) -> None:
         states, actions = r2d.demo_episode(int(goal), rng)
         env_state = np.concatenate([states[0], [0.0, 1.0]]).astype(np.float32)
         for state, action in zip(states, actions, strict=True):
-            dataset.add_frame({STATE: state, ACTION: action, ENV: env_state,
-                               "primitive": np.array([goal], dtype=np.int64), "task": "reach a goal"})
+            dataset.add_frame(
+                {
+                    STATE: state,
+                    ACTION: action,
+                    ENV: env_state,
+                    "primitive": np.array([goal], dtype=np.int64),
+                    "task": "reach a goal",
+                }
+            )
         dataset.save_episode()
     dataset.finalize()
 
 
 def cli_args(policy_type: str, root: Path, steps: int, log_freq: int, batch_size: int) -> list[str]:
-    common = [f"--dataset.repo_id={ENV_REPO_ID}", f"--dataset.root={root}", f"--steps={steps}",
-              f"--batch_size={batch_size}", "--policy.push_to_hub=false", "--num_workers=0", "--wandb.enable=false",
-              f"--log_freq={log_freq}", f"--save_freq={steps}", "--save_checkpoint=false", "--seed=0",
-              "--policy.device=cpu", f"--policy.type={policy_type}"]
+    common = [
+        f"--dataset.repo_id={ENV_REPO_ID}",
+        f"--dataset.root={root}",
+        f"--steps={steps}",
+        f"--batch_size={batch_size}",
+        "--policy.push_to_hub=false",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        f"--log_freq={log_freq}",
+        f"--save_freq={steps}",
+        "--save_checkpoint=false",
+        "--seed=0",
+        "--policy.device=cpu",
+        f"--policy.type={policy_type}",
+    ]
     if policy_type == "ccdp":
         return common + ["--policy.failure_feature=primitive", "--policy.num_primitives=4"]
     return common + [
-        "--policy.down_dims=[32,64,128]", "--policy.diffusion_step_embed_dim=32", "--policy.kernel_size=5",
-        "--policy.n_groups=8", "--policy.n_obs_steps=1", "--policy.horizon=16", "--policy.n_action_steps=8",
-        "--policy.noise_scheduler_type=DDIM", "--policy.num_inference_steps=10",
+        "--policy.down_dims=[32,64,128]",
+        "--policy.diffusion_step_embed_dim=32",
+        "--policy.kernel_size=5",
+        "--policy.n_groups=8",
+        "--policy.n_obs_steps=1",
+        "--policy.horizon=16",
+        "--policy.n_action_steps=8",
+        "--policy.noise_scheduler_type=DDIM",
+        "--policy.num_inference_steps=10",
     ]
 
 
@@ -284,7 +348,9 @@ def lerobot_train_speed(name: str, out: Path, train_args: list[str]) -> dict:
     result = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
     wall = time.perf_counter() - start
     if result.returncode != 0:
-        raise RuntimeError(f"lerobot-train ({name}) failed:\n{result.stdout[-2000:]}\n{result.stderr[-4000:]}")
+        raise RuntimeError(
+            f"lerobot-train ({name}) failed:\n{result.stdout[-2000:]}\n{result.stderr[-4000:]}"
+        )
     intervals = [(float(u), float(d)) for _, u, d in LOG_LINE.findall(result.stdout + result.stderr)]
     timed = intervals[1:] or intervals  # the first interval holds the warm-up steps
     if not timed:
@@ -292,8 +358,14 @@ def lerobot_train_speed(name: str, out: Path, train_args: list[str]) -> dict:
     update_s = statistics.mean(u for u, _ in timed)
     data_s = statistics.mean(d for _, d in timed)
     shutil.rmtree(out, ignore_errors=True)
-    return {"steps_per_s": 1.0 / (update_s + data_s), "update_s": update_s, "data_s": data_s,
-            "wall_s": wall, "intervals": intervals, "command": " ".join(cmd)}
+    return {
+        "steps_per_s": 1.0 / (update_s + data_s),
+        "update_s": update_s,
+        "data_s": data_s,
+        "wall_s": wall,
+        "intervals": intervals,
+        "command": " ".join(cmd),
+    }
 
 
 # ----- report ---------------------------------------------------------------------------------------------
@@ -304,30 +376,43 @@ def table(results: dict) -> str:
     lines = ["| measure | config | value | ratio CCDP / diffusion | target |", "|---|---|---|---|---|"]
     for row in lat["rows"]:
         target = f"<= {LATENCY_TARGET}" if row["name"] == "ccdp N=4" else ""
-        lines.append(f"| planning latency (ms, median) | {row['name']} | {row['median_ms']:.2f} | "
-                     f"{row['ratio_vs_diffusion']:.2f}x | {target} |")
+        lines.append(
+            f"| planning latency (ms, median) | {row['name']} | {row['median_ms']:.2f} | "
+            f"{row['ratio_vs_diffusion']:.2f}x | {target} |"
+        )
     for name in ("diffusion", "ccdp"):
         ratio = f"{train['ratio']:.2f}x" if name == "ccdp" else "1.00x"
-        lines.append(f"| train step fwd+bwd+Adam (ms, median, batch {results['args']['batch_size']}) | {name} | "
-                     f"{train['median_ms'][name]:.1f} | {ratio} | {'<= %s' % TRAIN_TARGET if name == 'ccdp' else ''} |")
+        lines.append(
+            f"| train step fwd+bwd+Adam (ms, median, batch {results['args']['batch_size']}) | {name} | "
+            f"{train['median_ms'][name]:.1f} | {ratio} | {'<= %s' % TRAIN_TARGET if name == 'ccdp' else ''} |"
+        )
     if cli:
         for name in ("diffusion", "ccdp"):
             r = cli[name]
             ratio = cli["ratio_step_time"] if name == "ccdp" else 1.0
-            lines.append(f"| lerobot-train steps/s (update+data, {results['args']['cli_steps']} steps) | {name} | "
-                         f"{r['steps_per_s']:.2f} (wall {r['wall_s']:.0f} s) | {ratio:.2f}x step time | "
-                         f"{'<= %s' % TRAIN_TARGET if name == 'ccdp' else ''} |")
+            lines.append(
+                f"| lerobot-train steps/s (update+data, {results['args']['cli_steps']} steps) | {name} | "
+                f"{r['steps_per_s']:.2f} (wall {r['wall_s']:.0f} s) | {ratio:.2f}x step time | "
+                f"{'<= %s' % TRAIN_TARGET if name == 'ccdp' else ''} |"
+            )
     verdict = [
-        f"planning N=4: {lat['ratio_at_n4']:.2f}x ({'OK' if lat['ratio_at_n4'] <= LATENCY_TARGET else 'ABOVE'} target {LATENCY_TARGET}x)",
-        f"train step: {train['ratio']:.2f}x ({'OK' if train['ratio'] <= TRAIN_TARGET else 'ABOVE'} target {TRAIN_TARGET}x)",
+        f"planning N=4: {lat['ratio_at_n4']:.2f}x "
+        f"({'OK' if lat['ratio_at_n4'] <= LATENCY_TARGET else 'ABOVE'} target {LATENCY_TARGET}x)",
+        f"train step: {train['ratio']:.2f}x "
+        f"({'OK' if train['ratio'] <= TRAIN_TARGET else 'ABOVE'} target {TRAIN_TARGET}x)",
     ]
     if cli:
         r = cli["ratio_step_time"]
-        verdict.append(f"lerobot-train step time: {r:.2f}x ({'OK' if r <= TRAIN_TARGET else 'ABOVE'} target {TRAIN_TARGET}x)")
+        verdict.append(
+            f"lerobot-train step time: {r:.2f}x "
+            f"({'OK' if r <= TRAIN_TARGET else 'ABOVE'} target {TRAIN_TARGET}x)"
+        )
     p = lat["params"]
-    notes = (f"params: diffusion {p['diffusion']:,}; ccdp base UNet {p['ccdp_base_unet']:,} + recovery head "
-             f"{p['ccdp_recovery_head']:,}. torch {torch.__version__}, {results['args']['threads']} threads, "
-             f"{platform.processor() or platform.machine()}.")
+    notes = (
+        f"params: diffusion {p['diffusion']:,}; ccdp base UNet {p['ccdp_base_unet']:,} + recovery head "
+        f"{p['ccdp_recovery_head']:,}. torch {torch.__version__}, {results['args']['threads']} threads, "
+        f"{platform.processor() or platform.machine()}."
+    )
     return "\n".join(lines + ["", *verdict, notes])
 
 
@@ -340,9 +425,12 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--env-dim", type=int, default=4, help="size of observation.environment_state")
     parser.add_argument("--dp-star-candidates", type=int, default=32)
     parser.add_argument("--dp-star-rounds", type=int, default=4)
-    parser.add_argument("--matched-candidates", type=int, default=2,
-                        help="candidates of the compute-matched DP* (one round)")
-    parser.add_argument("--plan-batch", type=int, default=1, help="rows planned per call (lerobot-eval: its batch)")
+    parser.add_argument(
+        "--matched-candidates", type=int, default=2, help="candidates of the compute-matched DP* (one round)"
+    )
+    parser.add_argument(
+        "--plan-batch", type=int, default=1, help="rows planned per call (lerobot-eval: its batch)"
+    )
     parser.add_argument("--horizon", type=int, default=16, help="chunk length (the Panda tasks: 32)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--recovery-head", choices=RECOVERY_HEADS, default="unet", help="recovery head")
@@ -351,8 +439,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")
     parser.add_argument("--work", type=Path, default=Path("outputs/bench_data"))
     parser.add_argument("--out", type=Path, default=Path("outputs/bench_policy.json"))
-    parser.add_argument("--adopt", action="store_true",
-                        help="take over a --work made by a version of this script from before ownership markers")
+    parser.add_argument(
+        "--adopt",
+        action="store_true",
+        help="take over a --work made by a version of this script from before ownership markers",
+    )
     args = parser.parse_args(argv)
     try:
         claim_output_folder(args.work, "benchmarks/bench_policy.py", adopt=args.adopt, flag="--work")
@@ -362,20 +453,26 @@ def main(argv: list[str] | None = None) -> dict:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     torch.set_num_threads(args.threads)
     results = {"args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}}
-    results["args"]["command"] = " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])])
+    results["args"]["command"] = " ".join(
+        [Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])]
+    )
 
     print("(a) planning latency ...", flush=True)
     results["latency"] = planning_latency(args.env_dim, args.repeats, args.warmup, args)
     print("(b) training step ...", flush=True)
     results["train_step"] = training_step_time(args.env_dim, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:
-        root = recorded_once(args.work / "reaching2d_env", lambda path: record_env_dataset(path, n_episodes=60))
+        root = recorded_once(
+            args.work / "reaching2d_env", lambda path: record_env_dataset(path, n_episodes=60)
+        )
         cli = {}
         for policy_type in ("diffusion", "ccdp"):
             print(f"(b') lerobot-train --policy.type={policy_type} --steps={args.cli_steps} ...", flush=True)
             cli["ccdp" if policy_type == "ccdp" else "diffusion"] = lerobot_train_speed(
-                policy_type, args.work / f"train_{policy_type}",
-                cli_args(policy_type, root, args.cli_steps, args.cli_log_freq, args.batch_size))
+                policy_type,
+                args.work / f"train_{policy_type}",
+                cli_args(policy_type, root, args.cli_steps, args.cli_log_freq, args.batch_size),
+            )
         cli["ratio_step_time"] = cli["diffusion"]["steps_per_s"] / cli["ccdp"]["steps_per_s"]
         results["lerobot_train"] = cli
 

@@ -3,24 +3,26 @@
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_preferences.py [--members 0 1 ... 11] [--w-z 1 2 4] \
         [--no-classifier] [--redraws 0 1] [--set-denoiser] [--out outputs/preferences]
 
-Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences, bent
-paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a LeRobot
-dataset, its base is trained with lerobot-train, and the failure-set classifier (`--policy.recovery_head=classifier`)
-is trained from that base on the demonstrations with lerobot-train as a user would. Failed share and preference
-error after one and after two failures (`lerobot_ccdp/benchmark/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
-rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z with each count of
---redraws (sampling settings, set as lerobot-eval's --policy.w_z and --policy.ccdp_redraws would: every combination
-runs on the same checkpoint and seeds). Prints the table,
-writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferences.png`
-under --out (CCDP with the first weight and redraw count). Members run side by side each with its own
---out are tabulated together with `--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test
-family; settings are chosen on the development members 100-103 (`--members 100 101 102 103`).
+Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences,
+bent paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a
+LeRobot dataset, its base is trained with lerobot-train, and the failure-set classifier
+(`--policy.recovery_head=classifier`) is trained from that base on the demonstrations with lerobot-train as a
+user would. Failed share and preference error after one and after two failures
+(`lerobot_ccdp/benchmark/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
+rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z with each count
+of --redraws (sampling settings, set as lerobot-eval's --policy.w_z and --policy.ccdp_redraws would: every
+combination runs on the same checkpoint and seeds). Prints the table, writes `preferences.md`, `results.json`
+and a Fig. 2-style panel grid `preferences.png` under --out (CCDP with the first weight and redraw count).
+Members run side by side each with its own --out are tabulated together with
+`--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs
+did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test family; settings are chosen
+on the development members 100-103 (`--members 100 101 102 103`).
 
 With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifier, unless
---no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its rows (SET_RECIPE: chunks the
-base samples at the episodes' first states), lerobot-train trains the failure-set denoiser on them for --head-steps,
-and "CCDP set denoiser" (w_z = 1, one sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost"
-(`dp_star_matched`'s 2 candidates, 1 round) on the same base and seeds.
+--no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its
+rows (SET_RECIPE: chunks the base samples at the episodes' first states), lerobot-train trains the failure-set
+denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one sample per plan) is measured beside
+DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1 round) on the same base and seeds.
 """
 
 from __future__ import annotations
@@ -54,31 +56,46 @@ BASELINES = {
     "DP*": Method("dp_star", {"dp_star_candidates": 32, "dp_star_rounds": 4}),
 }
 MATCHED = {"DP* at CCDP's cost": Method("dp_star", MATCHED_DP_STAR)}
-# The failure-set denoiser's rows (RecoveryRecipe fields besides z): 512 first states x 16 base samples at w_s = 1.
+# The failure-set denoiser's rows (RecoveryRecipe fields besides z): 512 first states x 16 base samples at
+# w_s = 1.
 SET_RECIPE = {"n_states": 512, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0, "demo_frames": 4096}
 
 
 def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobotDataset) -> dict[str, Method]:
-    """The methods measured on `head` ("classifier" or "set_denoiser"); DP and DP* on the first head only (the heads
-    share the base)."""
+    """The methods measured on `head` ("classifier" or "set_denoiser"); DP and DP* on the first head only (the
+    heads share the base)."""
     baselines = BASELINES if first else {}
     if head == "set_denoiser":  # one sample per plan
         return {**baselines, **MATCHED, "CCDP set denoiser": Method("ccdp", {"w_z": 1.0})}
-    ccdp = {ccdp_name(w, n): Method("ccdp", {"w_z": w, "ccdp_redraws": n}) for w in sampling.w_z
-            for n in sampling.redraws}
-    # The reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start chunks.
+    ccdp = {
+        ccdp_name(w, n): Method("ccdp", {"w_z": w, "ccdp_redraws": n})
+        for w in sampling.w_z
+        for n in sampling.redraws
+    }
+    # The reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start
+    # chunks.
     return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
 def ccdp_name(w_z: float, redraws: int) -> str:
-    """The table's name of CCDP guided by the classifier at weight `w_z`, redrawing repeats up to `redraws` times."""
+    """The table's name of CCDP guided by the classifier at weight `w_z`, redrawing repeats up to `redraws`
+    times."""
     return f"CCDP classifier w_z={w_z:g}" + (f" +{redraws} redraws" if redraws else "")
 
 
 def train(name: str, out: Path, args: list[str], upstream: str | None, book: StampBook) -> tuple[Path, str]:
-    """lerobot-train into `out` unless the checkpoint there was made by the same command from the same upstream."""
-    command = ["lerobot-train", *args, f"--output_dir={out}", "--policy.push_to_hub=false", "--num_workers=0",
-               "--wandb.enable=false", "--log_freq=500", "--seed=0"]
+    """lerobot-train into `out` unless the checkpoint there was made by the same command from the same
+    upstream."""
+    command = [
+        "lerobot-train",
+        *args,
+        f"--output_dir={out}",
+        "--policy.push_to_hub=false",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--log_freq=500",
+        "--seed=0",
+    ]
     value = stamp(command, upstream)
     if (out / CHECKPOINT / "model.safetensors").exists() and book.matches(name, value):
         return out / CHECKPOINT, value
@@ -86,7 +103,9 @@ def train(name: str, out: Path, args: list[str], upstream: str | None, book: Sta
     print(f"  {name}: lerobot-train into {out}", flush=True)
     log = out.with_suffix(".log")
     with log.open("w") as handle:
-        done = subprocess.run([str(BIN / command[0]), *command[1:]], check=False, stdout=handle, stderr=subprocess.STDOUT)
+        done = subprocess.run(
+            [str(BIN / command[0]), *command[1:]], check=False, stdout=handle, stderr=subprocess.STDOUT
+        )
     if done.returncode:
         raise RuntimeError(f"{name} failed (exit {done.returncode}); see {log}")
     book.record(name, value)
@@ -98,8 +117,15 @@ def member_dataset(seed: int, out: Path) -> tuple[Path, str]:
     return out / f"member_{seed}" / "data", f"local/reaching_family_{seed}"
 
 
-def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episodes: int,
-                   classifier: bool, set_denoiser: bool) -> dict[str, Path]:
+def prepare_member(
+    seed: int,
+    out: Path,
+    base_steps: int,
+    head_steps: int,
+    episodes: int,
+    classifier: bool,
+    set_denoiser: bool,
+) -> dict[str, Path]:
     """Record member `seed`, train its base and, from it, the classifier head (with `classifier`) and the
     failure-set denoiser (with `set_denoiser`); return the heads' checkpoints by head name."""
     task = ReachingTask.family_member(seed)
@@ -112,40 +138,92 @@ def prepare_member(seed: int, out: Path, base_steps: int, head_steps: int, episo
         shutil.rmtree(data, ignore_errors=True)
         task.record(data, repo, episodes, seed)
         book.record("record", data_stamp)
-    z = (["--policy.failure_feature=primitive", f"--policy.num_primitives={len(task.goals)}"] if task.labelled
-         else ["--policy.failure_feature=final_state"])
+    z = (
+        ["--policy.failure_feature=primitive", f"--policy.num_primitives={len(task.goals)}"]
+        if task.labelled
+        else ["--policy.failure_feature=final_state"]
+    )
     dataset = [f"--dataset.repo_id={repo}", f"--dataset.root={data}"]
     head = ["--policy.recovery_head=set_denoiser", "--policy.history_length=0"] if set_denoiser else []
-    base, base_stamp = train("base", root / "base", ["--policy.type=ccdp", *z, *head, *dataset, f"--steps={base_steps}",
-                                                     "--batch_size=64", f"--save_freq={base_steps}"], data_stamp, book)
+    base, base_stamp = train(
+        "base",
+        root / "base",
+        [
+            "--policy.type=ccdp",
+            *z,
+            *head,
+            *dataset,
+            f"--steps={base_steps}",
+            "--batch_size=64",
+            f"--save_freq={base_steps}",
+        ],
+        data_stamp,
+        book,
+    )
     heads = {}
     if classifier:
-        heads["classifier"] = train("classifier", root / "classifier", [
-            f"--policy.path={base}", "--policy.training_stage=recovery", "--policy.recovery_head=classifier",
-            *dataset, f"--steps={head_steps}", "--batch_size=64", f"--save_freq={head_steps}"], base_stamp, book)[0]
+        heads["classifier"] = train(
+            "classifier",
+            root / "classifier",
+            [
+                f"--policy.path={base}",
+                "--policy.training_stage=recovery",
+                "--policy.recovery_head=classifier",
+                *dataset,
+                f"--steps={head_steps}",
+                "--batch_size=64",
+                f"--save_freq={head_steps}",
+            ],
+            base_stamp,
+            book,
+        )[0]
     if set_denoiser:
         heads["set_denoiser"] = train_set_denoiser(root, task, base, base_stamp, head_steps, book)
     return heads
 
 
-def train_set_denoiser(root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int,
-                       book: StampBook) -> Path:
-    """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE), then lerobot-train it on them."""
-    z = ({"failure_feature": "primitive", "num_primitives": len(task.goals)} if task.labelled
-         else {"failure_feature": "final_state"})
+def train_set_denoiser(
+    root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int, book: StampBook
+) -> Path:
+    """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE), then lerobot-train it on
+    them."""
+    z = (
+        {"failure_feature": "primitive", "num_primitives": len(task.goals)}
+        if task.labelled
+        else {"failure_feature": "final_state"}
+    )
     recipe, rows, repo = root / "set_recipe.yaml", root / "set_rows", f"local/set_rows_{root.name}"
     recipe.write_text(yaml.safe_dump({"recovery": {**z, **SET_RECIPE}}))
-    command = ["lerobot-ccdp-synthesize", f"--config_path={recipe}", f"--dataset.repo_id={member_dataset_repo(root)}",
-               f"--dataset.root={root / 'data'}", f"--policy.path={base}", f"--output.repo_id={repo}",
-               f"--output.root={rows}", "--overwrite=true"]
+    command = [
+        "lerobot-ccdp-synthesize",
+        f"--config_path={recipe}",
+        f"--dataset.repo_id={member_dataset_repo(root)}",
+        f"--dataset.root={root / 'data'}",
+        f"--policy.path={base}",
+        f"--output.repo_id={repo}",
+        f"--output.root={rows}",
+        "--overwrite=true",
+    ]
     rows_stamp = stamp(command, base_stamp)
     if not (rows / "meta" / "info.json").exists() or not book.matches("set_rows", rows_stamp):
         print(f"  set_rows: lerobot-ccdp-synthesize into {rows}", flush=True)
         subprocess.run([str(BIN / command[0]), *command[1:]], check=True, capture_output=True)
         book.record("set_rows", rows_stamp)
-    return train("set_denoiser", root / "set_denoiser", [
-        f"--policy.path={base}", "--policy.training_stage=recovery", f"--dataset.repo_id={repo}",
-        f"--dataset.root={rows}", f"--steps={steps}", "--batch_size=64", f"--save_freq={steps}"], rows_stamp, book)[0]
+    return train(
+        "set_denoiser",
+        root / "set_denoiser",
+        [
+            f"--policy.path={base}",
+            "--policy.training_stage=recovery",
+            f"--dataset.repo_id={repo}",
+            f"--dataset.root={rows}",
+            f"--steps={steps}",
+            "--batch_size=64",
+            f"--save_freq={steps}",
+        ],
+        rows_stamp,
+        book,
+    )[0]
 
 
 def member_dataset_repo(root: Path) -> str:
@@ -182,17 +260,27 @@ def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
     bootstrap interval over members and the verdict against issue 17's targets, and the preference error minus
     `reference`'s, paired member by member (the same checkpoint and start states)."""
     names = [n for n in next(iter(results.values()))["methods"] if n != "DP"]
-    lines = ["| method | failures | failed share (target <= 0.03) | preference error (target <= 0.08) | "
-             f"preference error minus {reference}'s |", "|---|---|---|---|---|"]
+    lines = [
+        "| method | failures | failed share (target <= 0.03) | preference error (target <= 0.08) | "
+        f"preference error minus {reference}'s |",
+        "|---|---|---|---|---|",
+    ]
     for name in names:
         for count in "12":
             cells = []
             for metric, target in TARGETS.items():
                 estimate = bootstrap_mean([r["methods"][name][count][metric] for r in results.values()])
                 cells.append(f"{_three(estimate)} {verdict(estimate, high_bound=target)}")
-            difference = bootstrap_mean([r["methods"][name][count]["preference_error"]
-                                         - r["methods"][reference][count]["preference_error"] for r in results.values()])
-            judged = {"met": "lower", "missed": "higher"}.get(verdict(difference, high_bound=0.0), "not distinguishable")
+            difference = bootstrap_mean(
+                [
+                    r["methods"][name][count]["preference_error"]
+                    - r["methods"][reference][count]["preference_error"]
+                    for r in results.values()
+                ]
+            )
+            judged = {"met": "lower", "missed": "higher"}.get(
+                verdict(difference, high_bound=0.0), "not distinguishable"
+            )
             cells.append("" if name == reference else f"{_three(difference)} {judged}")
             lines.append(f"| {name} | {count} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -209,17 +297,23 @@ def measured_members(out: Path) -> dict[int, dict]:
 
 
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
-    """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`) after
-    one and two failures."""
+    """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`)
+    after one and two failures."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    columns = [("DP", "1", "DP (no memory)"), ("DP*", "1", "DP* after 1"), (ccdp, "1", f"{ccdp} after 1"),
-               ("DP*", "2", "DP* after 2"), (ccdp, "2", f"{ccdp} after 2")]
-    fig, axes = plt.subplots(len(results), len(columns), figsize=(2.2 * len(columns), 2.2 * len(results)),
-                             squeeze=False)
+    columns = [
+        ("DP", "1", "DP (no memory)"),
+        ("DP*", "1", "DP* after 1"),
+        (ccdp, "1", f"{ccdp} after 1"),
+        ("DP*", "2", "DP* after 2"),
+        (ccdp, "2", f"{ccdp} after 2"),
+    ]
+    fig, axes = plt.subplots(
+        len(results), len(columns), figsize=(2.2 * len(columns), 2.2 * len(results)), squeeze=False
+    )
     colours = plt.get_cmap("tab10")
     for row, (seed, r) in enumerate(sorted(results.items())):
         task = ReachingTask.family_member(seed)
@@ -230,8 +324,13 @@ def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
                 ax.plot(chunk[:, 0], chunk[:, 1], color=colours(goal % 10), lw=0.6, alpha=0.6)
             failed = r["methods"][name][count]["failed"] if name != "DP" else []
             for g, (x, y) in enumerate(task.goals):
-                ax.scatter([x], [y], s=20 + 200 * task.preference[g], color=colours(g % 10),
-                           marker="x" if g in failed else "o")
+                ax.scatter(
+                    [x],
+                    [y],
+                    s=20 + 200 * task.preference[g],
+                    color=colours(g % 10),
+                    marker="x" if g in failed else "o",
+                )
             ax.set_xlim(-1.3, 1.3), ax.set_ylim(-1.3, 1.3), ax.set_xticks([]), ax.set_yticks([])
             if row == 0:
                 ax.set_title(title, fontsize=8)
@@ -250,20 +349,45 @@ def main() -> None:
     parser.add_argument("--head-steps", type=int, default=3000)
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--rows", type=int, default=512)
-    parser.add_argument("--w-z", type=float, nargs="+", default=[1.0],
-                        help="classifier guidance weights to measure (sampling settings: no retraining)")
-    parser.add_argument("--no-classifier", dest="classifier", action="store_false",
-                        help="train and measure no failure-set classifier")
-    parser.add_argument("--set-denoiser", action="store_true",
-                        help="also train and measure the failure-set denoiser (recovery_head=set_denoiser)")
-    parser.add_argument("--redraws", type=int, nargs="+", default=[0],
-                        help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)")
+    parser.add_argument(
+        "--w-z",
+        type=float,
+        nargs="+",
+        default=[1.0],
+        help="classifier guidance weights to measure (sampling settings: no retraining)",
+    )
+    parser.add_argument(
+        "--no-classifier",
+        dest="classifier",
+        action="store_false",
+        help="train and measure no failure-set classifier",
+    )
+    parser.add_argument(
+        "--set-denoiser",
+        action="store_true",
+        help="also train and measure the failure-set denoiser (recovery_head=set_denoiser)",
+    )
+    parser.add_argument(
+        "--redraws",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)",
+    )
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
-    parser.add_argument("--merge", type=Path, nargs="+", default=[],
-                        help="with --report-only: also take the members measured under these --out folders (members "
-                             "run side by side, each with its own --out) into --out's results")
-    parser.add_argument("--adopt", action="store_true",
-                        help="take over an --out made by a version of this script from before ownership markers")
+    parser.add_argument(
+        "--merge",
+        type=Path,
+        nargs="+",
+        default=[],
+        help="with --report-only: also take the members measured under these --out folders (members "
+        "run side by side, each with its own --out) into --out's results",
+    )
+    parser.add_argument(
+        "--adopt",
+        action="store_true",
+        help="take over an --out made by a version of this script from before ownership markers",
+    )
     args = parser.parse_args()
     try:
         claim_output_folder(args.out, "benchmarks/bench_preferences.py", adopt=args.adopt)
@@ -279,10 +403,20 @@ def main() -> None:
     for seed in [] if args.report_only else args.members:
         started = time.perf_counter()
         task = ReachingTask.family_member(seed)
-        print(f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, bend "
-              f"{task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}", flush=True)
-        heads = prepare_member(seed, args.out, args.base_steps, args.head_steps, args.episodes, args.classifier,
-                               args.set_denoiser)
+        print(
+            f"member {seed}: {len(task.goals)} goals, preference {np.round(task.preference, 2).tolist()}, "
+            f"bend {task.bend:.2f}, z {'primitive' if task.labelled else 'final_state'}",
+            flush=True,
+        )
+        heads = prepare_member(
+            seed,
+            args.out,
+            args.base_steps,
+            args.head_steps,
+            args.episodes,
+            args.classifier,
+            args.set_denoiser,
+        )
         root, repo = member_dataset(seed, args.out)
         demos = LeRobotDataset(repo, root=root)
         for k, (head, checkpoint) in enumerate(heads.items()):
@@ -295,14 +429,16 @@ def main() -> None:
         results_path.write_text(json.dumps(results))
         print(f"member {seed} done in {time.perf_counter() - started:.0f} s", flush=True)
     chosen = {seed: results[seed] for seed in args.members}
-    text = f"{table(chosen)}\n\nOver the {len(chosen)} members (95% bootstrap intervals over members):\n\n" \
-           f"{family_summary(chosen)}"
+    text = (
+        f"{table(chosen)}\n\nOver the {len(chosen)} members (95% bootstrap intervals over members):\n\n"
+        f"{family_summary(chosen)}"
+    )
     print(text)
     (args.out / "preferences.md").write_text(
-        f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base {args.base_steps} "
-        f"steps, heads {args.head_steps} steps (classifier {args.classifier}, set denoiser {args.set_denoiser}), "
-        f"guidance weights {args.w_z}, redraws {args.redraws}.\n\n"
-        f"{text}\n")
+        f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base "
+        f"{args.base_steps} steps, heads {args.head_steps} steps (classifier {args.classifier}, set denoiser "
+        f"{args.set_denoiser}), guidance weights {args.w_z}, redraws {args.redraws}.\n\n{text}\n"
+    )
     shown = ccdp_name(args.w_z[0], args.redraws[0]) if args.classifier else "CCDP set denoiser"
     panel_grid(chosen, args.out / "preferences.png", shown)
 

@@ -1,14 +1,16 @@
-"""How often a label-free segment ends where the demonstrated option ends (issue 17: `final_state` z without labels).
+"""How often a label-free segment ends where the demonstrated option ends (issue 17: `final_state` z without
+labels).
 
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_segments.py [--tasks all] [--episodes 100]
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_segments.py [--tasks all]
+        [--episodes 100]
 
 Records `--episodes` demonstrations of each task with its recipe (lerobot-ccdp-record, into a fresh temporary
-folder), then gives every frame the state its option reaches under each of `demo_segments.SEGMENT_RULES` with the
-labels hidden (`labels` then means the episode's end, today's label-free form) and compares it with the end of the
-frame's labelled option (the recorded `primitive` column, which the policy never reads here). Prints one markdown
-table: the share of frames whose label-free end lies within `--tolerance` metres (pinch point x, y) of their
-labelled end, and the segments per episode. A rule that splits an option (a grasp on the way to a crate) or merges
-two (a whole episode of two fills) scores low.
+folder), then gives every frame the state its option reaches under each of `demo_segments.SEGMENT_RULES` with
+the labels hidden (`labels` then means the episode's end, today's label-free form) and compares it with the
+end of the frame's labelled option (the recorded `primitive` column, which the policy never reads here).
+Prints one markdown table: the share of frames whose label-free end lies within `--tolerance` metres (pinch
+point x, y) of their labelled end, and the segments per episode. A rule that splits an option (a grasp on the
+way to a crate) or merges two (a whole episode of two fills) scores low.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ PINCH_XY = [0, 1]  # observation.state: pinch point x, y, z, closure
 
 
 def agreement(columns: dict[str, np.ndarray], rule: str, tolerance: float) -> tuple[float, float]:
-    """(share of frames whose end under `rule` is within `tolerance` of the labelled end, segments per episode)."""
+    """(share of frames whose end under `rule` is within `tolerance` of the labelled end, segments per
+    episode)."""
     episodes, states, actions = columns["episode_index"], columns[OBS_STATE][:, PINCH_XY], columns[ACTION]
     labelled = segment_final_states(states, segment_ends("labels", episodes, actions, columns["primitive"]))
     ends = segment_ends(rule, episodes, actions)
@@ -42,14 +45,23 @@ def agreement(columns: dict[str, np.ndarray], rule: str, tolerance: float) -> tu
 
 def record(task: str, root: Path, episodes: int) -> dict[str, np.ndarray]:
     slug = task_slug(task)
-    subprocess.run([str(BIN / "lerobot-ccdp-record"), f"--config_path={REPO / 'datasets_recipes' / f'{slug}.yaml'}",
-                    f"--dataset.repo_id=local/{slug}", f"--dataset.root={root}", f"--record.n_episodes={episodes}"],
-                   check=True)
+    subprocess.run(
+        [
+            str(BIN / "lerobot-ccdp-record"),
+            f"--config_path={REPO / 'datasets_recipes' / f'{slug}.yaml'}",
+            f"--dataset.repo_id=local/{slug}",
+            f"--dataset.root={root}",
+            f"--record.n_episodes={episodes}",
+        ],
+        check=True,
+    )
     return read_columns(LeRobotDatasetMetadata(f"local/{slug}", root=root), [OBS_STATE, ACTION, "primitive"])
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--tasks", nargs="+", default=["all"])
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--tolerance", type=float, default=0.02, help="metres, pinch point x, y")
@@ -59,10 +71,14 @@ def main(argv: list[str] | None = None) -> None:
         for task in expand_tasks(args.tasks):
             columns = record(task, Path(tmp) / task, args.episodes)
             cells = [agreement(columns, rule, args.tolerance) for rule in SEGMENT_RULES]
-            rows.append(f"| {task} | " + " | ".join(f"{share:.2f} ({per:.1f})" for share, per in cells) + " |")
+            rows.append(
+                f"| {task} | " + " | ".join(f"{share:.2f} ({per:.1f})" for share, per in cells) + " |"
+            )
     header = " | ".join(f"`{r}`" + (" (episode end)" if r == "labels" else "") for r in SEGMENT_RULES)
-    print(f"\nFrames whose label-free end is within {args.tolerance} m of their labelled option's end "
-          f"(segments per episode), {args.episodes} demonstrations per task:\n")
+    print(
+        f"\nFrames whose label-free end is within {args.tolerance} m of their labelled option's end "
+        f"(segments per episode), {args.episodes} demonstrations per task:\n"
+    )
     print(f"| task | {header} |\n|---|" + "---|" * len(SEGMENT_RULES))
     print("\n".join(rows))
 

@@ -1,4 +1,5 @@
-"""Recovery synthesis and recovery training: throughput, recovery-set size, training time, and the paper's Fig. 2.
+"""Recovery synthesis and recovery training: throughput, recovery-set size, training time, and the paper's
+Fig. 2.
 
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_synthesis.py \
         [--tasks reaching2d DoorOpening-v0 ...] [--base-steps 1000] [--recovery-steps 3000] [--w-z 3] \
@@ -8,8 +9,8 @@ For every task: record the demos (`lerobot-ccdp-record`, or the 2-D recorder), t
 `lerobot-train` (or take `--base TASK=<pretrained_model>`), run `lerobot-ccdp-synthesize` with the task's
 recipe in datasets_recipes/, and train the recovery stage with `lerobot-train`. Prints one table (synthesis
 pairs/s, rows synthesised and drawn from demos, wall times of every stage) and, on the 2-D task, saves
-fig2_reaching2d.png: sampled chunks from DP, then CCDP after one and after two failed goals (the paper's Fig. 2).
-Everything is kept under --work (ignored by git).
+fig2_reaching2d.png: sampled chunks from DP, then CCDP after one and after two failed goals (the paper's
+Fig. 2). Everything is kept under --work (ignored by git).
 """
 
 from __future__ import annotations
@@ -36,28 +37,49 @@ RECIPES = {"reaching2d": "reaching2d", **{task: task_slug(task) for task in TASK
 FIG2_ROWS = 96
 SHARE_ROWS = 512
 # (title, recovery_mode, failed goals) of the three Fig. 2 panels, also the rows of the sampler table.
-PANELS = [("DP", "dp", []), ("CCDP, goal 0 failed", "ccdp", [0]), ("CCDP, goals 0 and 1 failed", "ccdp", [0, 1])]
+PANELS = [
+    ("DP", "dp", []),
+    ("CCDP, goal 0 failed", "ccdp", [0]),
+    ("CCDP, goals 0 and 1 failed", "ccdp", [0, 1]),
+]
 
 
 def run(*args: str) -> float:
     """Run a console script of this venv; return its wall time (s)."""
     start = time.perf_counter()
-    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True,
-                            env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    result = subprocess.run(
+        [str(BIN / args[0]), *args[1:]],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+    )
     if result.returncode:
         sys.exit(f"{' '.join(args)} failed:\n{result.stdout[-2000:]}\n{result.stderr[-4000:]}")
     return time.perf_counter() - start
 
 
 def train(policy_args: list[str], repo_id: str, root: Path, out: Path, steps: int) -> tuple[Path, float]:
-    seconds = run("lerobot-train", *policy_args, f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
-                  f"--output_dir={out}", f"--steps={steps}", "--batch_size=64", f"--save_freq={steps}",
-                  "--policy.push_to_hub=false", "--num_workers=0", "--wandb.enable=false", "--log_freq=100",
-                  "--seed=0")
+    seconds = run(
+        "lerobot-train",
+        *policy_args,
+        f"--dataset.repo_id={repo_id}",
+        f"--dataset.root={root}",
+        f"--output_dir={out}",
+        f"--steps={steps}",
+        "--batch_size=64",
+        f"--save_freq={steps}",
+        "--policy.push_to_hub=false",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--log_freq=100",
+        "--seed=0",
+    )
     return out / "checkpoints" / "last" / "pretrained_model", seconds
 
 
-def bench_task(task: str, work: Path, base: Path | None, base_steps: int, recovery_steps: int, w_z: float) -> dict:
+def bench_task(
+    task: str, work: Path, base: Path | None, base_steps: int, recovery_steps: int, w_z: float
+) -> dict:
     name = RECIPES[task]
     recipe_path = REPO / "datasets_recipes" / f"{name}.yaml"
     recovery = yaml.safe_load(recipe_path.read_text())["recovery"]
@@ -66,29 +88,48 @@ def bench_task(task: str, work: Path, base: Path | None, base_steps: int, recove
         if task == "reaching2d":
             row["record_s"] = run("python", "-m", "lerobot_ccdp.benchmark.reaching2d", f"--root={demos}")
         else:
-            row["record_s"] = run("lerobot-ccdp-record", f"--config_path={recipe_path}",
-                                  f"--dataset.repo_id=local/{name}", f"--dataset.root={demos}")
+            row["record_s"] = run(
+                "lerobot-ccdp-record",
+                f"--config_path={recipe_path}",
+                f"--dataset.repo_id=local/{name}",
+                f"--dataset.root={demos}",
+            )
     if base is None:
-        flags = [f"--policy.{k}={v}" for k, v in recovery.items() if k in ("failure_feature", "num_primitives")]
-        base, row["base_train_s"] = train(["--policy.type=ccdp", *flags], f"local/{name}", demos,
-                                          work / name / "base", base_steps)
+        flags = [
+            f"--policy.{k}={v}" for k, v in recovery.items() if k in ("failure_feature", "num_primitives")
+        ]
+        base, row["base_train_s"] = train(
+            ["--policy.type=ccdp", *flags], f"local/{name}", demos, work / name / "base", base_steps
+        )
     data = work / name / "recovery_data"
-    row["synthesis_s"] = run("lerobot-ccdp-synthesize", f"--config_path={recipe_path}",
-                             f"--dataset.repo_id=local/{name}", f"--dataset.root={demos}", f"--policy.path={base}",
-                             f"--output.repo_id=local/{name}_recovery", f"--output.root={data}", "--overwrite=true")
+    row["synthesis_s"] = run(
+        "lerobot-ccdp-synthesize",
+        f"--config_path={recipe_path}",
+        f"--dataset.repo_id=local/{name}",
+        f"--dataset.root={demos}",
+        f"--policy.path={base}",
+        f"--output.repo_id=local/{name}_recovery",
+        f"--output.root={data}",
+        "--overwrite=true",
+    )
     result = yaml.safe_load((data / "meta" / "ccdp_recovery_recipe.yaml").read_text())["result"]
     row.update(result)
     row["chunks_per_s"] = result["pool_synthesised"] / result["sampling_seconds"]
     row["pairs_per_s"] = result["rows"] / result["seconds"]
     checkpoint, row["recovery_train_s"] = train(
-        [f"--policy.path={base}", "--policy.training_stage=recovery", f"--policy.w_z={w_z}"], f"local/{name}_recovery", data,
-        work / name / "recovery", recovery_steps)
+        [f"--policy.path={base}", "--policy.training_stage=recovery", f"--policy.w_z={w_z}"],
+        f"local/{name}_recovery",
+        data,
+        work / name / "recovery",
+        recovery_steps,
+    )
     row["checkpoint"] = str(checkpoint)
     return row
 
 
 def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
-    """Sampled chunks on the 2-D task: DP, CCDP after goal 0 failed, after goals 0 and 1 failed (paper Fig. 2)."""
+    """Sampled chunks on the 2-D task: DP, CCDP after goal 0 failed, after goals 0 and 1 failed (paper
+    Fig. 2)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -115,7 +156,9 @@ def fig2(checkpoint: Path, out: Path) -> dict[str, list[float]]:
         ax.scatter([0], [0], s=80, color="gold", edgecolors="k", zorder=4)
         ax.set_title(f"{title}\nshares {', '.join(f'{s:.2f}' for s in shares[title])}", fontsize=10)
         ax.set_aspect("equal")
-    fig.suptitle("Sampled chunks from the start state (yellow); red x = failed goal; circles = demonstrated goals")
+    fig.suptitle(
+        "Sampled chunks from the start state (yellow); red x = failed goal; circles = demonstrated goals"
+    )
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     return shares
@@ -144,16 +187,33 @@ def sampler_shares(checkpoint: Path) -> dict[str, dict[str, list[float]]]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", nargs="+", default=["reaching2d", *TASK_GROUPS["all"]], choices=list(RECIPES))
-    parser.add_argument("--base", nargs="*", default=[], metavar="TASK=CHECKPOINT",
-                        help="use an existing base checkpoint instead of training one")
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--tasks", nargs="+", default=["reaching2d", *TASK_GROUPS["all"]], choices=list(RECIPES)
+    )
+    parser.add_argument(
+        "--base",
+        nargs="*",
+        default=[],
+        metavar="TASK=CHECKPOINT",
+        help="use an existing base checkpoint instead of training one",
+    )
     parser.add_argument("--base-steps", type=int, default=1000)
-    parser.add_argument("--recovery-steps", type=int, default=3000, help="as tests/recovery/test_recovery_claim.py")
-    parser.add_argument("--w-z", type=float, default=3.0, help="composition weight of the recovery checkpoint, as the task configs")
+    parser.add_argument(
+        "--recovery-steps", type=int, default=3000, help="as tests/recovery/test_recovery_claim.py"
+    )
+    parser.add_argument(
+        "--w-z",
+        type=float,
+        default=3.0,
+        help="composition weight of the recovery checkpoint, as the task configs",
+    )
     parser.add_argument("--work", type=Path, default=REPO / "outputs" / "bench_synthesis")
-    parser.add_argument("--adopt", action="store_true",
-                        help="take over a --work made by a version of this script from before ownership markers")
+    parser.add_argument(
+        "--adopt",
+        action="store_true",
+        help="take over a --work made by a version of this script from before ownership markers",
+    )
     args = parser.parse_args(argv)
     bases = dict(item.split("=", 1) for item in args.base)
     try:
@@ -162,25 +222,48 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(str(error))
     rows = []
     for task in args.tasks:
-        rows.append(bench_task(task, args.work, Path(bases[task]) if task in bases else None, args.base_steps,
-                               args.recovery_steps, args.w_z))
+        rows.append(
+            bench_task(
+                task,
+                args.work,
+                Path(bases[task]) if task in bases else None,
+                args.base_steps,
+                args.recovery_steps,
+                args.w_z,
+            )
+        )
         print(f"{task}: {rows[-1]}", flush=True)
-    print(f"\nMachine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
-          f"{torch.get_num_threads()} threads; base {args.base_steps} steps, recovery {args.recovery_steps} steps\n")
-    print("| task | pool: sampled + demo chunks | chunks sampled/s (eq. 7) | recovery rows | rows/s (whole command) "
-          "| synthesis (s) | base train (s) | recovery train (s) |")
+    print(
+        f"\nMachine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
+        f"{torch.get_num_threads()} threads; base {args.base_steps} steps, "
+        f"recovery {args.recovery_steps} steps\n"
+    )
+    print(
+        "| task | pool: sampled + demo chunks | chunks sampled/s (eq. 7) | recovery rows "
+        "| rows/s (whole command) | synthesis (s) | base train (s) | recovery train (s) |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['task']} | {r['pool_synthesised']} + {r['pool_demo']} | {r['chunks_per_s']:.0f} | {r['rows']} | "
-              f"{r['pairs_per_s']:.0f} | {r['seconds']:.1f} | {r.get('base_train_s', float('nan')):.0f} | "
-              f"{r['recovery_train_s']:.0f} |")
+        print(
+            f"| {r['task']} | {r['pool_synthesised']} + {r['pool_demo']} | {r['chunks_per_s']:.0f} | "
+            f"{r['rows']} | {r['pairs_per_s']:.0f} | {r['seconds']:.1f} | "
+            f"{r.get('base_train_s', float('nan')):.0f} | {r['recovery_train_s']:.0f} |"
+        )
     if "reaching2d" in args.tasks:
-        shares = fig2(Path(rows[args.tasks.index("reaching2d")]["checkpoint"]), args.work / "fig2_reaching2d.png")
-        print(f"\nFig. 2 saved to {args.work / 'fig2_reaching2d.png'}; goal shares (demonstrated 0.4/0.3/0.2/0.1):")
+        shares = fig2(
+            Path(rows[args.tasks.index("reaching2d")]["checkpoint"]), args.work / "fig2_reaching2d.png"
+        )
+        print(
+            f"\nFig. 2 saved to {args.work / 'fig2_reaching2d.png'}; "
+            "goal shares (demonstrated 0.4/0.3/0.2/0.1):"
+        )
         for title, share in shares.items():
             print(f"  {title}: {', '.join(f'{s:.2f}' for s in share)}")
         table = sampler_shares(Path(rows[args.tasks.index("reaching2d")]["checkpoint"]))
-        print(f"\nGoal shares of {SHARE_ROWS} chunks by reverse sampler (10 steps; demonstrated 0.4/0.3/0.2/0.1):")
+        print(
+            f"\nGoal shares of {SHARE_ROWS} chunks by reverse sampler "
+            "(10 steps; demonstrated 0.4/0.3/0.2/0.1):"
+        )
         print("| chunks | DDIM | DDPM |\n|---|---|---|")
         for label, by_scheduler in table.items():
             cells = [" / ".join(f"{s:.2f}" for s in by_scheduler[k]) for k in ("DDIM", "DDPM")]

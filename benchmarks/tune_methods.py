@@ -5,24 +5,27 @@
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/benchmark \
         --tasks ButtonSearch-v0 --method ccdp --grid ccdp_redraws=0,3 [--write]
 
-Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy fields
-on each task's recovery checkpoint of a `make benchmark` run (or `python -m lerobot_ccdp.benchmark.pipeline --train-only`),
-through lerobot-eval with the task's eval config and the method's other settings from `methods.json`, but on the
-development seeds (`--seed`, default 1000: episode i uses seed + i; the configs' test seeds start at 2000), without
-rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of successful episodes,
-why episodes were lost, evaluation time; success and repeats also as paired differences against the grid's first
-setting) and picks one setting for the tasks given, their episodes pooled: the grid's first setting (list the
-default or the cheapest value first) unless another beats it, paired, with a 95% interval clear of 0, on success
-(the highest mean success of those that do) or, where none does, on repeats without a success interval wholly below
-0 (the fewest mean repeats). A tie keeps the first setting. With `--write` it stores the pick under the method's
-key of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
-lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabulates an earlier run's evaluations.
+Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy
+fields on each task's recovery checkpoint of a `make benchmark` run (or
+`python -m lerobot_ccdp.benchmark.pipeline --train-only`), through lerobot-eval with the task's eval config
+and the method's other settings from `methods.json`, but on the development seeds (`--seed`, default 1000:
+episode i uses seed + i; the configs' test seeds start at 2000), without rendering. Prints one markdown table
+(success, repeats per attempt after a failure, attempts of successful episodes, why episodes were lost,
+evaluation time; success and repeats also as paired differences against the grid's first setting) and picks
+one setting for the tasks given, their episodes pooled: the grid's first setting (list the default or the
+cheapest value first) unless another beats it, paired, with a 95% interval clear of 0, on success (the highest
+mean success of those that do) or, where none does, on repeats without a success interval wholly below 0 (the
+fewest mean repeats). A tie keeps the first setting. With `--write` it stores the pick under the method's key
+of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
+lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabulates an earlier run's
+evaluations.
 
-`--checkpoint NAME=PATH` adds another recovery checkpoint of the same base (a different recovery head, trained with
-lerobot-train from `<out>/<task>/base`), evaluated with every grid setting on the same seeds, so the heads compare
-paired; `--write` refuses a pick on such a checkpoint, as the head is chosen in the task's train_base.json.
-`--heads NAME ...` evaluates only the heads named (`recovery` is the run's own), where another head's grid needs
-settings the run's own head has no use for; the differences are then against the first named head's first setting.
+`--checkpoint NAME=PATH` adds another recovery checkpoint of the same base (a different recovery head, trained
+with lerobot-train from `<out>/<task>/base`), evaluated with every grid setting on the same seeds, so the
+heads compare paired; `--write` refuses a pick on such a checkpoint, as the head is chosen in the task's
+train_base.json. `--heads NAME ...` evaluates only the heads named (`recovery` is the run's own), where
+another head's grid needs settings the run's own head has no use for; the differences are then against the
+first named head's first setting.
 """
 
 from __future__ import annotations
@@ -95,9 +98,12 @@ def table_rows(grid: list[Setting], checkpoints: dict[str, str], heads: list[str
     known = [OWN, *checkpoints]
     unknown = sorted(set(heads or []) - set(known))
     if unknown:
-        raise SystemExit(f"--heads names {unknown}, which are not heads of this run: choose from {known} "
-                         "(add a head with --checkpoint NAME=PATH).")
-    return [(name, setting) for name in dict.fromkeys(heads or known) for setting in grid]  # a head named twice runs once
+        raise SystemExit(
+            f"--heads names {unknown}, which are not heads of this run: choose from {known} "
+            "(add a head with --checkpoint NAME=PATH)."
+        )
+    # a head named twice runs once
+    return [(name, setting) for name in dict.fromkeys(heads or known) for setting in grid]
 
 
 def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, seed: int) -> Path:
@@ -107,13 +113,20 @@ def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, se
 
 
 def checkpoint_path(files: TaskFiles, checkpoints: dict[str, str], name: str) -> Path:
-    """The recovery checkpoint `name` of one task: the run's own, or a `--checkpoint` path with `{slug}` filled."""
-    return files.out / "recovery" / CHECKPOINT if name == OWN else Path(checkpoints[name].format(slug=files.out.name))
+    """The recovery checkpoint `name` of one task: the run's own, or a `--checkpoint` path with `{slug}`
+    filled."""
+    return (
+        files.out / "recovery" / CHECKPOINT
+        if name == OWN
+        else Path(checkpoints[name].format(slug=files.out.name))
+    )
 
 
-def evaluate(files: TaskFiles, method: str, checkpoint: Path, name: str, setting: Setting, seed: int) -> float:
-    """`method` with `setting` on one task's recovery `checkpoint`, evaluated as the benchmark evaluates it but
-    unrendered, into `run_dir`: the evaluation's wall time."""
+def evaluate(
+    files: TaskFiles, method: str, checkpoint: Path, name: str, setting: Setting, seed: int
+) -> float:
+    """`method` with `setting` on one task's recovery `checkpoint`, evaluated as the benchmark evaluates it
+    but unrendered, into `run_dir`: the evaluation's wall time."""
     out = run_dir(files, method, name, setting, seed)
     shutil.rmtree(out, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
     flags = files.method_flags(method, dict(setting)) + ["--env.render_mode=null"]
@@ -149,51 +162,87 @@ def measured(files: TaskFiles, method: str, name: str, setting: Setting, seed: i
     """The episodes of one evaluation already in `run_dir`, and its wall time."""
     out = run_dir(files, method, name, setting, seed)
     if not (out / "eval_info.json").is_file():
-        raise SystemExit(f"No evaluation of {method} with {label(setting)} under {out}; run without --report-only.")
+        raise SystemExit(
+            f"No evaluation of {method} with {label(setting)} under {out}; run without --report-only."
+        )
     seconds = out / "seconds.txt"
-    return Episodes.from_eval_info(out / "eval_info.json"), float(seconds.read_text()) if seconds.is_file() else np.nan
+    return Episodes.from_eval_info(out / "eval_info.json"), float(
+        seconds.read_text()
+    ) if seconds.is_file() else np.nan
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--out", type=Path, default=Path("outputs/benchmark"), help="a make benchmark run")
-    parser.add_argument("--tasks", nargs="+", default=["all"], help=f"task ids, or one of {list(TASK_GROUPS)}")
+    parser.add_argument(
+        "--tasks", nargs="+", default=["all"], help=f"task ids, or one of {list(TASK_GROUPS)}"
+    )
     parser.add_argument("--method", choices=[m for m in METHODS if m != "dp"], default="dp_star")
-    parser.add_argument("--grid", nargs="+", default=["dp_star_candidates=16,32", "dp_star_rounds=1,4"],
-                        help="policy fields and the values to try, FIELD=V1,V2,...")
-    parser.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
-                        help="also evaluate this recovery checkpoint (another head trained from the run's base; "
-                             "`{slug}` in PATH is the task's folder name), crossed with the grid")
-    parser.add_argument("--heads", nargs="+", default=None, metavar="NAME",
-                        help=f"evaluate only these heads ({OWN!r} is the run's own; default: every head)")
+    parser.add_argument(
+        "--grid",
+        nargs="+",
+        default=["dp_star_candidates=16,32", "dp_star_rounds=1,4"],
+        help="policy fields and the values to try, FIELD=V1,V2,...",
+    )
+    parser.add_argument(
+        "--checkpoint",
+        action="append",
+        default=[],
+        metavar="NAME=PATH",
+        help="also evaluate this recovery checkpoint (another head trained from the run's base; "
+        "`{slug}` in PATH is the task's folder name), crossed with the grid",
+    )
+    parser.add_argument(
+        "--heads",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help=f"evaluate only these heads ({OWN!r} is the run's own; default: every head)",
+    )
     parser.add_argument("--seed", type=int, default=1000, help="first development seed")
     parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
-    parser.add_argument("--report-only", action="store_true",
-                        help="tabulate the evaluations of an earlier run of this grid under --out, running none")
+    parser.add_argument(
+        "--report-only",
+        action="store_true",
+        help="tabulate the evaluations of an earlier run of this grid under --out, running none",
+    )
     args = parser.parse_args(argv)
     args.tasks = expand_tasks(args.tasks)
     if owner(args.out.resolve()) != CREATED_BY:  # its evaluations are written, and replaced, inside --out
-        raise SystemExit(f"--out {args.out} is not an output folder of the pipeline (no {MARKER} of it there). Name "
-                         "a `make benchmark` folder; one made before ownership markers is marked, with nothing "
-                         "rerun, by `python -m lerobot_ccdp.benchmark.pipeline --tasks ... --out <it> --train-only --adopt`.")
+        raise SystemExit(
+            f"--out {args.out} is not an output folder of the pipeline (no {MARKER} of it there). Name a "
+            "`make benchmark` folder; one made before ownership markers is marked, with nothing rerun, by "
+            "`python -m lerobot_ccdp.benchmark.pipeline --tasks ... --out <it> --train-only --adopt`."
+        )
     checkpoints = dict(item.split("=", 1) for item in args.checkpoint if "=" in item)
     if len(checkpoints) != len(args.checkpoint) or OWN in checkpoints:
-        raise SystemExit(f"--checkpoint takes NAME=PATH with a NAME other than {OWN!r}, got {args.checkpoint}")
+        raise SystemExit(
+            f"--checkpoint takes NAME=PATH with a NAME other than {OWN!r}, got {args.checkpoint}"
+        )
     rows_of = table_rows(parse_grid(args.grid), checkpoints, args.heads)
     heads = list(dict.fromkeys(name for name, _ in rows_of))
-    files = {t: TaskFiles.locate(t, REPO / "configs", REPO / "datasets_recipes", args.out) for t in args.tasks}
+    files = {
+        t: TaskFiles.locate(t, REPO / "configs", REPO / "datasets_recipes", args.out) for t in args.tasks
+    }
     paths = {t: {name: checkpoint_path(f, checkpoints, name) for name in heads} for t, f in files.items()}
     missing = [str(path) for by_name in paths.values() for path in by_name.values() if not path.is_dir()]
     if missing:
-        raise SystemExit(f"No recovery checkpoint at {missing}; run `make benchmark` or "
-                         "`python -m lerobot_ccdp.benchmark.pipeline --train-only` first, and check the --checkpoint paths.")
+        raise SystemExit(
+            f"No recovery checkpoint at {missing}; run `make benchmark` or "
+            "`python -m lerobot_ccdp.benchmark.pipeline --train-only` first, and check the --checkpoint "
+            "paths."
+        )
     for task, f in files.items():
         config = f.eval_config()
         test, n = config["seed"], config["eval"]["n_episodes"]
         last = args.seed + n - 1
         if args.seed < test + n and test < args.seed + n:
-            raise SystemExit(f"--seed {args.seed} overlaps {task}'s test seeds {test}-{test + n - 1}; "
-                             "tune on development seeds.")
+            raise SystemExit(
+                f"--seed {args.seed} overlaps {task}'s test seeds {test}-{test + n - 1}; "
+                "tune on development seeds."
+            )
 
     rows, scores, by_task = [], {row: [] for row in rows_of}, {row: [] for row in rows_of}
     for task in args.tasks:
@@ -207,16 +256,21 @@ def main(argv: list[str] | None = None) -> None:
             metrics = MethodMetrics.of(episodes[row])
             scores[row].append((metrics.success.value, metrics.repeats_per_opportunity.value))
             first = episodes[rows_of[0]]
-            rows.append(f"| {task} | {row_label(row)} | {metrics.success} | "
-                        f"{paired_difference(episodes[row], first, success_rate)} | "
-                        f"{metrics.repeats_per_opportunity} | "
-                        f"{paired_difference(episodes[row], first, repeats_per_opportunity)} | "
-                        f"{metrics.attempts} | {LostEpisodes.of(episodes[row])} | {seconds:.0f} |")
+            rows.append(
+                f"| {task} | {row_label(row)} | {metrics.success} | "
+                f"{paired_difference(episodes[row], first, success_rate)} | "
+                f"{metrics.repeats_per_opportunity} | "
+                f"{paired_difference(episodes[row], first, repeats_per_opportunity)} | "
+                f"{metrics.attempts} | {LostEpisodes.of(episodes[row])} | {seconds:.0f} |"
+            )
             print(rows[-1], flush=True)
-    print(f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "
-          f"{row_label(rows_of[0])}\n\n| task | setting | success | difference | repeats per attempt after a failure | "
-          f"difference | attempts (successes) | {LOST_HEADER} | eval s |\n|---|---|---|---|---|---|---|---|---|\n"
-          + "\n".join(rows))
+    print(
+        f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "
+        f"{row_label(rows_of[0])}\n\n"
+        "| task | setting | success | difference | repeats per attempt after a failure | difference "
+        f"| attempts (successes) | {LOST_HEADER} | eval s |\n|---|---|---|---|---|---|---|---|---|\n"
+        + "\n".join(rows)
+    )
 
     means = {r: np.nanmean(np.array(v, dtype=float), axis=0) for r, v in scores.items()}  # (success, repeats)
     for row, (success, repeats) in means.items():
@@ -224,8 +278,10 @@ def main(argv: list[str] | None = None) -> None:
     (name, chosen), why = pick(rows_of, {row: Episodes.concatenate(parts) for row, parts in by_task.items()})
     print(f"pick for {args.method}: {row_label((name, chosen))} (seeds {args.seed}-{last}; {why})")
     if args.write and name != OWN:
-        raise SystemExit(f"Not written: the pick is the checkpoint {name!r}, not the run's own. A recovery head is "
-                         "part of the task's configs (`recovery_head` in train_base.json), not of methods.json.")
+        raise SystemExit(
+            f"Not written: the pick is the checkpoint {name!r}, not the run's own. A recovery head is "
+            "part of the task's configs (`recovery_head` in train_base.json), not of methods.json."
+        )
     if args.write:
         for f in files.values():
             path = f.eval.with_name("methods.json")

@@ -1,17 +1,19 @@
-"""`python -m lerobot_ccdp.benchmark.pipeline`: the CCDP main job end to end through the real CLIs, and the paper's comparison.
+"""`python -m lerobot_ccdp.benchmark.pipeline`: the CCDP main job end to end through the real CLIs, and the
+paper's comparison.
 
 Per task: record demos (lerobot-ccdp-record), train the base stage (lerobot-train), synthesise the recovery
 dataset (lerobot-ccdp-synthesize), train the recovery stage (lerobot-train), evaluate every method on the same
-seeds (lerobot-eval --policy.recovery_mode=...), run the no-repeat oracle on those seeds, and report the metrics
-with 95% intervals (`lerobot_ccdp.benchmark.comparison`) as markdown, JSON and a bar chart.
+seeds (lerobot-eval --policy.recovery_mode=...), run the no-repeat oracle on those seeds, and report the
+metrics with 95% intervals (`lerobot_ccdp.benchmark.comparison`) as markdown, JSON and a bar chart.
 
 Settings live in files a user can run by hand: `configs/<task>/{train_base,train_recovery,eval}.json` and
-`datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from `configs/<task>_pixels/`
-and `datasets_recipes/<task>_pixels.yaml`, `--label-free` the variant without labels (z where an option ends) from
-`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`. The pipeline only moves every output under `--out/<task>/` (datasets,
-checkpoints, eval_info.json, logs). A stage whose output exists is skipped, so an interrupted run resumes;
-`--fresh` starts over. The pipeline writes only into a folder it created or adopted, marked as its own
-(`lerobot_ccdp.datasets.ownership`), and deletes nothing else.
+`datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from
+`configs/<task>_pixels/` and `datasets_recipes/<task>_pixels.yaml`, `--label-free` the variant without labels
+(z where an option ends) from `configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`. The
+pipeline only moves every output under `--out/<task>/` (datasets, checkpoints, eval_info.json, logs). A stage
+whose output exists is skipped, so an interrupted run resumes; `--fresh` starts over. The pipeline writes only
+into a folder it created or adopted, marked as its own (`lerobot_ccdp.datasets.ownership`), and deletes
+nothing else.
 """
 
 from __future__ import annotations
@@ -53,22 +55,24 @@ from lerobot_ccdp.envs.tasks import is_lite
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 
 METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp")
-# The recovery_mode each method evaluates with. "dp_star_matched" is the compute-matched baseline: DP* with the
-# candidates that fit in CCDP's measured per-plan cost (MATCHED_DP_STAR unless methods.json names its own), so that
-# CCDP - matched DP* shows what composition buys over rejection at equal compute.
+# The recovery_mode each method evaluates with. "dp_star_matched" is the compute-matched baseline: DP* with
+# the candidates that fit in CCDP's measured per-plan cost (MATCHED_DP_STAR unless methods.json names its
+# own), so that CCDP - matched DP* shows what composition buys over rejection at equal compute.
 RECOVERY_MODE = {"dp": "dp", "dp_star": "dp_star", "dp_star_matched": "dp_star", "ccdp": "ccdp"}
 MATCHED_DP_STAR = {"dp_star_candidates": 2, "dp_star_rounds": 1}
-# Every method's evaluation runs with `--env.render_mode=null`, so its wall time measures the method alone (on the
-# Panda each rendered frame costs about 40 ms, and LeRobot renders 10 envs at every step of the first batch). The
-# pair `lerobot_ccdp.benchmark.watch` shows side by side, DP and CCDP, is rendered in a stage of its own: the first
-# VIDEO_EPISODES episodes again, on the same seeds and noise streams, under `<task>/videos/<method>/`.
+# Every method's evaluation runs with `--env.render_mode=null`, so its wall time measures the method alone (on
+# the Panda each rendered frame costs about 40 ms, and LeRobot renders 10 envs at every step of the first
+# batch). The pair `lerobot_ccdp.benchmark.watch` shows side by side, DP and CCDP, is rendered in a stage of
+# its own: the first VIDEO_EPISODES episodes again, on the same seeds and noise streams, under
+# `<task>/videos/<method>/`.
 VIDEO_METHODS = ("dp", "ccdp")
 VIDEO_EPISODES = 10
-# Every method is evaluated on common random numbers: each episode's plans draw from the same per-row noise streams
-# (`lerobot_ccdp.policy.noise_streams`), so DP, DP* and CCDP act alike until an episode's first failure and the paired
-# differences measure recovery, not the luck of the plans before it.
+# Every method is evaluated on common random numbers: each episode's plans draw from the same per-row noise
+# streams (`lerobot_ccdp.policy.noise_streams`), so DP, DP* and CCDP act alike until an episode's first
+# failure and the paired differences measure recovery, not the luck of the plans before it.
 COMMON_NOISE = "--policy.row_noise_streams=true"
-# Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric versions.
+# Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric
+# versions.
 TASK_GROUPS = {
     "all": [t for t in TASKS if not is_lite(t)],
     "lite": [t for t in TASKS if is_lite(t)],
@@ -122,13 +126,26 @@ class TaskFiles:
     out: Path
 
     @classmethod
-    def locate(cls, task: str, configs: Path, recipes: Path, out: Path, obs_type: str = "state",
-               label_free: bool = False) -> TaskFiles:
+    def locate(
+        cls,
+        task: str,
+        configs: Path,
+        recipes: Path,
+        out: Path,
+        obs_type: str = "state",
+        label_free: bool = False,
+    ) -> TaskFiles:
         if task not in TASKS:
             raise ValueError(f"Unknown task {task!r}; choose among {', '.join(TASKS)}")
         slug = task_slug(task) + OBS_VARIANTS[obs_type] + (LABEL_FREE if label_free else "")
-        files = cls(task, recipes / f"{slug}.yaml", configs / slug / "train_base.json",
-                    configs / slug / "train_recovery.json", configs / slug / "eval.json", out / slug)
+        files = cls(
+            task,
+            recipes / f"{slug}.yaml",
+            configs / slug / "train_base.json",
+            configs / slug / "train_recovery.json",
+            configs / slug / "eval.json",
+            out / slug,
+        )
         settings = (files.recipe, files.train_base, files.train_recovery, files.eval)
         missing = [str(p) for p in settings if not p.is_file()]
         if missing:
@@ -137,7 +154,9 @@ class TaskFiles:
         if env.get("task") != task:
             raise ValueError(f"{files.eval} evaluates env.task={env.get('task')!r}, not {task!r}")
         if env.get("obs_type", "state") != obs_type:
-            raise ValueError(f"{files.eval} evaluates env.obs_type={env.get('obs_type', 'state')!r}, not {obs_type!r}")
+            raise ValueError(
+                f"{files.eval} evaluates env.obs_type={env.get('obs_type', 'state')!r}, not {obs_type!r}"
+            )
         return files
 
     def eval_config(self) -> dict[str, Any]:
@@ -149,9 +168,9 @@ class TaskFiles:
         return json.loads(self.train_base.read_text()).get("policy", {}).get("recovery_head", "unet")
 
     def method_settings(self, method: str) -> dict[str, Any]:
-        """Policy fields with which `method` is evaluated, from the optional `methods.json` beside the eval config
-        ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared checkpoint does
-        not hold."""
+        """Policy fields with which `method` is evaluated, from the optional `methods.json` beside the eval
+        config ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared
+        checkpoint does not hold."""
         path = self.eval.with_name("methods.json")
         settings = json.loads(path.read_text()) if path.is_file() else {}
         unknown = sorted(set(settings) - set(METHODS))
@@ -160,22 +179,34 @@ class TaskFiles:
         return settings.get(method, MATCHED_DP_STAR if method == "dp_star_matched" else {})
 
     def method_flags(self, method: str, overrides: dict[str, Any] | None = None) -> list[str]:
-        """`method_settings`, with `overrides` on top (a setting being tuned), as lerobot-eval's `--policy.*` flags."""
+        """`method_settings`, with `overrides` on top (a setting being tuned), as lerobot-eval's `--policy.*`
+        flags."""
         settings = {**self.method_settings(method), **(overrides or {})}
         return [f"--policy.{key}={value}" for key, value in settings.items()]
 
-    def eval_command(self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str],
-                     videos: bool = False) -> list[str]:
-        """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`, on common
-        random numbers (`COMMON_NOISE`): unrendered, or (`videos`) the first VIDEO_EPISODES episodes (at most the
-        config's) rendered as the eval config says, in one batch. Episode i has seed `seed + i` and its row's noise
-        stream whatever the batch size, so the rendered episodes are the evaluated ones (up to the floating-point
-        differences of other batch sizes)."""
+    def eval_command(
+        self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str], videos: bool = False
+    ) -> list[str]:
+        """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`, on
+        common random numbers (`COMMON_NOISE`): unrendered, or (`videos`) the first VIDEO_EPISODES episodes
+        (at most the config's) rendered as the eval config says, in one batch. Episode i has seed `seed + i`
+        and its row's noise stream whatever the batch size, so the rendered episodes are the evaluated ones
+        (up to the floating-point differences of other batch sizes)."""
         n = min(VIDEO_EPISODES, self.eval_config()["eval"]["n_episodes"])
-        render = [f"--eval.n_episodes={n}", f"--eval.batch_size={n}"] if videos else ["--env.render_mode=null"]
-        return ["lerobot-eval", f"--config_path={self.eval}", f"--policy.path={checkpoint}",
-                f"--policy.recovery_mode={RECOVERY_MODE[method]}", COMMON_NOISE, *flags, *render, f"--seed={seed}",
-                f"--output_dir={out}"]
+        render = (
+            [f"--eval.n_episodes={n}", f"--eval.batch_size={n}"] if videos else ["--env.render_mode=null"]
+        )
+        return [
+            "lerobot-eval",
+            f"--config_path={self.eval}",
+            f"--policy.path={checkpoint}",
+            f"--policy.recovery_mode={RECOVERY_MODE[method]}",
+            COMMON_NOISE,
+            *flags,
+            *render,
+            f"--seed={seed}",
+            f"--output_dir={out}",
+        ]
 
     @property
     def demos(self) -> Path:
@@ -207,51 +238,100 @@ class TaskRun:
 
     def run(self, methods: list[str]) -> dict[str, Episodes]:
         f = self.files
-        demos = self._stage("record", f.demos / "meta" / "info.json", [
-            "lerobot-ccdp-record", f"--config_path={f.recipe}", f"--dataset.repo_id=local/{self.slug}",
-            f"--dataset.root={f.demos}"], upstream=None, clear=f.demos)
-        base, base_stamp = self._train("train_base", f.train_base, f.out / "base", f"local/{self.slug}", f.demos,
-                                       upstream=demos)
+        demos = self._stage(
+            "record",
+            f.demos / "meta" / "info.json",
+            [
+                "lerobot-ccdp-record",
+                f"--config_path={f.recipe}",
+                f"--dataset.repo_id=local/{self.slug}",
+                f"--dataset.root={f.demos}",
+            ],
+            upstream=None,
+            clear=f.demos,
+        )
+        base, base_stamp = self._train(
+            "train_base", f.train_base, f.out / "base", f"local/{self.slug}", f.demos, upstream=demos
+        )
         if f.recovery_head() == "classifier":  # learns from the demonstrations: nothing to synthesise
             recovery_repo, recovery_root, recovery_upstream = f"local/{self.slug}", f.demos, base_stamp
         else:
             recovery_repo, recovery_root = f"local/{self.slug}_recovery", f.recovery_data
-            recovery_upstream = self._stage("synthesize", f.recovery_data / "meta" / "info.json", [
-                "lerobot-ccdp-synthesize", f"--config_path={f.recipe}", f"--dataset.repo_id=local/{self.slug}",
-                f"--dataset.root={f.demos}", f"--policy.path={base}", f"--output.repo_id={recovery_repo}",
-                f"--output.root={f.recovery_data}"],
-                upstream=base_stamp, clear=f.recovery_data)
+            recovery_upstream = self._stage(
+                "synthesize",
+                f.recovery_data / "meta" / "info.json",
+                [
+                    "lerobot-ccdp-synthesize",
+                    f"--config_path={f.recipe}",
+                    f"--dataset.repo_id=local/{self.slug}",
+                    f"--dataset.root={f.demos}",
+                    f"--policy.path={base}",
+                    f"--output.repo_id={recovery_repo}",
+                    f"--output.root={f.recovery_data}",
+                ],
+                upstream=base_stamp,
+                clear=f.recovery_data,
+            )
         recovery, recovery_stamp = self._train(
-            "train_recovery", f.train_recovery, f.out / "recovery", recovery_repo, recovery_root,
-            f"--policy.path={base}", "--policy.training_stage=recovery", upstream=recovery_upstream)
+            "train_recovery",
+            f.train_recovery,
+            f.out / "recovery",
+            recovery_repo,
+            recovery_root,
+            f"--policy.path={base}",
+            "--policy.training_stage=recovery",
+            upstream=recovery_upstream,
+        )
         for method in methods:
             out = f.eval_dir(method)
-            self._stage(f"eval_{method}", out / "eval_info.json",
-                        f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method)),
-                        upstream=recovery_stamp, clear=out)
+            self._stage(
+                f"eval_{method}",
+                out / "eval_info.json",
+                f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method)),
+                upstream=recovery_stamp,
+                clear=out,
+            )
         for method in (m for m in methods if m in VIDEO_METHODS):
             out = f.video_dir(method)
-            self._stage(f"videos_{method}", out / "eval_info.json",
-                        f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method), videos=True),
-                        upstream=recovery_stamp, clear=out)
+            self._stage(
+                f"videos_{method}",
+                out / "eval_info.json",
+                f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method), videos=True),
+                upstream=recovery_stamp,
+                clear=out,
+            )
         return self.episodes(methods) if methods else {}
 
     def episodes(self, methods: list[str]) -> dict[str, Episodes]:
         """Every method's evaluated episodes, and the oracle's on the same seeds (run here if missing)."""
         missing = [m for m in methods if not (self.files.eval_dir(m) / "eval_info.json").exists()]
         if missing:
-            raise PipelineError(f"{self.files.task}: no evaluation of {missing} under {self.files.out / 'eval'}; "
-                                "run the pipeline without --report-only first.")
+            raise PipelineError(
+                f"{self.files.task}: no evaluation of {missing} under {self.files.out / 'eval'}; "
+                "run the pipeline without --report-only first."
+            )
         episodes = {m: Episodes.from_eval_info(self.files.eval_dir(m) / "eval_info.json") for m in methods}
         episodes["oracle"] = self._oracle()
         return episodes
 
-    def _train(self, stage: str, config: Path, out: Path, repo_id: str, root: Path, *extra: str,
-               upstream: str) -> tuple[Path, str]:
+    def _train(
+        self, stage: str, config: Path, out: Path, repo_id: str, root: Path, *extra: str, upstream: str
+    ) -> tuple[Path, str]:
         checkpoint = out / CHECKPOINT
-        stamp_value = self._stage(stage, checkpoint / "model.safetensors", [
-            "lerobot-train", f"--config_path={config}", f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
-            f"--output_dir={out}", *extra], upstream=upstream, clear=out)
+        stamp_value = self._stage(
+            stage,
+            checkpoint / "model.safetensors",
+            [
+                "lerobot-train",
+                f"--config_path={config}",
+                f"--dataset.repo_id={repo_id}",
+                f"--dataset.root={root}",
+                f"--output_dir={out}",
+                *extra,
+            ],
+            upstream=upstream,
+            clear=out,
+        )
         return checkpoint, stamp_value
 
     def _stage(self, name: str, output: Path, command: list[str], upstream: str | None, clear: Path) -> str:
@@ -261,25 +341,33 @@ class TaskRun:
         it must lie inside the task's folder, which lies in the --out this pipeline owns."""
         task_out = self.files.out.resolve()
         if clear.resolve() == task_out or not clear.resolve().is_relative_to(task_out):
-            raise PipelineError(f"{self.files.task} {name}: refusing to clear {clear}, which is not inside "
-                                f"the task's output folder {self.files.out}; a stage clears only its own.")
+            raise PipelineError(
+                f"{self.files.task} {name}: refusing to clear {clear}, which is not inside "
+                f"the task's output folder {self.files.out}; a stage clears only its own."
+            )
         current = stamp(command, upstream)
         if output.exists() and self.stamps.matches(name, current):
             print(f"[{self.files.task}] {name}: done already ({output})", flush=True)
             return current
         if output.exists():
-            print(f"[{self.files.task}] {name}: its inputs changed since {output} was made; running it again",
-                  flush=True)
+            print(
+                f"[{self.files.task}] {name}: its inputs changed since {output} was made; running it again",
+                flush=True,
+            )
         if clear.exists():
             shutil.rmtree(clear)
         log = self.logs / f"{name}.log"
         print(f"[{self.files.task}] {name}: {shlex.join(command)}", flush=True)
         start = time.perf_counter()
-        returncode = run_with_progress([str(BIN / command[0]), *command[1:]], log, f"[{self.files.task}] {name}")
+        returncode = run_with_progress(
+            [str(BIN / command[0]), *command[1:]], log, f"[{self.files.task}] {name}"
+        )
         if returncode != 0 or not output.exists():
             tail = log.read_text()[-4000:]
-            raise PipelineError(f"{self.files.task} {name} failed (exit {returncode}, expected {output}): "
-                                f"{shlex.join(command)}\n--- end of {log} ---\n{tail}")
+            raise PipelineError(
+                f"{self.files.task} {name} failed (exit {returncode}, expected {output}): "
+                f"{shlex.join(command)}\n--- end of {log} ---\n{tail}"
+            )
         self.timings[name] = round(time.perf_counter() - start, 1)
         (self.files.out / "timings.json").write_text(json.dumps(self.timings, indent=2))
         self.stamps.record(name, current)
@@ -298,7 +386,10 @@ class TaskRun:
             env_config = CCDPEnvConfig(**{**env_settings, "obs_type": "state"})
             env = gym.make(env_config.gym_id, **{**env_config.gym_kwargs, "render_mode": None})
             oracle = NoRepeatOracle(env)
-            infos = [run_episode(env, oracle, seed=self.eval_seed + i).info for i in range(config["eval"]["n_episodes"])]
+            infos = [
+                run_episode(env, oracle, seed=self.eval_seed + i).info
+                for i in range(config["eval"]["n_episodes"])
+            ]
             path.write_text(json.dumps([{k: _plain(v) for k, v in i.items()} for i in infos]))
             self.stamps.record("oracle", current)
         return Episodes.from_infos(json.loads(path.read_text()))
@@ -319,8 +410,13 @@ def run_with_progress(command: list[str], log: Path, label: str, every: float = 
     (a training stage is otherwise silent on the console for minutes); return its exit code."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     with log.open("w") as handle:
-        process = subprocess.Popen(command, stdout=handle, stderr=subprocess.STDOUT, env=env,
-                                   preexec_fn=functools.partial(die_with_parent, os.getpid()))  # noqa: PLW1509 (no locks)
+        process = subprocess.Popen(
+            command,
+            stdout=handle,
+            stderr=subprocess.STDOUT,
+            env=env,
+            preexec_fn=functools.partial(die_with_parent, os.getpid()),  # noqa: PLW1509 (no locks)
+        )
         shown = ""
         while True:
             try:
@@ -360,16 +456,20 @@ def time_breakdown(runs: list[TaskRun]) -> str:
     lines.append("")
     for r in runs:
         for stage, (update, data) in r.step_times().items():
-            lines.append(f"- {r.files.task} {stage}: {update + data:.3f} s/step, data loading "
-                         f"{100 * data / (update + data):.0f}%")
+            lines.append(
+                f"- {r.files.task} {stage}: {update + data:.3f} s/step, data loading "
+                f"{100 * data / (update + data):.0f}%"
+            )
     return "\n".join(lines)
 
 
 def method_forms(runs: list[TaskRun]) -> str:
     """Which form of each method ran: the seeds, and the settings of the evaluated checkpoint, the recipe's
     synthesis and the methods' flags."""
-    lines = ["| task | seeds | z | eq. (4) weights | sampler | synthesis (eq. 5, 7) | recovery steps | DP* |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| task | seeds | z | eq. (4) weights | sampler | synthesis (eq. 5, 7) | recovery steps | DP* |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in runs:
         checkpoint = r.files.out / "recovery" / CHECKPOINT / "config.json"
         if not checkpoint.is_file():
@@ -378,21 +478,33 @@ def method_forms(runs: list[TaskRun]) -> str:
         n = r.files.eval_config()["eval"]["n_episodes"]
         steps = json.loads(r.files.train_recovery.read_text()).get("steps")
         recipe = RecoveryRecipe.load(r.files.recipe)
-        dp_star = {"dp_star_candidates": c["dp_star_candidates"],
-                   "dp_star_rounds": c.get("dp_star_rounds", CCDPConfig.dp_star_rounds),  # older checkpoints
-                   "delta_z": c["delta_z"], **r.files.method_settings("dp_star")}
-        ccdp = {**c, **r.files.method_settings("ccdp")}  # the checkpoint's settings, as CCDP's flags changed them
+        dp_star = {
+            "dp_star_candidates": c["dp_star_candidates"],
+            "dp_star_rounds": c.get("dp_star_rounds", CCDPConfig.dp_star_rounds),  # older checkpoints
+            "delta_z": c["delta_z"],
+            **r.files.method_settings("dp_star"),
+        }
+        # the checkpoint's settings, as CCDP's flags changed them
+        ccdp = {**c, **r.files.method_settings("ccdp")}
         if ccdp.get("recovery_head") == "classifier":
-            form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance, "
-                    f"w_z {ccdp['w_z']:g}")
+            form = (
+                f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance, "
+                f"w_z {ccdp['w_z']:g}"
+            )
             synthesis = "none (classifier learns from the demos)"
         elif ccdp.get("recovery_head") == "set_denoiser":
-            form = (f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by the failure-set denoiser eps_(s,F), "
-                    f"w_z {ccdp['w_z']:g}")
-            synthesis = (f"chunks sampled where attempts start: sigma {recipe.sigma:g}, w_s {recipe.w_s:g}, "
-                         f"{recipe.n_states} x {recipe.chunks_per_state}")
+            form = (
+                f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by the failure-set denoiser eps_(s,F), "
+                f"w_z {ccdp['w_z']:g}"
+            )
+            synthesis = (
+                f"chunks sampled where attempts start: sigma {recipe.sigma:g}, w_s {recipe.w_s:g}, "
+                f"{recipe.n_states} x {recipe.chunks_per_state}"
+            )
         else:
-            form = f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}, w_z {ccdp['w_z']:g} against {ccdp['z_reference']}"
+            form = (
+                f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}, w_z {ccdp['w_z']:g} against {ccdp['z_reference']}"
+            )
             synthesis = f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}"
         if ccdp.get("ccdp_redraws", 0):
             form += f"; a repeat redrawn up to {ccdp['ccdp_redraws']} times"
@@ -400,15 +512,19 @@ def method_forms(runs: list[TaskRun]) -> str:
             f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {z_description(ccdp)} | {form} | "
             f"{c['noise_scheduler_type']} {c['num_inference_steps']} steps | {synthesis} | {steps} | "
             f"{dp_star['dp_star_candidates']} candidates, "
-            f"{dp_star['dp_star_rounds']} round(s), delta_z {dp_star['delta_z']:g} |")
+            f"{dp_star['dp_star_rounds']} round(s), delta_z {dp_star['delta_z']:g} |"
+        )
     return "\n".join(lines)
 
 
 def z_description(settings: dict[str, Any]) -> str:
-    """What z was: the feature, for `action` which steps and dims, and for `final_state` which dims and where a
-    failure's z was read."""
+    """What z was: the feature, for `action` which steps and dims, and for `final_state` which dims and where
+    a failure's z was read."""
     if settings["failure_feature"] == "action":
-        steps, dims = settings.get("failure_action_steps") or "all", settings.get("failure_action_dims") or "all"
+        steps, dims = (
+            settings.get("failure_action_steps") or "all",
+            settings.get("failure_action_dims") or "all",
+        )
         return f"action: steps {steps} of the attempt's first chunk, dims {dims}"
     if settings["failure_feature"] != "final_state":
         return settings["failure_feature"]
@@ -420,32 +536,37 @@ def z_description(settings: dict[str, Any]) -> str:
 
 
 def machine() -> str:
-    return (f"{platform.machine()}, {os.cpu_count()} CPU cores, torch {torch.__version__} "
-            f"({torch.get_num_threads()} threads), Python {platform.python_version()}")
+    return (
+        f"{platform.machine()}, {os.cpu_count()} CPU cores, torch {torch.__version__} "
+        f"({torch.get_num_threads()} threads), Python {platform.python_version()}"
+    )
 
 
-def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], out: Path, command: str,
-                 chart: bool) -> str:
-    results: Results = {task: {m: MethodMetrics.of(e) for m, e in methods.items()} for task, methods in episodes.items()}
+def write_report(
+    runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], out: Path, command: str, chart: bool
+) -> str:
+    results: Results = {
+        task: {m: MethodMetrics.of(e) for m, e in methods.items()} for task, methods in episodes.items()
+    }
     parts = [
         "# CCDP vs DP vs DP* (paper Fig. 5)",
         f"Command: `{command}`  \nMachine: {machine()}",
         markdown_table(results),
         "## What ran",
-        "Seeds: episode i of every method and of the oracle uses seed `first + i`, and every method draws episode "
-        "i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). The CCDP row of "
-        "the composition is eq. (4) as `lerobot_ccdp/recovery/composition.py` computes it with the evaluated checkpoint's "
-        "weights (`docs/method.md`).",
+        "Seeds: episode i of every method and of the oracle uses seed `first + i`, and every method draws "
+        "episode i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). "
+        "The CCDP row of the composition is eq. (4) as `lerobot_ccdp/recovery/composition.py` computes it "
+        "with the evaluated checkpoint's weights (`docs/method.md`).",
         method_forms(runs),
         "## Targets",
         "Judged from paired 95% intervals (same seeds for every method): `docs/evaluation.md`.",
         target_checks(episodes),
         "## Lost episodes",
-        "Whether recovery or execution costs success: a lost episode repeated a failed option, or never had an "
-        "attempt fail (the policy did not complete one before the time limit), or failed distinct options only. "
-        "Before an episode's first failure DP, DP* and CCDP sample the same base policy from the same noise, so "
-        "their episodes solved without a failure match up to floating-point differences of batched network calls, "
-        "and recovery shows among the episodes with one.",
+        "Whether recovery or execution costs success: a lost episode repeated a failed option, or never had "
+        "an attempt fail (the policy did not complete one before the time limit), or failed distinct options "
+        "only. Before an episode's first failure DP, DP* and CCDP sample the same base policy from the same "
+        "noise, so their episodes solved without a failure match up to floating-point differences of batched "
+        "network calls, and recovery shows among the episodes with one.",
         lost_table(episodes),
         "## Time per stage (s)",
         time_breakdown(runs),
@@ -455,7 +576,9 @@ def write_report(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]], 
         parts.insert(3, "![comparison](comparison.png)")
     report = "\n\n".join(parts) + "\n"
     (out / "report.md").write_text(report)
-    summary = {task: {m: metrics.as_dict() for m, metrics in methods.items()} for task, methods in results.items()}
+    summary = {
+        task: {m: metrics.as_dict() for m, metrics in methods.items()} for task, methods in results.items()
+    }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return report
 
@@ -467,11 +590,16 @@ def publish_report(report: str, out: Path, target: Path) -> None:
     if chart.exists():
         shutil.copyfile(chart, target.with_suffix(".png"))
         report = report.replace("](comparison.png)", f"]({target.with_suffix('.png').name})")
-    note = f"<!-- Written by the command below ({time.strftime('%Y-%m-%d')}); rerun it rather than editing. -->\n"
+    note = (
+        f"<!-- Written by the command below ({time.strftime('%Y-%m-%d')}); "
+        "rerun it rather than editing. -->\n"
+    )
     target.write_text(note + report)
 
 
-def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[TaskRun], dict[str, dict[str, Episodes]]]:
+def run_tasks(
+    files: list[TaskFiles], args: argparse.Namespace
+) -> tuple[list[TaskRun], dict[str, dict[str, Episodes]]]:
     """Every task's stages (or, with --report-only, its finished evaluations), in order."""
     claim_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)
     runs, episodes = [], {}
@@ -480,49 +608,96 @@ def run_tasks(files: list[TaskFiles], args: argparse.Namespace) -> tuple[list[Ta
         episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
         runs.append(run)
         if episodes[f.task]:
-            print(markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}), flush=True)
+            print(
+                markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}),
+                flush=True,
+            )
     return runs, episodes
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", nargs="+", required=True,
-                        help=f"task ids, `all` (the five tasks: {', '.join(TASK_GROUPS['all'])}) or "
-                             "`lite` (their geometric versions, `<Task>-lite-v0`)")
-    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
-                        help="recovery modes to evaluate (the no-repeat oracle always runs)")
-    parser.add_argument("--out", type=canonical, default="outputs/pipeline",
-                        help=f"root of every output: a new or empty folder, or one this pipeline made "
-                             f"(it holds {MARKER})")
-    parser.add_argument("--configs", type=canonical, default="configs",
-                        help="folder of <task>/*.json configs")
-    parser.add_argument("--recipes", type=canonical, default="datasets_recipes",
-                        help="folder of <task>.yaml recipes")
-    parser.add_argument("--obs-type", choices=list(OBS_VARIANTS), default="state",
-                        help="policy inputs: state vectors, or rendered cameras plus the robot state")
-    parser.add_argument("--label-free", action="store_true",
-                        help="run each task's <task>_label_free settings: z where an option ends, no labels read")
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--tasks",
+        nargs="+",
+        required=True,
+        help=f"task ids, `all` (the five tasks: {', '.join(TASK_GROUPS['all'])}) or "
+        "`lite` (their geometric versions, `<Task>-lite-v0`)",
+    )
+    parser.add_argument(
+        "--methods",
+        nargs="+",
+        default=list(METHODS),
+        choices=METHODS,
+        help="recovery modes to evaluate (the no-repeat oracle always runs)",
+    )
+    parser.add_argument(
+        "--out",
+        type=canonical,
+        default="outputs/pipeline",
+        help=f"root of every output: a new or empty folder, or one this pipeline made (it holds {MARKER})",
+    )
+    parser.add_argument(
+        "--configs", type=canonical, default="configs", help="folder of <task>/*.json configs"
+    )
+    parser.add_argument(
+        "--recipes", type=canonical, default="datasets_recipes", help="folder of <task>.yaml recipes"
+    )
+    parser.add_argument(
+        "--obs-type",
+        choices=list(OBS_VARIANTS),
+        default="state",
+        help="policy inputs: state vectors, or rendered cameras plus the robot state",
+    )
+    parser.add_argument(
+        "--label-free",
+        action="store_true",
+        help="run each task's <task>_label_free settings: z where an option ends, no labels read",
+    )
     parser.add_argument("--no-chart", action="store_true", help="skip the PNG bar chart (needs matplotlib)")
-    parser.add_argument("--fresh", action="store_true",
-                        help="delete --out first instead of resuming (only a folder this pipeline made)")
-    parser.add_argument("--adopt", action="store_true",
-                        help=f"mark an existing --out as this pipeline's ({MARKER}) and resume it: for an "
-                             "output folder made by a version of this pipeline from before the marker")
-    parser.add_argument("--eval-seed", type=int, default=None,
-                        help="first evaluation seed (episode i gets seed + i); default: the eval config's, the test "
-                             "range. Tune settings on another range, e.g. the development seeds 1000-1099")
-    parser.add_argument("--publish", type=canonical, default=None,
-                        help="also write the report here (its chart beside it), e.g. docs/benchmark_report.md")
-    parser.add_argument("--report-only", action="store_true",
-                        help="write the report from the evaluations already in --out, running no stage")
-    parser.add_argument("--train-only", action="store_true",
-                        help="record, train and synthesise, evaluate nothing and write no report (e.g. to tune a "
-                             "method's settings on the development seeds: benchmarks/tune_methods.py)")
+    parser.add_argument(
+        "--fresh",
+        action="store_true",
+        help="delete --out first instead of resuming (only a folder this pipeline made)",
+    )
+    parser.add_argument(
+        "--adopt",
+        action="store_true",
+        help=f"mark an existing --out as this pipeline's ({MARKER}) and resume it: for an "
+        "output folder made by a version of this pipeline from before the marker",
+    )
+    parser.add_argument(
+        "--eval-seed",
+        type=int,
+        default=None,
+        help="first evaluation seed (episode i gets seed + i); default: the eval config's, the test "
+        "range. Tune settings on another range, e.g. the development seeds 1000-1099",
+    )
+    parser.add_argument(
+        "--publish",
+        type=canonical,
+        default=None,
+        help="also write the report here (its chart beside it), e.g. docs/benchmark_report.md",
+    )
+    parser.add_argument(
+        "--report-only",
+        action="store_true",
+        help="write the report from the evaluations already in --out, running no stage",
+    )
+    parser.add_argument(
+        "--train-only",
+        action="store_true",
+        help="record, train and synthesise, evaluate nothing and write no report (e.g. to tune a "
+        "method's settings on the development seeds: benchmarks/tune_methods.py)",
+    )
     args = parser.parse_args(argv)
     if args.train_only:
         args.methods = []
     tasks = expand_tasks(args.tasks)
-    files = [TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type, args.label_free) for t in tasks]
+    files = [
+        TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type, args.label_free)
+        for t in tasks
+    ]
     if args.fresh and args.report_only:
         parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")
     if args.train_only and args.report_only:
@@ -539,7 +714,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.train_only:
         print(f"Trained: {', '.join(str(f.out / 'recovery' / CHECKPOINT) for f in files)}")
         return
-    command = "python -m lerobot_ccdp.benchmark.pipeline " + shlex.join(argv if argv is not None else sys.argv[1:])
+    command = "python -m lerobot_ccdp.benchmark.pipeline " + shlex.join(
+        argv if argv is not None else sys.argv[1:]
+    )
     report = write_report(runs, episodes, args.out, command, chart=not args.no_chart)
     print(report)
     if args.publish:

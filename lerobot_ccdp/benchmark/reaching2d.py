@@ -1,10 +1,11 @@
 """Synthetic 2-D multimodal reaching tasks: the smallest data on which failure recovery can be seen.
 
-The agent starts near the origin and moves to one of several goals, chosen with a fixed preference. The default
-task has four goals on straight paths (east most often, south least); `ReachingTask.family_member(seed)` draws the
-seeded family of issue 17 (3 to 6 goals at random angles, random preferences, bent paths, with or without option
-labels). A goal is "blocked" at run time in the recovery tests; a policy that remembers the failure must then
-pick among the other goals in their demonstrated proportions.
+The agent starts near the origin and moves to one of several goals, chosen with a fixed preference. The
+default task has four goals on straight paths (east most often, south least);
+`ReachingTask.family_member(seed)` draws the seeded family of issue 17 (3 to 6 goals at random angles, random
+preferences, bent paths, with or without option labels). A goal is "blocked" at run time in the recovery
+tests; a policy that remembers the failure must then pick among the other goals in their demonstrated
+proportions.
 Used by the tests, the benchmarks and the README's train-on-a-local-dataset example.
 """
 
@@ -32,7 +33,8 @@ FEATURES = {
 @dataclass(frozen=True)
 class ReachingTask:
     """A 2-D reaching task: goals on the unit circle, a preference over them, paths bent sideways by `bend` (a
-    fraction of the reach, 0 for straight lines), with or without the goal's `primitive` label in the dataset."""
+    fraction of the reach, 0 for straight lines), with or without the goal's `primitive` label in the
+    dataset."""
 
     goals: np.ndarray
     preference: np.ndarray
@@ -110,15 +112,20 @@ def goal_of(positions: np.ndarray) -> np.ndarray:
     return np.argmax(positions @ GOALS.T, axis=-1)
 
 
-def record_reaching_dataset(root: str | Path, repo_id: str = "local/reaching2d", n_episodes: int = 60, seed: int = 0) -> LeRobotDataset:
+def record_reaching_dataset(
+    root: str | Path, repo_id: str = "local/reaching2d", n_episodes: int = 60, seed: int = 0
+) -> LeRobotDataset:
     """Write a LeRobot v3 dataset of demos whose goals follow PREFERENCE exactly in proportion."""
     return FOUR_GOALS.record(root, repo_id, n_episodes, seed)
 
 
 def main() -> None:
-    """`python -m lerobot_ccdp.benchmark.reaching2d --root data/reaching2d`: write the demo dataset for local training."""
+    """`python -m lerobot_ccdp.benchmark.reaching2d --root data/reaching2d`: write the demo dataset for local
+    training."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--root", type=Path, required=True, help="where to write the dataset (must not exist)")
+    parser.add_argument(
+        "--root", type=Path, required=True, help="where to write the dataset (must not exist)"
+    )
     parser.add_argument("--repo-id", default="local/reaching2d")
     parser.add_argument("--n-episodes", type=int, default=60)
     parser.add_argument("--seed", type=int, default=0)
@@ -132,7 +139,9 @@ if __name__ == "__main__":
     main()
 
 
-def chunks_after_failures(policy, preprocessor, postprocessor, failed_goals: list[int], rows: int, seed: int = 0):
+def chunks_after_failures(
+    policy, preprocessor, postprocessor, failed_goals: list[int], rows: int, seed: int = 0
+):
     """Plan one chunk per row from the start state after reporting failures at `failed_goals` in every row.
 
     Returns the chunks in positions (rows, horizon, 2) and the goal each heads to, read from where the chunk

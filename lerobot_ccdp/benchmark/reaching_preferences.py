@@ -1,16 +1,16 @@
 """Failed share and preference error on a 2-D reaching task: does recovery keep the demonstrated preferences?
 
-From the start state, a policy plans one chunk per row after the most preferred goal failed ("after 1") and after
-the two most preferred goals failed ("after 2"), under torch.inference_mode() as LeRobot calls it:
+From the start state, a policy plans one chunk per row after the most preferred goal failed ("after 1") and
+after the two most preferred goals failed ("after 2"), under torch.inference_mode() as LeRobot calls it:
 
     failed share       fraction of planned chunks heading to a failed goal
     preference error   total-variation distance between the method's shares over the remaining goals and DP's
-                       own shares renormalised over them (same checkpoint, same start state), so the base's own
-                       error does not count against the recovery
+                       own shares renormalised over them (same checkpoint, same start state), so the base's
+                       own error does not count against the recovery
 
-A chunk's goal is the goal whose demonstrated path from the start it lies nearest (`ReachingTask.option_of`), not
-the policy's own labeller. `benchmarks/bench_preferences.py` runs it over the seeded family of issue 17 and
-`tests/recovery/test_preferences.py` asserts the targets on two members.
+A chunk's goal is the goal whose demonstrated path from the start it lies nearest (`ReachingTask.option_of`),
+not the policy's own labeller. `benchmarks/bench_preferences.py` runs it over the seeded family of issue 17
+and `tests/recovery/test_preferences.py` asserts the targets on two members.
 """
 
 from typing import NamedTuple
@@ -26,13 +26,14 @@ from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 
 class ExactStartClassifier(torch.nn.Module):
-    """logit of P(a_0 repeats a failure in F | a_t) for the demonstrated chunks that start an episode, computed exactly:
-    the noised demonstrations are a Gaussian mixture, one component per demonstrated start chunk c_j, so
-    P(F | a_t) = sum_{j: z_j in F} N(a_t; sqrt(abar_t) c_j, 1 - abar_t) / sum_j N(...).
+    """logit of P(a_0 repeats a failure in F | a_t) for the demonstrated chunks that start an episode,
+    computed exactly: the noised demonstrations are a Gaussian mixture, one component per demonstrated start
+    chunk c_j, so P(F | a_t) = sum_{j: z_j in F} N(a_t; sqrt(abar_t) c_j, 1 - abar_t) / sum_j N(...).
 
-    Put in place of a trained failure-set classifier (same call signature), it isolates what the learnt classifier
-    costs from what the base and the sampler cost: the reference row "CCDP, exact classifier" of the benchmark. It is a
-    measurement device for the start state of the reaching family, not a policy: it ignores the state.
+    Put in place of a trained failure-set classifier (same call signature), it isolates what the learnt
+    classifier costs from what the base and the sampler cost: the reference row "CCDP, exact classifier" of
+    the benchmark. It is a measurement device for the start state of the reaching family, not a policy: it
+    ignores the state.
     """
 
     def __init__(self, policy: CCDPPolicy, preprocessor, dataset: LeRobotDataset):
@@ -50,8 +51,14 @@ class ExactStartClassifier(torch.nn.Module):
     def forward(self, noisy, timestep, state, z, z_mask, keep_s=None):
         """Same inputs as `denoisers.FailureSetClassifier.forward`; logits (R,) of the exact mixture."""
         alpha_bar = self.alphas_cumprod[timestep].clone()[:, None]  # (R, 1)
-        in_f = ((((self.z[None, :, None] - z[:, None]) ** 2).sum(-1) <= self.delta_z) & z_mask[:, None]).any(-1)
-        log_w = -((noisy[:, None] - alpha_bar.sqrt()[..., None, None] * self.chunks[None]) ** 2).flatten(2).sum(-1)
+        in_f = ((((self.z[None, :, None] - z[:, None]) ** 2).sum(-1) <= self.delta_z) & z_mask[:, None]).any(
+            -1
+        )
+        log_w = (
+            -((noisy[:, None] - alpha_bar.sqrt()[..., None, None] * self.chunks[None]) ** 2)
+            .flatten(2)
+            .sum(-1)
+        )
         log_w = log_w / (2 * (1 - alpha_bar))  # (R, E)
         log_in = torch.logsumexp(log_w.masked_fill(~in_f, -1e9), dim=1)
         log_out = torch.logsumexp(log_w.masked_fill(in_f, -1e9), dim=1)
@@ -59,16 +66,21 @@ class ExactStartClassifier(torch.nn.Module):
 
 
 def failure_z(policy: CCDPPolicy, preprocessor, task: ReachingTask, goal: int, rows: int) -> torch.Tensor:
-    """z of a failed reach to `goal` as the policy computes it: the goal's one-hot label, or where it ended."""
+    """z of a failed reach to `goal` as the policy computes it: the goal's one-hot label, or where it
+    ended."""
     if task.labelled:
         return policy.model.feature.one_hot(torch.full((rows,), goal))
     end = torch.from_numpy(task.goals[goal]).expand(rows, 2)
-    return policy.model.feature.from_frame(preprocessor({"observation.state": end.clone()})["observation.state"])
+    return policy.model.feature.from_frame(
+        preprocessor({"observation.state": end.clone()})["observation.state"]
+    )
 
 
-def planned_positions(policy: CCDPPolicy, pre, post, task: ReachingTask, failed: list[int], rows: int,
-                      seed: int) -> np.ndarray:
-    """Plan one chunk per row from the start after the failures `failed`; return its positions (rows, horizon, 2)."""
+def planned_positions(
+    policy: CCDPPolicy, pre, post, task: ReachingTask, failed: list[int], rows: int, seed: int
+) -> np.ndarray:
+    """Plan one chunk per row from the start after the failures `failed`; return its positions
+    (rows, horizon, 2)."""
     torch.manual_seed(seed)
     batch = pre({"observation.state": torch.zeros(rows, 2)})
     with torch.inference_mode():
@@ -101,8 +113,8 @@ def failure_sets(task: ReachingTask) -> dict[str, list[int]]:
 
 
 def load(checkpoint, **fields) -> tuple[CCDPPolicy, object, object]:
-    """The checkpoint's policy with config `fields` overridden, as lerobot-eval's --policy.<field> flags do, and its
-    processors."""
+    """The checkpoint's policy with config `fields` overridden, as lerobot-eval's --policy.<field> flags do,
+    and its processors."""
     config = PreTrainedConfig.from_pretrained(checkpoint)
     for key, value in fields.items():
         setattr(config, key, value)
@@ -121,13 +133,18 @@ class Method(NamedTuple):
 
 
 def measure(task: ReachingTask, checkpoint, methods: dict[str, Method], rows: int) -> dict:
-    """Every method's shares and scores after one and after two failures, on one checkpoint and the same seeds.
-    DP's reference shares come from their own draw (seed 1), so DP measured against them (seed 2) shows the sampling
-    noise of this measurement."""
+    """Every method's shares and scores after one and after two failures, on one checkpoint and the same
+    seeds. DP's reference shares come from their own draw (seed 1), so DP measured against them (seed 2) shows
+    the sampling noise of this measurement."""
     policy, pre, post = load(checkpoint, recovery_mode="dp")
     reference = goal_shares(task, planned_positions(policy, pre, post, task, [], rows, seed=1))
-    result = {"goals": len(task.goals), "labelled": task.labelled, "dp_shares": reference.tolist(), "methods": {},
-              "positions": {}}
+    result = {
+        "goals": len(task.goals),
+        "labelled": task.labelled,
+        "dp_shares": reference.tolist(),
+        "methods": {},
+        "positions": {},
+    }
     for name, method in methods.items():
         policy, pre, post = load(checkpoint, recovery_mode=method.mode, **method.fields)
         if method.exact_classifier_of is not None:
@@ -137,6 +154,10 @@ def measure(task: ReachingTask, checkpoint, methods: dict[str, Method], rows: in
             share = goal_shares(task, planned)
             failed_share, error = scores(share, reference, failed)
             result["methods"].setdefault(name, {})[count] = {
-                "failed": failed, "shares": share.tolist(), "failed_share": failed_share, "preference_error": error}
+                "failed": failed,
+                "shares": share.tolist(),
+                "failed_share": failed_share,
+                "preference_error": error,
+            }
             result["positions"][f"{name}|{count}"] = planned[:64].tolist()
     return result

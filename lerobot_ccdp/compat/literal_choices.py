@@ -1,8 +1,9 @@
 """Decoding of `typing.Literal` config fields from the command line and from config files.
 
-draccus 0.8, LeRobot 0.4.4's config parser, has no decoder for `Literal` and fails on any value. `choices` gives
-it one where it lacks it (detected by trying, not by version), so `--policy.recovery_head=set_denoiser` reads the
-same on a draccus that decodes `Literal` itself, and a value outside the choices is refused with the choices named.
+draccus 0.8, LeRobot 0.4.4's config parser, has no decoder for `Literal` and fails on any value. `choices`
+gives it one where it lacks it (detected by trying, not by version), so `--policy.recovery_head=set_denoiser`
+reads the same on a draccus that decodes `Literal` itself, and a value outside the choices is refused with the
+choices named.
 """
 
 from typing import Any, get_args

@@ -31,13 +31,16 @@ logger = logging.getLogger(__name__)
 CONFIG_FILE = "config.json"
 PROCESSOR_FILES = (f"{POLICY_PREPROCESSOR_DEFAULT_NAME}.json", f"{POLICY_POSTPROCESSOR_DEFAULT_NAME}.json")
 TRUSTED_PACKAGES = ("lerobot", "lerobot_ccdp")
-WHERE = "pass the pretrained_model folder lerobot-train wrote (<output_dir>/checkpoints/last/pretrained_model)"
+WHERE = (
+    "pass the pretrained_model folder lerobot-train wrote (<output_dir>/checkpoints/last/pretrained_model)"
+)
 
 
 @contextlib.contextmanager
 def checkpoint_loading(path: str | Path) -> Iterator[None]:
-    """Check the checkpoint at `path` (`check_checkpoint`), then run the block that loads it; a name that is no
-    local folder and that the Hub did not resolve either is reported as the missing folder it most likely is."""
+    """Check the checkpoint at `path` (`check_checkpoint`), then run the block that loads it; a name that is
+    no local folder and that the Hub did not resolve either is reported as the missing folder it most likely
+    is."""
     check_checkpoint(path)
     try:
         yield
@@ -48,14 +51,16 @@ def checkpoint_loading(path: str | Path) -> Iterator[None]:
 
 
 def check_checkpoint(path: str | Path) -> None:
-    """Refuse a local checkpoint folder that is missing, not a checkpoint, damaged, or that names a processor step
-    from outside LeRobot and this package. A name that is no folder but may be a Hub repo id passes."""
+    """Refuse a local checkpoint folder that is missing, not a checkpoint, damaged, or that names a processor
+    step from outside LeRobot and this package. A name that is no folder but may be a Hub repo id passes."""
     folder = Path(path)
     if not folder.is_dir():
         _refuse_unless_repo_id(path)
         return
     if not (folder / CONFIG_FILE).is_file():
-        raise FileNotFoundError(f"{folder} holds no {CONFIG_FILE}, so it is not a policy checkpoint; {WHERE}.")
+        raise FileNotFoundError(
+            f"{folder} holds no {CONFIG_FILE}, so it is not a policy checkpoint; {WHERE}."
+        )
     config = _read_json(folder / CONFIG_FILE)
     if not isinstance(config, dict) or "type" not in config:
         raise _damaged(folder / CONFIG_FILE, "it has no policy 'type' entry")
@@ -69,8 +74,8 @@ def check_checkpoint(path: str | Path) -> None:
 def check_processor_steps(file: Path) -> None:
     """Refuse a processor file any of whose steps is not a ProcessorStep class of LeRobot or lerobot_ccdp.
 
-    LeRobot's processor loader imports and instantiates whatever class a step names, so a crafted checkpoint could
-    run any code. The names are resolved here without importing anything outside those two packages."""
+    LeRobot's processor loader imports and instantiates whatever class a step names, so a crafted checkpoint
+    could run any code. The names are resolved here without importing anything outside those two packages."""
     content = _read_json(file)
     steps = content.get("steps") if isinstance(content, dict) else None
     if not isinstance(steps, list):
@@ -78,9 +83,9 @@ def check_processor_steps(file: Path) -> None:
     for index, entry in enumerate(steps):
         if not _trusted_step(entry):
             raise ValueError(
-                f"{file}: step {index} names {_step_name(entry)!r}, which is not a processor step of LeRobot or "
-                "lerobot_ccdp. LeRobot would import and run that class when loading the checkpoint, so it was "
-                "refused and nothing from it ran. Checkpoints are code: load only ones you trust."
+                f"{file}: step {index} names {_step_name(entry)!r}, which is not a processor step of LeRobot "
+                "or lerobot_ccdp. LeRobot would import and run that class when loading the checkpoint, so it "
+                "was refused and nothing from it ran. Checkpoints are code: load only ones you trust."
             )
 
 
@@ -90,8 +95,8 @@ def _trusted_step(entry: Any) -> bool:
 
 
 def _step_class(entry: dict) -> object | None:
-    """What the entry's `registry_name` (LeRobot's registry) or `class` (a module path) names, or None. A module
-    path is imported only inside the trusted packages."""
+    """What the entry's `registry_name` (LeRobot's registry) or `class` (a module path) names, or None. A
+    module path is imported only inside the trusted packages."""
     if "registry_name" in entry:
         try:
             return ProcessorStepRegistry.get(entry["registry_name"])
@@ -146,42 +151,59 @@ def _check_safetensors(file: Path) -> None:
 
 
 def _damaged(file: Path, what: str) -> ValueError:
-    return ValueError(f"Checkpoint file {file} is damaged ({what}). Re-train the checkpoint, or copy or download "
-                      "it again.")
+    return ValueError(
+        f"Checkpoint file {file} is damaged ({what}). Re-train the checkpoint, or copy or download it again."
+    )
 
 
-HUB_DOWNLOAD_KEYS = ("force_download", "resume_download", "proxies", "token", "cache_dir", "local_files_only",
-                     "revision")
+HUB_DOWNLOAD_KEYS = (
+    "force_download",
+    "resume_download",
+    "proxies",
+    "token",
+    "cache_dir",
+    "local_files_only",
+    "revision",
+)
 
 
 def saved_config(path: str | Path, **hub: Any) -> dict:
-    """The checkpoint's config.json as saved, before any command-line override: from the local folder, or the Hub
-    file LeRobot has just downloaded for the same checkpoint (cached)."""
+    """The checkpoint's config.json as saved, before any command-line override: from the local folder, or the
+    Hub file LeRobot has just downloaded for the same checkpoint (cached)."""
     return _read_json(_checkpoint_file(path, CONFIG_FILE, **hub))
 
 
 def _checkpoint_file(path: str | Path, filename: str, **hub: Any) -> Path:
-    """`filename` of the checkpoint: in the local folder, or the Hub file LeRobot has just downloaded (cached)."""
+    """`filename` of the checkpoint: in the local folder, or the Hub file LeRobot has just downloaded
+    (cached)."""
     folder = Path(path)
-    return folder / filename if folder.is_dir() else Path(hf_hub_download(repo_id=str(path), filename=filename, **hub))
+    return (
+        folder / filename
+        if folder.is_dir()
+        else Path(hf_hub_download(repo_id=str(path), filename=filename, **hub))
+    )
 
 
 def refuse_other_checkpoint(config: Any, saved: dict, path: str | Path) -> None:
-    """Refuse a checkpoint of another policy type, or one whose action size differs from the dataset's or env's
-    (LeRobot sets the output features from them), naming both layouts instead of a state-dict size mismatch."""
+    """Refuse a checkpoint of another policy type, or one whose action size differs from the dataset's or
+    env's (LeRobot sets the output features from them), naming both layouts instead of a state-dict size
+    mismatch."""
     if not isinstance(config, CCDPConfig):
-        raise ValueError(f"{path} is a {saved.get('type')!r} checkpoint, not a ccdp one. Load it with its own policy "
-                         f"class (--policy.type={saved.get('type')}), or pass a checkpoint trained with "
-                         "--policy.type=ccdp.")
+        raise ValueError(
+            f"{path} is a {saved.get('type')!r} checkpoint, not a ccdp one. Load it with its own policy "
+            f"class (--policy.type={saved.get('type')}), or pass a checkpoint trained with "
+            "--policy.type=ccdp."
+        )
     saved_action = _layout(saved.get("output_features", {})).get("action")
     given = config.output_features.get("action")
     if saved_action is None or given is None or saved_action[-1:] == tuple(given.shape)[-1:]:
         return
     raise ValueError(
-        f"{path} was trained for another task or robot: it takes inputs {_layout(saved.get('input_features', {}))} "
-        f"and acts with action {saved_action}, but the dataset or env given has action {tuple(given.shape)} (inputs "
-        f"{_layout({k: {'shape': v.shape} for k, v in config.input_features.items()})}). Use a checkpoint trained "
-        "on this task, or the dataset or env it was trained on."
+        f"{path} was trained for another task or robot: it takes inputs "
+        f"{_layout(saved.get('input_features', {}))} and acts with action {saved_action}, but the dataset or "
+        f"env given has action {tuple(given.shape)} (inputs "
+        f"{_layout({k: {'shape': v.shape} for k, v in config.input_features.items()})}). Use a checkpoint "
+        "trained on this task, or the dataset or env it was trained on."
     )
 
 
@@ -190,14 +212,17 @@ def _layout(features: dict) -> dict[str, tuple]:
 
 
 def ignore_saved_signal_file(config: Any, saved: dict) -> None:
-    """A checkpoint never chooses the file the policy watches for failures (`failure_signal_file`): that comes from
-    the command line (`--policy.failure_signal_file`) or the caller's config. A value that only the checkpoint's
-    config.json holds is dropped, with a warning; checkpoints this package saves hold none."""
+    """A checkpoint never chooses the file the policy watches for failures (`failure_signal_file`): that comes
+    from the command line (`--policy.failure_signal_file`) or the caller's config. A value that only the
+    checkpoint's config.json holds is dropped, with a warning; checkpoints this package saves hold none."""
     named = saved.get("failure_signal_file")
     if named is None or config.failure_signal_file != named or _named_on_command_line(named):
         return
-    logger.warning("The checkpoint's config names failure_signal_file=%r; a checkpoint cannot choose a file for the "
-                   "policy to watch, so it is ignored. Pass --policy.failure_signal_file to use one.", named)
+    logger.warning(
+        "The checkpoint's config names failure_signal_file=%r; a checkpoint cannot choose a file for the "
+        "policy to watch, so it is ignored. Pass --policy.failure_signal_file to use one.",
+        named,
+    )
     config.failure_signal_file = None
 
 
@@ -207,20 +232,23 @@ def _named_on_command_line(value: str) -> bool:
 
 
 def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, **hub: Any) -> None:
-    """Refuse a checkpoint whose saved weights do not match the policy's `state` dict. LeRobot loads non-strictly and
-    would leave such weights at their random start. Only an untrained recovery head may differ: a base checkpoint
-    can start the recovery stage with another head (`--policy.recovery_head`)."""
+    """Refuse a checkpoint whose saved weights do not match the policy's `state` dict. LeRobot loads
+    non-strictly and would leave such weights at their random start. Only an untrained recovery head may
+    differ: a base checkpoint can start the recovery stage with another head (`--policy.recovery_head`)."""
     with safe_open(_checkpoint_file(path, SAFETENSORS_SINGLE_FILE, **hub), framework="pt") as saved:
         saved_keys = set(saved.keys())
     missing, unexpected = sorted(set(state) - saved_keys), sorted(saved_keys - set(state))
     if not recovery_trained:
-        missing, unexpected = ([k for k in keys if not k.startswith("model.recovery.")] for keys in (missing, unexpected))
+        missing, unexpected = (
+            [k for k in keys if not k.startswith("model.recovery.")] for keys in (missing, unexpected)
+        )
     if missing or unexpected:
         raise ValueError(
-            f"The weights in {path} do not fit the ccdp policy its config describes: {_listed(missing, 'missing')}, "
-            f"{_listed(unexpected, 'unexpected')}. A checkpoint saved before the networks moved under `model.` "
-            "(lerobot_ccdp before the policy/model split) or with other network settings cannot be loaded: retrain "
-            "it, or load it with the lerobot_ccdp version that saved it."
+            f"The weights in {path} do not fit the ccdp policy its config describes: "
+            f"{_listed(missing, 'missing')}, {_listed(unexpected, 'unexpected')}. A checkpoint saved before "
+            "the networks moved under `model.` (lerobot_ccdp before the policy/model split) or with other "
+            "network settings cannot be loaded: retrain it, or load it with the lerobot_ccdp version that "
+            "saved it."
         )
 
 

@@ -28,9 +28,18 @@ TRAINING_STAGES = choices(TrainingStage)
 RECOVERY_HEADS = choices(RecoveryHead)
 Z_REFERENCES = choices(ZReference)
 # Counts and sizes that must be >= 1, and those that must be >= 0 (`_check_numbers`).
-POSITIVE_FIELDS = ("n_obs_steps", "horizon", "n_action_steps", "num_train_timesteps", "num_inference_steps",
-                   "kernel_size", "diffusion_step_embed_dim", "spatial_softmax_num_keypoints",
-                   "dp_star_candidates", "dp_star_rounds")
+POSITIVE_FIELDS = (
+    "n_obs_steps",
+    "horizon",
+    "n_action_steps",
+    "num_train_timesteps",
+    "num_inference_steps",
+    "kernel_size",
+    "diffusion_step_embed_dim",
+    "spatial_softmax_num_keypoints",
+    "dp_star_candidates",
+    "dp_star_rounds",
+)
 NON_NEGATIVE_FIELDS = ("delta_z", "history_length", "ccdp_redraws", "scheduler_warmup_steps")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
@@ -43,12 +52,12 @@ FAILURE_FLAG_KEY = "observation.failure"
 class CCDPConfig(PreTrainedConfig):
     """CCDP = LeRobot's diffusion policy composed at sampling time with a recovery model of the failures.
 
-    The base UNet is trained once with condition dropout, so that one network yields the unconditional (eps_a),
-    state-conditioned (eps_s) and history-conditioned (eps_h) noise estimates; the recovery head is trained in a
-    second stage (`training_stage=recovery`) from the base's checkpoint. The diffusion, vision and optimizer fields
-    mean what they mean in LeRobot's DiffusionConfig; their defaults are sized for low-dimensional tasks on a 2-core
-    CPU (a 1.1 M-parameter UNet, 10 DDPM steps). The reverse step is DDPM's stochastic one, eq. (3) of the paper
-    (docs/method.md, "Reverse sampler").
+    The base UNet is trained once with condition dropout, so that one network yields the unconditional
+    (eps_a), state-conditioned (eps_s) and history-conditioned (eps_h) noise estimates; the recovery head is
+    trained in a second stage (`training_stage=recovery`) from the base's checkpoint. The diffusion, vision
+    and optimizer fields mean what they mean in LeRobot's DiffusionConfig; their defaults are sized for
+    low-dimensional tasks on a 2-core CPU (a 1.1 M-parameter UNet, 10 DDPM steps). The reverse step is DDPM's
+    stochastic one, eq. (3) of the paper (docs/method.md, "Reverse sampler").
 
     Args:
         w_s: Weight of the state term eps_s - eps_a in eq. (4). A zero weight skips that term's network rows.
@@ -57,43 +66,44 @@ class CCDPConfig(PreTrainedConfig):
             classifier's guidance.
         z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
             "eps_z_null" (the recovery head with z dropped, trained on the same rows). `unet` head only.
-        history_length: States and actions before the observation window that form the history condition h_t^H.
-            0 trains no history condition.
-        recovery_mode: How a plan is drawn after failures: "ccdp" (composition), "dp" (the base alone, failures
-            ignored) or "dp_star" (the base's candidates, those whose outcome repeats a failure rejected).
+        history_length: States and actions before the observation window that form the history condition
+            h_t^H. 0 trains no history condition.
+        recovery_mode: How a plan is drawn after failures: "ccdp" (composition), "dp" (the base alone,
+            failures ignored) or "dp_star" (the base's candidates, those whose outcome repeats a failure
+            rejected).
         recovery_head: The recovery model: "unet" (eps_z(z), one term per failure, on a synthesised recovery
             dataset), "set_denoiser" (eps_{s,F}: one term for the whole failure set, trained on the base's own
-            samples where attempts start) or "classifier" (a noisy-chunk classifier of "repeats a failure", trained on
-            the demonstrations, whose gradient guides eps_s).
-        training_stage: What lerobot-train trains: "base" (the diffusion UNet on demonstrations) or "recovery" (the
-            recovery head, from a base checkpoint given by --policy.path).
+            samples where attempts start) or "classifier" (a noisy-chunk classifier of "repeats a failure",
+            trained on the demonstrations, whose gradient guides eps_s).
+        training_stage: What lerobot-train trains: "base" (the diffusion UNet on demonstrations) or "recovery"
+            (the recovery head, from a base checkpoint given by --policy.path).
         failure_feature: What z describes: "final_state" (where the option ends), "primitive" (a one-hot label
             from the `primitive_key` dataset column) or "action" (the attempt's first chunk).
         failure_state_key: final_state: the observation z is read from.
         failure_state_dims: final_state: which of its dims form z (empty: all).
         failure_state_at: final_state: where a failure's z is read: "attempt_end" (the state where the failed
-            attempt stopped) or "demonstrated_end" (where the demonstrated chunk nearest the failed one ends, i.e.
-            where the attempt was heading; needs the outcome table, as `primitive` does).
+            attempt stopped) or "demonstrated_end" (where the demonstrated chunk nearest the failed one ends,
+            i.e. where the attempt was heading; needs the outcome table, as `primitive` does).
         failure_segments: final_state: where a demonstrated option ends: "labels" (runs of one `primitive_key`
-            label, the whole episode without that column), "drops" (the gripper, the action's last dim, lets go
-            and the hand opens) or "pauses" (the action holds still for two frames).
+            label, the whole episode without that column), "drops" (the gripper, the action's last dim, lets
+            go and the hand opens) or "pauses" (the action holds still for two frames).
         failure_action_steps: action: which steps of the chunk form z (empty: all).
         failure_action_dims: action: which action dims at each step (empty: all).
         primitive_key: primitive: the dataset column holding the per-frame label.
         num_primitives: primitive: how many labels exist.
-        failure_signal_file: A file whose appearance or touch reports a failure of every row, for loops such as
-            lerobot-record that pass no failure signal (policy/failure_signal.py). A setting of the machine the
-            policy acts on: never saved in a checkpoint.
+        failure_signal_file: A file whose appearance or touch reports a failure of every row, for loops such
+            as lerobot-record that pass no failure signal (policy/failure_signal.py). A setting of the machine
+            the policy acts on: never saved in a checkpoint.
         delta_z: Squared distance in z under which an outcome repeats a failure (DP*'s rejection, the set
             denoiser's training sets, redraws).
         dp_star_candidates: DP*: candidates drawn per plan.
-        dp_star_rounds: DP*: rounds of fresh candidates for a row whose candidates were all rejected, before it
-            falls back to the candidate farthest from every failure (1: no redraw).
+        dp_star_rounds: DP*: rounds of fresh candidates for a row whose candidates were all rejected, before
+            it falls back to the candidate farthest from every failure (1: no redraw).
         ccdp_redraws: CCDP: redraws of a plan whose looked-up outcome repeats a failure (DP*'s lookup). 0, the
             method itself, is one sample per plan; above 0 it is the hybrid "CCDP + k redraws".
         row_noise_streams: Each batch row of each rollout draws its noise from its own generator seeded from
-            lerobot-eval's --seed, so methods evaluated on the same seed act alike until the first failure (common
-            random numbers). False: torch's global generator, as LeRobot's diffusion policy.
+            lerobot-eval's --seed, so methods evaluated on the same seed act alike until the first failure
+            (common random numbers). False: torch's global generator, as LeRobot's diffusion policy.
     """
 
     # Diffusion (same meaning as in LeRobot's DiffusionConfig).
@@ -108,12 +118,12 @@ class CCDPConfig(PreTrainedConfig):
             "ACTION": NormalizationMode.MIN_MAX,
         }
     )
-    # Vision (same fields and defaults as LeRobot's DiffusionConfig; its RGB encoder is reused as is). The backbone
-    # is randomly initialised unless `pretrained_backbone_weights` names torchvision weights (e.g.
+    # Vision (same fields and defaults as LeRobot's DiffusionConfig; its RGB encoder is reused as is). The
+    # backbone is randomly initialised unless `pretrained_backbone_weights` names torchvision weights (e.g.
     # "ResNet18_Weights.IMAGENET1K_V1"), which torchvision must find in its cache or download.
     vision_backbone: str = "resnet18"
-    # ResNet stages kept (4 = LeRobot's encoder). Each stage halves the feature map: 3 keeps a 4x4 map of 64 px
-    # images for the spatial softmax (4 stages leave 2x2) at a quarter of the backbone's parameters.
+    # ResNet stages kept (4 = LeRobot's encoder). Each stage halves the feature map: 3 keeps a 4x4 map of
+    # 64 px images for the spatial softmax (4 stages leave 2x2) at a quarter of the backbone's parameters.
     vision_backbone_stages: int = 4
     resize_shape: tuple[int, int] | None = None
     crop_ratio: float = 1.0
@@ -183,20 +193,30 @@ class CCDPConfig(PreTrainedConfig):
             )
         for name in ("w_s", "w_h", "w_z"):
             if getattr(self, name) < 0:
-                raise ValueError(f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(self, name)}.")
+                raise ValueError(
+                    f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(self, name)}."
+                )
         if self.w_h > 0 and self.history_length == 0:
-            raise ValueError("`w_h` > 0 weighs the history term of eq. (4), which needs a history condition: set "
-                             "--policy.history_length to 1 or more, or --policy.w_h=0.")
-        for name, allowed in (("recovery_mode", RECOVERY_MODES), ("failure_feature", FAILURE_FEATURES),
-                              ("failure_state_at", FAILURE_STATES_AT), ("failure_segments", FAILURE_SEGMENTS),
-                              ("training_stage", TRAINING_STAGES), ("recovery_head", RECOVERY_HEADS),
-                              ("z_reference", Z_REFERENCES)):
+            raise ValueError(
+                "`w_h` > 0 weighs the history term of eq. (4), which needs a history condition: set "
+                "--policy.history_length to 1 or more, or --policy.w_h=0."
+            )
+        for name, allowed in (
+            ("recovery_mode", RECOVERY_MODES),
+            ("failure_feature", FAILURE_FEATURES),
+            ("failure_state_at", FAILURE_STATES_AT),
+            ("failure_segments", FAILURE_SEGMENTS),
+            ("training_stage", TRAINING_STAGES),
+            ("recovery_head", RECOVERY_HEADS),
+            ("z_reference", Z_REFERENCES),
+        ):
             self._check_choice(name, allowed)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
         self._check_vision()
         if self.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
             raise ValueError(
-                f"`failure_state_key` must be {OBS_STATE!r} or {OBS_ENV_STATE!r}; got {self.failure_state_key!r}."
+                f"`failure_state_key` must be {OBS_STATE!r} or {OBS_ENV_STATE!r}; got "
+                f"{self.failure_state_key!r}."
             )
         if self.failure_feature == "primitive" and self.num_primitives < 2:
             raise ValueError(
@@ -205,13 +225,18 @@ class CCDPConfig(PreTrainedConfig):
             )
         bad_steps = [s for s in self.failure_action_steps if not 0 <= s < self.horizon]
         if bad_steps:
-            raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon}).")
+            raise ValueError(
+                f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon})."
+            )
         if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
-            raise ValueError(f"recovery_head='set_denoiser' trains on one-frame rows of a synthesised dataset: it needs "
-                             f"n_obs_steps=1; got {self.n_obs_steps}. Use --policy.recovery_head=unet.")
+            raise ValueError(
+                f"recovery_head='set_denoiser' trains on one-frame rows of a synthesised dataset: it needs "
+                f"n_obs_steps=1; got {self.n_obs_steps}. Use --policy.recovery_head=unet."
+            )
         if self.horizon % 2 ** len(self.down_dims) != 0:
             raise ValueError(
-                f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = {2 ** len(self.down_dims)}."
+                f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = "
+                f"{2 ** len(self.down_dims)}."
             )
         if self.n_action_steps > self.horizon - self.n_obs_steps + 1:
             raise ValueError(
@@ -220,8 +245,8 @@ class CCDPConfig(PreTrainedConfig):
             )
 
     def _save_pretrained(self, save_directory: Path) -> None:
-        """Save without `failure_signal_file`: a path on this machine is no part of the model, and a checkpoint
-        someone else loads must not choose a file for their policy to watch."""
+        """Save without `failure_signal_file`: a path on this machine is no part of the model, and a
+        checkpoint someone else loads must not choose a file for their policy to watch."""
         signal, self.failure_signal_file = self.failure_signal_file, None
         try:
             super()._save_pretrained(save_directory)
@@ -229,34 +254,49 @@ class CCDPConfig(PreTrainedConfig):
             self.failure_signal_file = signal
 
     def _check_numbers(self) -> None:
-        """Every number finite, and the sizes of a chunk positive: NaN passes every `<` check (a NaN weight gave NaN
-        actions that lerobot-eval scored as failed episodes, a NaN delta_z a DP* that never rejects), and
-        n_action_steps 0 trains, then fails at the first action."""
+        """Every number finite, and the sizes of a chunk positive: NaN passes every `<` check (a NaN weight
+        gave NaN actions that lerobot-eval scored as failed episodes, a NaN delta_z a DP* that never rejects),
+        and n_action_steps 0 trains, then fails at the first action."""
         for f in fields(self):
             value = getattr(self, f.name)
             values = value if isinstance(value, (list, tuple)) else [value]
             if any(isinstance(v, float) and not math.isfinite(v) for v in values):
-                raise ValueError(f"`{f.name}` must be a finite number; got {value}. Set --policy.{f.name} to a "
-                                 "number (its default is in `lerobot-train --policy.type=ccdp --help`).")
+                raise ValueError(
+                    f"`{f.name}` must be a finite number; got {value}. Set --policy.{f.name} to a "
+                    "number (its default is in `lerobot-train --policy.type=ccdp --help`)."
+                )
         at_least = {name: 1 for name in POSITIVE_FIELDS} | {name: 0 for name in NON_NEGATIVE_FIELDS}
-        small = {name: getattr(self, name) for name, low in at_least.items()
-                 if getattr(self, name) is not None and getattr(self, name) < low}
+        small = {
+            name: getattr(self, name)
+            for name, low in at_least.items()
+            if getattr(self, name) is not None and getattr(self, name) < low
+        }
         small |= {"down_dims": self.down_dims} if not self.down_dims or min(self.down_dims) < 1 else {}
         if small:
-            raise ValueError(f"{', '.join(f'`{k}`' for k in small)} must be >= 1 (`delta_z`, `history_length`, "
-                             f"`ccdp_redraws` and `scheduler_warmup_steps` >= 0, `down_dims` non-empty); got {small}.")
+            raise ValueError(
+                f"{', '.join(f'`{k}`' for k in small)} must be >= 1 (`delta_z`, `history_length`, "
+                f"`ccdp_redraws` and `scheduler_warmup_steps` >= 0, `down_dims` non-empty); got {small}."
+            )
         if self.num_inference_steps is not None and self.num_inference_steps > self.num_train_timesteps:
-            raise ValueError(f"`num_inference_steps` ({self.num_inference_steps}) cannot exceed `num_train_timesteps` "
-                             f"({self.num_train_timesteps}): the reverse diffusion visits training timesteps.")
+            raise ValueError(
+                f"`num_inference_steps` ({self.num_inference_steps}) cannot exceed `num_train_timesteps` "
+                f"({self.num_train_timesteps}): the reverse diffusion visits training timesteps."
+            )
 
     def _check_vision(self) -> None:
         """The checks LeRobot's DiffusionConfig makes of the same fields, and its crop derivation."""
         if not self.vision_backbone.startswith("resnet"):
-            raise ValueError(f"`vision_backbone` must be a torchvision ResNet (e.g. resnet18); got {self.vision_backbone!r}.")
+            raise ValueError(
+                "`vision_backbone` must be a torchvision ResNet (e.g. resnet18); got "
+                f"{self.vision_backbone!r}."
+            )
         if self.resize_shape is not None and (len(self.resize_shape) != 2 or min(self.resize_shape) <= 0):
             raise ValueError(f"`resize_shape` must be a pair of positive integers; got {self.resize_shape}.")
         if self.vision_backbone_stages not in (1, 2, 3, 4):
-            raise ValueError(f"`vision_backbone_stages` must be 1 to 4 (a ResNet has 4); got {self.vision_backbone_stages}.")
+            raise ValueError(
+                "`vision_backbone_stages` must be 1 to 4 (a ResNet has 4); got "
+                f"{self.vision_backbone_stages}."
+            )
         if not 0 < self.crop_ratio <= 1.0:
             raise ValueError(f"`crop_ratio` must be in (0, 1]; got {self.crop_ratio}.")
         if self.resize_shape is not None:
@@ -283,8 +323,10 @@ class CCDPConfig(PreTrainedConfig):
             )
         self._validate_images()
         if self.image_features and self.recovery_head == "set_denoiser":
-            raise ValueError("recovery_head='set_denoiser' conditions on the state of synthesised rows, which carry no "
-                             "camera images yet: use --policy.recovery_head=unet with cameras.")
+            raise ValueError(
+                "recovery_head='set_denoiser' conditions on the state of synthesised rows, which carry no "
+                "camera images yet: use --policy.recovery_head=unet with cameras."
+            )
         if self.action_feature is None:
             raise ValueError(f"CCDP needs an {ACTION!r} output feature; the dataset has none.")
         if len(self.action_feature.shape) == 2:
@@ -294,8 +336,8 @@ class CCDPConfig(PreTrainedConfig):
             source = self.input_features.get(self.failure_state_key)
             if source is None:
                 raise ValueError(
-                    f"failure_feature='final_state' reads {self.failure_state_key!r}, which the dataset lacks; "
-                    f"choose --policy.failure_state_key among {sorted(self.input_features)}."
+                    f"failure_feature='final_state' reads {self.failure_state_key!r}, which the dataset "
+                    f"lacks; choose --policy.failure_state_key among {sorted(self.input_features)}."
                 )
             bad = [d for d in self.failure_state_dims if not 0 <= d < source.shape[0]]
             if bad:
@@ -307,20 +349,24 @@ class CCDPConfig(PreTrainedConfig):
         bad = [d for d in self.failure_action_dims if not 0 <= d < action_dim]
         if self.failure_feature == "action" and bad:
             raise ValueError(f"`failure_action_dims` {bad} do not exist in the {action_dim}-dim action.")
-        self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(FeatureType.STATE, (self.failure_feature_dim,))
+        self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(
+            FeatureType.STATE, (self.failure_feature_dim,)
+        )
 
     def _validate_images(self) -> None:
         """Every camera has the same (C, H, W) shape (one encoder shape, as in LeRobot) and fits the crop."""
         shapes = {key: tuple(ft.shape) for key, ft in self.image_features.items()}
         if len(set(shapes.values())) > 1:
             raise ValueError(
-                f"All cameras must have the same shape (one encoder input size); got {shapes}. Record them at one "
-                "size, or set --policy.resize_shape=[H,W] to resize every camera to it."
+                f"All cameras must have the same shape (one encoder input size); got {shapes}. Record them "
+                "at one size, or set --policy.resize_shape=[H,W] to resize every camera to it."
             )
         if shapes and self.crop_shape is not None and self.resize_shape is None:
             _, height, width = next(iter(shapes.values()))
             if self.crop_shape[0] > height or self.crop_shape[1] > width:
-                raise ValueError(f"`crop_shape` {self.crop_shape} does not fit in the camera images {shapes}.")
+                raise ValueError(
+                    f"`crop_shape` {self.crop_shape} does not fit in the camera images {shapes}."
+                )
 
     @property
     def state_dim(self) -> int:
@@ -335,7 +381,8 @@ class CCDPConfig(PreTrainedConfig):
 
     @property
     def frame_dim(self) -> int:
-        """Size of one observation frame as the networks see it: low-dimensional state, then camera features."""
+        """Size of one observation frame as the networks see it: low-dimensional state, then camera
+        features."""
         return self.state_dim + self.image_feature_dim
 
     @property
@@ -347,18 +394,21 @@ class CCDPConfig(PreTrainedConfig):
         if self.failure_feature == "final_state":
             return len(self.failure_state_dims) or self.input_features[self.failure_state_key].shape[0]
         if self.failure_feature == "action":
-            return (len(self.failure_action_steps) or self.horizon) * (len(self.failure_action_dims) or self.action_dim)
+            return (len(self.failure_action_steps) or self.horizon) * (
+                len(self.failure_action_dims) or self.action_dim
+            )
         return self.num_primitives
 
     @property
     def trains_on_windows(self) -> bool:
-        """Whether this stage reads demonstration windows (the base, and the heads that learn from the demos too)
-        rather than whole recovery rows of a synthesised dataset."""
+        """Whether this stage reads demonstration windows (the base, and the heads that learn from the demos
+        too) rather than whole recovery rows of a synthesised dataset."""
         return self.training_stage == "base" or self.recovery_head_learns_from_demonstrations
 
     @property
     def recovery_head_learns_from_demonstrations(self) -> bool:
-        """Whether the recovery head trains on the demonstrations themselves (no synthesised recovery dataset)."""
+        """Whether the recovery head trains on the demonstrations themselves (no synthesised recovery
+        dataset)."""
         return self.recovery_head == "classifier"
 
     @property

@@ -1,5 +1,5 @@
-"""The networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z, a failure-set classifier, or the
-failure-set denoiser eps_{s,F})."""
+"""The networks: the base UNet (eps_a, eps_s, eps_h) and the recovery head (eps_z, a failure-set classifier,
+or the failure-set denoiser eps_{s,F})."""
 
 import torch
 from lerobot.policies.diffusion.modeling_diffusion import (
@@ -28,17 +28,22 @@ class BaseDenoiser(nn.Module):
         self.state_cond_dim = config.n_obs_steps * config.frame_dim
         self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
         self.unet = with_small_batch_convolutions(
-            DiffusionConditionalUnet1d(config, global_cond_dim=self.state_cond_dim + self.history_cond_dim + 2)
+            DiffusionConditionalUnet1d(
+                config, global_cond_dim=self.state_cond_dim + self.history_cond_dim + 2
+            )
         )
 
-    def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, keep_s: Tensor, history: Tensor, keep_h: Tensor) -> Tensor:
+    def forward(
+        self, noisy: Tensor, timestep: Tensor, state: Tensor, keep_s: Tensor, history: Tensor, keep_h: Tensor
+    ) -> Tensor:
         """noisy (R, horizon, A); state (R, state_cond_dim); history (R, history_cond_dim); keep_* (R, 1)."""
         cond = torch.cat([state * keep_s, keep_s, history * keep_h, keep_h], dim=-1)
         return self.unet(noisy, timestep, global_cond=cond)
 
 
 def make_recovery_denoiser(config: CCDPConfig) -> nn.Module:
-    """The recovery network `config.recovery_head` names: eps_z(a, z, k) per failure, or the failure-set classifier."""
+    """The recovery network `config.recovery_head` names: eps_z(a, z, k) per failure, or the failure-set
+    classifier."""
     heads = {"unet": RecoveryUnet, "classifier": FailureSetClassifier, "set_denoiser": FailureSetDenoiser}
     return heads[config.recovery_head](config)
 
@@ -57,18 +62,21 @@ class RecoveryUnet(nn.Module):
         )
 
     def forward(self, noisy: Tensor, timestep: Tensor, z: Tensor, keep_z: Tensor) -> Tensor:
-        """noisy (R, horizon, A); timestep (R,); z (R, z_dim); keep_z (R, 1) -> predicted noise (R, horizon, A)."""
+        """noisy (R, horizon, A); timestep (R,); z (R, z_dim); keep_z (R, 1) -> predicted noise
+        (R, horizon, A)."""
         return self.unet(noisy, timestep, global_cond=_z_condition(z, keep_z))
 
 
 class FailureSetClassifier(nn.Module):
-    """logit of P(a_0 repeats a failure in F | a_t, s, k): a noisy-chunk classifier for the whole failure set F.
+    """logit of P(a_0 repeats a failure in F | a_t, s, k): a noisy-chunk classifier for the whole failure set
+    F.
 
-    Trained on the demonstrations with F drawn independently of each row (the label says whether the row's own z
-    lies within delta_z of a failure in F; `CCDPModel._failure_set_loss`), its gradient turns eps_s into the noise
-    estimate of p_s restricted to the chunks outside F (`composition.guide_away_from_failures`). A residual MLP over
-    the flattened chunk, FiLM-conditioned on the diffusion step, the state (droppable) and the set's embedding (a
-    max over an MLP of each z_i, so neither F's order nor a repeated failure changes it).
+    Trained on the demonstrations with F drawn independently of each row (the label says whether the row's own
+    z lies within delta_z of a failure in F; `CCDPModel._failure_set_loss`), its gradient turns eps_s into the
+    noise estimate of p_s restricted to the chunks outside F (`composition.guide_away_from_failures`). A
+    residual MLP over the flattened chunk, FiLM-conditioned on the diffusion step, the state (droppable) and
+    the set's embedding (a max over an MLP of each z_i, so neither F's order nor a repeated failure changes
+    it).
     """
 
     def __init__(self, config: CCDPConfig):
@@ -76,20 +84,32 @@ class FailureSetClassifier(nn.Module):
         width, chunk = HIDDEN_WIDTH, config.horizon * config.action_dim
         self.step_embedding = _step_embedding(config, width)
         self.state_embedding = nn.Linear(config.n_obs_steps * config.frame_dim + 1, width)
-        self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
+        self.set_embedding = nn.Sequential(
+            nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width)
+        )
         self.inp = nn.Linear(chunk, width)
         self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(CLASSIFIER_BLOCKS))
         self.logit = nn.Linear(width, 1)
 
     def forward(
-        self, noisy: Tensor, timestep: Tensor, state: Tensor, z: Tensor, z_mask: Tensor, keep_s: Tensor | None = None
+        self,
+        noisy: Tensor,
+        timestep: Tensor,
+        state: Tensor,
+        z: Tensor,
+        z_mask: Tensor,
+        keep_s: Tensor | None = None,
     ) -> Tensor:
-        """noisy (R, horizon, A); state (R, state_cond_dim); z (R, N, z_dim) with z_mask (R, N), at least one failure
-        per row; keep_s (R, 1) drops the state of some rows while training (default: kept) -> logits (R,)."""
+        """noisy (R, horizon, A); state (R, state_cond_dim); z (R, N, z_dim) with z_mask (R, N), at least one
+        failure per row; keep_s (R, 1) drops the state of some rows while training (default: kept) -> logits
+        (R,)."""
         keep_s = state.new_ones(state.shape[0], 1) if keep_s is None else keep_s
         per_failure = self.set_embedding(z).masked_fill(~z_mask[..., None], float("-inf"))
-        cond = (self.step_embedding(timestep) + self.state_embedding(torch.cat([state * keep_s, keep_s], dim=-1))
-                + per_failure.amax(dim=1))
+        cond = (
+            self.step_embedding(timestep)
+            + self.state_embedding(torch.cat([state * keep_s, keep_s], dim=-1))
+            + per_failure.amax(dim=1)
+        )
         h = self.inp(noisy.flatten(start_dim=1))
         for block in self.blocks:
             h = block(h, cond)
@@ -97,14 +117,16 @@ class FailureSetClassifier(nn.Module):
 
 
 class FailureSetDenoiser(nn.Module):
-    """eps_{s,F}(a_t, k): the noise estimate of p_s restricted to the chunks whose outcome lies outside the failure set F.
+    """eps_{s,F}(a_t, k): the noise estimate of p_s restricted to the chunks whose outcome lies outside the
+    failure set F.
 
-    A copy of the base UNet whose global condition is the base's own with the state kept and the history dropped,
-    followed by an embedding of F (a max over an MLP of each z_i, so neither F's order nor a repeated failure changes
-    it). `start_from` copies the base with the set's condition weights zeroed, so training starts from eps_s exactly.
-    Trained on chunks the base samples where attempts start, with F drawn independently of each row and the rows whose
-    own outcome lies in F left out (`CCDPModel._set_denoiser_loss`): p(a | s, F) is then proportional to
-    p_s(a | s) 1[z(a) outside F], the base's own proportions over the options left, learnt by one network that sampling calls once per step.
+    A copy of the base UNet whose global condition is the base's own with the state kept and the history
+    dropped, followed by an embedding of F (a max over an MLP of each z_i, so neither F's order nor a repeated
+    failure changes it). `start_from` copies the base with the set's condition weights zeroed, so training
+    starts from eps_s exactly. Trained on chunks the base samples where attempts start, with F drawn
+    independently of each row and the rows whose own outcome lies in F left out
+    (`CCDPModel._set_denoiser_loss`): p(a | s, F) is then proportional to p_s(a | s) 1[z(a) outside F], the
+    base's own proportions over the options left, learnt by one network that sampling calls once per step.
     """
 
     def __init__(self, config: CCDPConfig):
@@ -112,12 +134,16 @@ class FailureSetDenoiser(nn.Module):
         width = HIDDEN_WIDTH
         self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
         base_cond_dim = config.n_obs_steps * config.frame_dim + self.history_cond_dim + 2
-        self.set_embedding = nn.Sequential(nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width))
-        self.unet = with_small_batch_convolutions(DiffusionConditionalUnet1d(config, global_cond_dim=base_cond_dim + width))
+        self.set_embedding = nn.Sequential(
+            nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width)
+        )
+        self.unet = with_small_batch_convolutions(
+            DiffusionConditionalUnet1d(config, global_cond_dim=base_cond_dim + width)
+        )
 
     def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
-        """noisy (R, horizon, A); timestep (R,); state (R, state_cond_dim); z (R, N, z_dim) with z_mask (R, N), at
-        least one failure per row -> predicted noise (R, horizon, A)."""
+        """noisy (R, horizon, A); timestep (R,); state (R, state_cond_dim); z (R, N, z_dim) with z_mask
+        (R, N), at least one failure per row -> predicted noise (R, horizon, A)."""
         ones = state.new_ones(state.shape[0], 1)
         no_history = state.new_zeros(state.shape[0], self.history_cond_dim)
         failures = self.set_embedding(z).masked_fill(~z_mask[..., None], float("-inf")).amax(dim=1)
@@ -126,7 +152,8 @@ class FailureSetDenoiser(nn.Module):
 
     @torch.no_grad()
     def start_from(self, base: BaseDenoiser) -> None:
-        """Copy the base UNet's weights; the condition columns the base lacks (F's embedding) start at zero."""
+        """Copy the base UNet's weights; the condition columns the base lacks (F's embedding) start at
+        zero."""
         own = self.unet.state_dict()
         for name, value in base.unet.state_dict().items():
             target = own[name]
@@ -146,7 +173,8 @@ def _step_embedding(config: CCDPConfig, width: int) -> nn.Module:
 
 
 def _z_condition(z: Tensor, keep_z: Tensor) -> Tensor:
-    """z with its keep flag: a dropped z (keep 0) is zeroed, so the head learns eps_z_null on the same data."""
+    """z with its keep flag: a dropped z (keep 0) is zeroed, so the head learns eps_z_null on the same
+    data."""
     return torch.cat([z * keep_z, keep_z], dim=-1)
 
 

@@ -19,7 +19,8 @@ from pathlib import Path
 
 logger = logging.getLogger(__name__)
 
-Status = tuple[int, int, int] | None  # (device, inode, modification time in ns) of the file, None while absent
+# (device, inode, modification time in ns) of the file, None while absent
+Status = tuple[int, int, int] | None
 
 
 class FailureSignalFile:
@@ -29,21 +30,22 @@ class FailureSignalFile:
         self.path = Path(path)
         if not self.path.parent.is_dir():
             raise ValueError(
-                f"failure_signal_file={str(self.path)!r}: its folder {str(self.path.parent)!r} does not exist. "
-                "Create the folder, or name a file in an existing one (e.g. /tmp/ccdp_failed)."
+                f"failure_signal_file={str(self.path)!r}: its folder {str(self.path.parent)!r} does not "
+                "exist. Create the folder, or name a file in an existing one (e.g. /tmp/ccdp_failed)."
             )
         try:
             self._seen = self._status()  # what is there now is the baseline, not a failure
         except OSError as error:
             raise ValueError(
-                f"failure_signal_file={str(self.path)!r} cannot be used as a signal ({error.strerror}): it must be "
-                "a plain file, or not exist yet, in a folder this process can read. Name another path (e.g. "
-                "/tmp/ccdp_failed)."
+                f"failure_signal_file={str(self.path)!r} cannot be used as a signal ({error.strerror}): it "
+                "must be a plain file, or not exist yet, in a folder this process can read. Name another "
+                "path (e.g. /tmp/ccdp_failed)."
             ) from None
         self._warned = False
 
     def _status(self) -> Status:
-        """The file's identity and modification time, None while it is absent; OSError if it cannot be read."""
+        """The file's identity and modification time, None while it is absent; OSError if it cannot be
+        read."""
         try:
             info = os.stat(self.path)
         except FileNotFoundError:
@@ -53,8 +55,9 @@ class FailureSignalFile:
         return info.st_dev, info.st_ino, info.st_mtime_ns
 
     def poll(self) -> bool:
-        """Whether the file appeared or was touched since the last poll. A file that cannot be read (its folder
-        lost permission, or it became a folder) is reported once and counts as no signal: the episode goes on."""
+        """Whether the file appeared or was touched since the last poll. A file that cannot be read (its
+        folder lost permission, or it became a folder) is reported once and counts as no signal: the episode
+        goes on."""
         try:
             current = self._status()
         except OSError as error:
@@ -67,5 +70,9 @@ class FailureSignalFile:
     def _warn(self, what: str) -> None:
         if not self._warned:
             self._warned = True
-            logger.warning("failure_signal_file %s cannot be read (%s): no failure can be signalled through it "
-                           "until that is fixed.", self.path, what)
+            logger.warning(
+                "failure_signal_file %s cannot be read (%s): no failure can be signalled through it "
+                "until that is fixed.",
+                self.path,
+                what,
+            )

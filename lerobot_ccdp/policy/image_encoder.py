@@ -3,9 +3,9 @@
 One encoder shared by every camera, or one per camera (`use_separate_rgb_encoder_per_camera`), exactly as in
 LeRobot's `DiffusionModel`, so a ccdp checkpoint encodes images the way a `diffusion` one does. One addition,
 `vision_backbone_stages`: a ResNet divides the image size by 32 over its 4 stages, so a small camera image
-(what a CPU can train on) leaves the spatial softmax a 2x2 or 1x1 map; keeping 3 stages keeps 4x4 at 64 px. The features of
-one frame join its low-dimensional state, so they enter both the state condition of eps_s and the history
-condition of eps_h (`BaseDenoiser`); the recovery head eps_z sees only z.
+(what a CPU can train on) leaves the spatial softmax a 2x2 or 1x1 map; keeping 3 stages keeps 4x4 at 64 px.
+The features of one frame join its low-dimensional state, so they enter both the state condition of eps_s and
+the history condition of eps_h (`BaseDenoiser`); the recovery head eps_z sees only z.
 """
 
 import torch
@@ -17,7 +17,8 @@ from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 
 
 class ImageEncoder(nn.Module):
-    """Images of every camera (..., C, H, W), normalised, -> one feature vector (..., n_cameras * 2 * keypoints)."""
+    """Images of every camera (..., C, H, W), normalised, -> one feature vector
+    (..., n_cameras * 2 * keypoints)."""
 
     def __init__(self, config: CCDPConfig):
         super().__init__()
@@ -49,10 +50,10 @@ def rgb_encoder(config: CCDPConfig) -> DiffusionRgbEncoder:
     feature_map = get_output_shape(encoder.backbone, (1, image_shape[0], *encoded_size))[1:]
     if feature_map[1] * feature_map[2] < 2:
         raise ValueError(
-            f"Camera images of {tuple(encoded_size)} pixels leave the spatial softmax a {feature_map[1]}x"
-            f"{feature_map[2]} feature map after {config.vision_backbone_stages} ResNet stages: every image would "
-            "encode to the same keypoints. Use larger images (or --policy.resize_shape), or keep fewer stages "
-            "(--policy.vision_backbone_stages=3 or 2)."
+            f"Camera images of {tuple(encoded_size)} pixels leave the spatial softmax a "
+            f"{feature_map[1]}x{feature_map[2]} feature map after {config.vision_backbone_stages} ResNet "
+            "stages: every image would encode to the same keypoints. Use larger images (or "
+            "--policy.resize_shape), or keep fewer stages (--policy.vision_backbone_stages=3 or 2)."
         )
     if dropped:
         encoder.pool = SpatialSoftmax(feature_map, num_kp=config.spatial_softmax_num_keypoints)

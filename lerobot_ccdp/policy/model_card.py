@@ -14,7 +14,11 @@ TEMPLATE = "ccdp_modelcard_template.md"
 
 
 def make_model_card(
-    config: CCDPConfig, dataset_repo_id: str, license: str | None, tags: list[str] | None, recovery_trained: bool
+    config: CCDPConfig,
+    dataset_repo_id: str,
+    license: str | None,
+    tags: list[str] | None,
+    recovery_trained: bool,
 ) -> ModelCard:
     """Same metadata as LeRobot's card (so the Hub lists it as a LeRobot robotics model), ccdp's own text."""
     card_data = ModelCardData(

@@ -1,9 +1,10 @@
-"""CCDPPolicy and CCDPModel: LeRobot's diffusion policy composed at every denoising step with failure-recovery heads.
+"""CCDPPolicy and CCDPModel: LeRobot's diffusion policy composed at every denoising step with failure-recovery
+heads.
 
-Split as LeRobot splits DiffusionPolicy and DiffusionModel. `CCDPPolicy` keeps what a rollout needs (observation
-windows, plans, every row's failures, the failure signals) and hands each plan to the recovery mode's sampler
-(`samplers.py`). `CCDPModel` holds the networks, the losses of both stages and the one reverse diffusion the samplers
-call; eq. (4) itself, and which of its terms run, live in `recovery/composition.py`.
+Split as LeRobot splits DiffusionPolicy and DiffusionModel. `CCDPPolicy` keeps what a rollout needs
+(observation windows, plans, every row's failures, the failure signals) and hands each plan to the recovery
+mode's sampler (`samplers.py`). `CCDPModel` holds the networks, the losses of both stages and the one reverse
+diffusion the samplers call; eq. (4) itself, and which of its terms run, live in `recovery/composition.py`.
 """
 
 import logging
@@ -57,13 +58,13 @@ from lerobot_ccdp.recovery.outcome_table import build_outcome_table
 
 logger = logging.getLogger(__name__)
 
-# Condition dropout while training (independent per condition): dropping the state and the history trains eps_a,
-# dropping one trains eps_s or eps_h; dropping z trains the recovery head's eps_z_null.
+# Condition dropout while training (independent per condition): dropping the state and the history trains
+# eps_a, dropping one trains eps_s or eps_h; dropping z trains the recovery head's eps_z_null.
 P_DROP_STATE = 0.3
 P_DROP_HISTORY = 0.5
 P_DROP_FAILURE = 0.1
-# Most failures remembered per batch row (the oldest is forgotten beyond it), and drawn for one training row of the
-# classifier and the set denoiser.
+# Most failures remembered per batch row (the oldest is forgotten beyond it), and drawn for one training row
+# of the classifier and the set denoiser.
 MAX_FAILURES = 8
 FAILURE_SET_TRAIN_SIZE = 3
 
@@ -87,38 +88,47 @@ class CCDPPolicy(PreTrainedPolicy):
             refuse_fresh_training(config, dataset_meta)
         self.config = config
         self.model = CCDPModel(config, dataset_meta, dataset_stats)
-        self.failure_signal = FailureSignalFile(config.failure_signal_file) if config.failure_signal_file else None
+        self.failure_signal = (
+            FailureSignalFile(config.failure_signal_file) if config.failure_signal_file else None
+        )
         # Whether anything could tell this policy about a failure (warned about once otherwise).
         self._heard_failure_source = self.failure_signal is not None
         self._warned_deaf = False
-        self._rollouts = 0  # rollouts begun since the policy was made: with row_noise_streams, part of each row's seed
+        # rollouts begun since the policy was made: with row_noise_streams, part of each row's seed
+        self._rollouts = 0
         self._streams: list[torch.Generator] | None = None
         self.reset()
 
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "CCDPPolicy":
-        """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the dataset's
-        metadata and stats too, and from_pretrained passes them on to __init__ (under lerobot-record: a new, empty
-        recording dataset without the label column); they are dropped so that loading never reads a dataset. A local
-        folder is checked first (`checkpoint_loading`): a wrong path or a damaged file is named with the fix; so is a
-        checkpoint of another policy type or action size, or whose weights do not fit (`refuse_unfit_weights`). A
-        `failure_signal_file` only the checkpoint names is dropped: a checkpoint never chooses a file to watch."""
+        """A checkpoint carries its own outcome table. LeRobot's make_policy hands from_pretrained the
+        dataset's metadata and stats too, and from_pretrained passes them on to __init__ (under
+        lerobot-record: a new, empty recording dataset without the label column); they are dropped so that
+        loading never reads a dataset. A local folder is checked first (`checkpoint_loading`): a wrong path or
+        a damaged file is named with the fix; so is a checkpoint of another policy type or action size, or
+        whose weights do not fit (`refuse_unfit_weights`). A `failure_signal_file` only the checkpoint names
+        is dropped: a checkpoint never chooses a file to watch."""
         for key in ("dataset_meta", "dataset_stats"):
             kwargs.pop(key, None)
         with checkpoint_loading(pretrained_name_or_path):
             hub = {key: kwargs[key] for key in HUB_DOWNLOAD_KEYS if key in kwargs}
-            config = kwargs.pop("config", None) or PreTrainedConfig.from_pretrained(pretrained_name_or_path, **hub)
+            config = kwargs.pop("config", None) or PreTrainedConfig.from_pretrained(
+                pretrained_name_or_path, **hub
+            )
             saved = saved_config(pretrained_name_or_path, **hub)
             refuse_other_checkpoint(config, saved, pretrained_name_or_path)
             ignore_saved_signal_file(config, saved)
             policy = super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
-            refuse_unfit_weights(policy.state_dict(), bool(policy.model.recovery_trained), pretrained_name_or_path, **hub)
+            refuse_unfit_weights(
+                policy.state_dict(), bool(policy.model.recovery_trained), pretrained_name_or_path, **hub
+            )
             return policy
 
     def generate_model_card(
         self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
     ) -> ModelCard:
-        """Called by push_model_to_hub (lerobot-train --policy.push_to_hub): LeRobot's template has no ccdp text."""
+        """Called by push_model_to_hub (lerobot-train --policy.push_to_hub): LeRobot's template has no ccdp
+        text."""
         return make_model_card(self.config, dataset_repo_id, license, tags, bool(self.model.recovery_trained))
 
     # ----- training -------------------------------------------------------------------------------------
@@ -127,12 +137,15 @@ class CCDPPolicy(PreTrainedPolicy):
         return [p for p in self.parameters() if p.requires_grad]
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """The model's loss for the stage the config names. A non-finite loss stops training (LeRobot would train on
-        to a NaN checkpoint and exit 0)."""
+        """The model's loss for the stage the config names. A non-finite loss stops training (LeRobot would
+        train on to a NaN checkpoint and exit 0)."""
         loss, info = self.model.compute_loss(batch)
         if not bool(torch.isfinite(loss)):
-            refuse_non_finite_batch(batch, f"The {self.config.training_stage} loss is {loss.item()} although the "
-                                    "batch is finite: lower --policy.optimizer_lr, or resume from an earlier checkpoint.")
+            refuse_non_finite_batch(
+                batch,
+                f"The {self.config.training_stage} loss is {loss.item()} although the "
+                "batch is finite: lower --policy.optimizer_lr, or resume from an earlier checkpoint.",
+            )
         return loss, info
 
     # ----- acting ---------------------------------------------------------------------------------------
@@ -157,8 +170,8 @@ class CCDPPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
-        """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures; it becomes
-        the rows' plan, as the chunk a client executes next."""
+        """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures; it
+        becomes the rows' plan, as the chunk a client executes next."""
         memory = self._observe(batch)
         rows = torch.ones(memory.batch_size, dtype=torch.bool, device=memory.frames.device)
         memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
@@ -181,13 +194,15 @@ class CCDPPolicy(PreTrainedPolicy):
         z = None if z is None else torch.as_tensor(z, dtype=torch.float32, device=mask.device)
         if z is not None and (z.shape[-1:] != (dim,) or z.numel() != int(mask.sum()) * dim):
             raise ValueError(
-                f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed row, "
-                f"({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out to use the "
-                "attempt's own failure feature."
+                f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed "
+                f"row, ({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out "
+                "to use the attempt's own failure feature."
             )
         if z is not None and not bool(torch.isfinite(z).all()):
-            raise ValueError(f"report_failure(z=...) holds NaN or inf ({z.tolist()}): a failure feature must be finite. "
-                             "Check the detector that computed it, or leave z out to use the attempt's own.")
+            raise ValueError(
+                f"report_failure(z=...) holds NaN or inf ({z.tolist()}): a failure feature must be finite. "
+                "Check the detector that computed it, or leave z out to use the attempt's own."
+            )
         self._record_failures(mask, z)
 
     def _warn_if_deaf(self) -> None:
@@ -196,10 +211,12 @@ class CCDPPolicy(PreTrainedPolicy):
             return
         self._warned_deaf = True
         logger.warning(
-            "ccdp ran an episode with recovery_mode=%s but nothing could tell it about a failure: no %s in its "
-            "inputs, no report_failure() call, no failure_signal_file. It acted as plain diffusion policy. In "
-            "lerobot-record, pass --policy.failure_signal_file=/tmp/ccdp_failed and create that file when an "
-            "attempt fails (docs/robot.md).", self.config.recovery_mode, FAILURE_FLAG_KEY,
+            "ccdp ran an episode with recovery_mode=%s but nothing could tell it about a failure: no %s in "
+            "its inputs, no report_failure() call, no failure_signal_file. It acted as plain diffusion "
+            "policy. In lerobot-record, pass --policy.failure_signal_file=/tmp/ccdp_failed and create that "
+            "file when an attempt fails (docs/robot.md).",
+            self.config.recovery_mode,
+            FAILURE_FLAG_KEY,
         )
 
     def _failed_rows(self, rows: int | list[int] | Tensor | None) -> Tensor:
@@ -211,12 +228,13 @@ class CCDPPolicy(PreTrainedPolicy):
             return mask
         try:
             if index is not None and index.dtype != torch.bool and bool((index < 0).any()):
-                raise IndexError("negative row")  # -1 would name the last row: almost surely a bug in the loop
+                # -1 would name the last row: almost surely a bug in the loop
+                raise IndexError("negative row")
             mask[slice(None) if index is None else index] = True
         except (IndexError, RuntimeError) as error:
             raise ValueError(
-                f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a bool mask of "
-                "that length). Pass the failed rows' indices, or None for every row."
+                f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a "
+                "bool mask of that length). Pass the failed rows' indices, or None for every row."
             ) from error
         return mask
 
@@ -232,12 +250,18 @@ class CCDPPolicy(PreTrainedPolicy):
         fresh = self._memory is None or self._memory.batch_size != frame.shape[0]
         if fresh:
             if self._failures is not None and bool((self._failures.count > 0).any()):
-                logger.warning("The batch went from %d to %d rows without reset(): the %d remembered failure(s) "
-                               "are dropped, as rows cannot be matched. Call policy.reset() between rollouts.",
-                               self._memory.batch_size, frame.shape[0], int(self._failures.count.sum()))
+                logger.warning(
+                    "The batch went from %d to %d rows without reset(): the %d remembered failure(s) "
+                    "are dropped, as rows cannot be matched. Call policy.reset() between rollouts.",
+                    self._memory.batch_size,
+                    frame.shape[0],
+                    int(self._failures.count.sum()),
+                )
             cfg = self.config
             self._memory = RolloutMemory(cfg, frame.shape[0], frame.device)
-            self._failures = FailureBuffer(frame.shape[0], cfg.failure_feature_dim, MAX_FAILURES, frame.device)
+            self._failures = FailureBuffer(
+                frame.shape[0], cfg.failure_feature_dim, MAX_FAILURES, frame.device
+            )
             self._streams = row_generators(self._rollouts, frame.shape[0]) if cfg.row_noise_streams else None
             self._rollouts += 1
         flag = batch.get(FAILURE_FLAG_KEY)
@@ -248,8 +272,10 @@ class CCDPPolicy(PreTrainedPolicy):
                 self._record_failures(failed)
         if self.failure_signal is not None and self.failure_signal.poll():
             if fresh:
-                logger.warning("%s appeared before any action since reset(): no attempt to remember, ignored.",
-                               self.failure_signal.path)
+                logger.warning(
+                    "%s appeared before any action since reset(): no attempt to remember, ignored.",
+                    self.failure_signal.path,
+                )
             else:
                 self._record_failures(torch.ones(frame.shape[0], dtype=torch.bool, device=frame.device))
         self._memory.push_frame(frame)
@@ -261,11 +287,14 @@ class CCDPPolicy(PreTrainedPolicy):
         if z is None:
             unplanned = failed & ~memory.attempt_planned
             if not self.model.feature.reads_failure_frame and unplanned.any():
-                logger.warning("Row(s) %s failed before planning any chunk: no chunk to remember.",
-                               unplanned.nonzero().flatten().tolist())
+                logger.warning(
+                    "Row(s) %s failed before planning any chunk: no chunk to remember.",
+                    unplanned.nonzero().flatten().tolist(),
+                )
                 rows = failed & memory.attempt_planned
-            z = self.model.feature.of_failure(memory.last_frame, memory.attempt_chunk, memory.latest_chunk,
-                                                self.model.outcomes)
+            z = self.model.feature.of_failure(
+                memory.last_frame, memory.attempt_chunk, memory.latest_chunk, self.model.outcomes
+            )
         else:
             z_full = torch.zeros(memory.batch_size, self.config.failure_feature_dim, device=z.device)
             z_full[rows] = z.reshape(-1, self.config.failure_feature_dim).to(z_full.dtype)
@@ -280,20 +309,30 @@ class CCDPPolicy(PreTrainedPolicy):
         self._planned_with_recovery |= mode != "dp"
         if mode == "ccdp" and z_mask.any() and not bool(self.model.recovery_trained):
             if not self._warned_untrained:
-                logger.warning("recovery_mode=ccdp but the recovery head is untrained (base-stage checkpoint): "
-                               "sampling as plain DP. Train the recovery stage to use failures.")
+                logger.warning(
+                    "recovery_mode=ccdp but the recovery head is untrained (base-stage checkpoint): "
+                    "sampling as plain DP. Train the recovery stage to use failures."
+                )
                 self._warned_untrained = True
             mode = "dp"
-        streams = None if self._streams is None else [self._streams[i] for i in rows.nonzero().flatten().tolist()]
-        plan = PlanRows(memory.state_condition(rows), memory.history_condition(rows), z, z_mask,
-                        None if noise is None else noise[rows], streams)
+        streams = (
+            None if self._streams is None else [self._streams[i] for i in rows.nonzero().flatten().tolist()]
+        )
+        plan = PlanRows(
+            memory.state_condition(rows),
+            memory.history_condition(rows),
+            z,
+            z_mask,
+            None if noise is None else noise[rows],
+            streams,
+        )
         return SAMPLERS[mode](self.model, plan)
 
 
 class CCDPModel(nn.Module):
-    """The base denoiser (eps_a, eps_s, eps_h in one network), the recovery head, the camera encoder, the outcome table
-    and the noise schedule. `compute_loss` trains the stage the config names; `denoise` runs the reverse diffusion
-    with eq. (4) (or the head's own composition) at every step."""
+    """The base denoiser (eps_a, eps_s, eps_h in one network), the recovery head, the camera encoder, the
+    outcome table and the noise schedule. `compute_loss` trains the stage the config names; `denoise` runs the
+    reverse diffusion with eq. (4) (or the head's own composition) at every step."""
 
     def __init__(self, config: CCDPConfig, dataset_meta=None, dataset_stats=None):
         super().__init__()
@@ -320,7 +359,11 @@ class CCDPModel(nn.Module):
         if dataset_stats is not None and config.training_stage == "base":
             refuse_non_finite_stats(config, dataset_stats)
             self.constant_inputs.fill(config, dataset_stats)
-        if dataset_meta is not None and config.training_stage == "base" and config.failure_feature != "action":
+        if (
+            dataset_meta is not None
+            and config.training_stage == "base"
+            and config.failure_feature != "action"
+        ):
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
         self._set_trainable()
 
@@ -335,7 +378,8 @@ class CCDPModel(nn.Module):
         self.recovery.requires_grad_(not base_stage)
 
     def compute_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """Loss of the stage the config names: the base denoiser on demos, or the recovery head on its dataset."""
+        """Loss of the stage the config names: the base denoiser on demos, or the recovery head on its
+        dataset."""
         if self.config.training_stage == "base":
             return self._base_loss(batch)
         if self.config.recovery_head == "classifier":
@@ -349,25 +393,34 @@ class CCDPModel(nn.Module):
         state, history, chunk, pad = self._windows(batch)
         b = chunk.shape[0]
         keep_s = (torch.rand(b, 1, device=chunk.device) >= P_DROP_STATE).float()
-        keep_h = (torch.rand(b, 1, device=chunk.device) >= P_DROP_HISTORY).float() * float(cfg.history_length > 0)
+        keep_h = (torch.rand(b, 1, device=chunk.device) >= P_DROP_HISTORY).float() * float(
+            cfg.history_length > 0
+        )
         noise, timesteps, noisy = self._noised(chunk)
-        loss = F.mse_loss(self.base(noisy, timesteps, state, keep_s, history, keep_h), noise, reduction="none")
+        loss = F.mse_loss(
+            self.base(noisy, timesteps, state, keep_s, history, keep_h), noise, reduction="none"
+        )
         if cfg.do_mask_loss_for_padding and pad is not None:
-            loss = loss * ~pad[:, cfg.history_length:, None]
+            loss = loss * ~pad[:, cfg.history_length :, None]
         return loss.mean(), {}
 
     def _windows(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
-        """A demonstration batch as the base sees it: state condition, history condition, the chunk to denoise and
-        the chunk's padding flags (or None)."""
+        """A demonstration batch as the base sees it: state condition, history condition, the chunk to denoise
+        and the chunk's padding flags (or None)."""
         cfg = self.config
         refuse_unknown_cameras(self.config, batch)
         frames = self.frames(batch)
         windows = (cfg.history_length + cfg.n_obs_steps, cfg.history_length + cfg.horizon)
-        if frames.ndim != 3 or batch[ACTION].ndim != 3 or (frames.shape[1], batch[ACTION].shape[1]) != windows:
+        if (
+            frames.ndim != 3
+            or batch[ACTION].ndim != 3
+            or (frames.shape[1], batch[ACTION].shape[1]) != windows
+        ):
             raise ValueError(
                 f"This stage expects observation windows (B, {cfg.history_length + cfg.n_obs_steps}, D) and "
                 f"action chunks (B, {cfg.history_length + cfg.horizon}, A); got {tuple(frames.shape)} and "
-                f"{tuple(batch[ACTION].shape)}. Load the dataset with the policy's delta timestamps (lerobot-train does)."
+                f"{tuple(batch[ACTION].shape)}. Load the dataset with the policy's delta timestamps "
+                "(lerobot-train does)."
             )
         h = cfg.history_length
         actions, pad = batch[ACTION], batch.get("action_is_pad")
@@ -379,45 +432,53 @@ class CCDPModel(nn.Module):
 
     def _failure_set_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """The failure-set classifier on the demonstrated chunks. Each row gets a failure set F of 1 to
-        FAILURE_SET_TRAIN_SIZE z drawn from other rows (so F is independent of the row's own chunk) and is a repeat
-        when its own z lies within delta_z of a failure in F; the classifier learns P(repeat | a_t, s) with the base's
-        noise schedule.
-        The state is dropped as in the base: where it already names the option, a state-conditioned row says little
-        about F, while state-free rows tie F to the chunks it excludes, in the same network."""
+        FAILURE_SET_TRAIN_SIZE z drawn from other rows (so F is independent of the row's own chunk) and is a
+        repeat when its own z lies within delta_z of a failure in F; the classifier learns P(repeat | a_t, s)
+        with the base's noise schedule.
+        The state is dropped as in the base: where it already names the option, a state-conditioned row says
+        little about F, while state-free rows tie F to the chunks it excludes, in the same network."""
         cfg = self.config
         state, _, chunk, _ = self._windows(batch)
         b, n = chunk.shape[0], FAILURE_SET_TRAIN_SIZE
         if b < 2:
-            raise ValueError("The classifier draws each row's failures from the other rows: use --batch_size >= 2.")
+            raise ValueError(
+                "The classifier draws each row's failures from the other rows: use --batch_size >= 2."
+            )
         self.recovery_trained.fill_(True)
-        z_set, z_mask, repeats = draw_failure_sets(self.feature.from_chunk(chunk, self.outcomes), n, cfg.delta_z)
+        z_set, z_mask, repeats = draw_failure_sets(
+            self.feature.from_chunk(chunk, self.outcomes), n, cfg.delta_z
+        )
         keep_s = (torch.rand(b, 1, device=chunk.device) >= P_DROP_STATE).to(chunk.dtype)
         _, timesteps, noisy = self._noised(chunk)
         logits = self.recovery(noisy, timesteps, state, z_set, z_mask, keep_s)
         return F.binary_cross_entropy_with_logits(logits, repeats.to(logits.dtype)), {}
 
     def _set_denoiser_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """eps_{s,F} on the rows of a set-denoiser dataset: chunks the base samples where attempts start, with their
-        state (lerobot-ccdp-synthesize). Each row gets a failure set F of 1..FAILURE_SET_TRAIN_SIZE z drawn from other
-        rows (so F is independent of the row's own chunk); rows whose own z lies within delta_z of a failure in F are
-        left out. The rows kept are p_s(a | s) q(F) 1[z(a) outside F], whose conditional given (s, F) is p_s restricted
-        to the options outside F in the base's proportions: DP*'s rejection, distilled. The first step copies the base
-        into the head (`FailureSetDenoiser.start_from`)."""
+        """eps_{s,F} on the rows of a set-denoiser dataset: chunks the base samples where attempts start, with
+        their state (lerobot-ccdp-synthesize). Each row gets a failure set F of 1..FAILURE_SET_TRAIN_SIZE z
+        drawn from other rows (so F is independent of the row's own chunk); rows whose own z lies within
+        delta_z of a failure in F are left out. The rows kept are p_s(a | s) q(F) 1[z(a) outside F], whose
+        conditional given (s, F) is p_s restricted to the options outside F in the base's proportions: DP*'s
+        rejection, distilled. The first step copies the base into the head
+        (`FailureSetDenoiser.start_from`)."""
         cfg = self.config
         state, chunk = self.frames(batch), batch[ACTION]
         if state.ndim != 2 or chunk.ndim != 3 or chunk.shape[1] != cfg.horizon:
             raise ValueError(
-                f"The set denoiser trains on synthesised rows: one state (B, D) and one whole chunk (B, {cfg.horizon}, "
-                f"A) per row; got {tuple(state.shape)} and {tuple(chunk.shape)}. Make the dataset with "
-                "lerobot-ccdp-synthesize from this checkpoint."
+                "The set denoiser trains on synthesised rows: one state (B, D) and one whole chunk (B, "
+                f"{cfg.horizon}, A) per row; got {tuple(state.shape)} and {tuple(chunk.shape)}. Make the "
+                "dataset with lerobot-ccdp-synthesize from this checkpoint."
             )
         if chunk.shape[0] < 2:
-            raise ValueError("The set denoiser draws each row's failures from the other rows: use --batch_size >= 2.")
+            raise ValueError(
+                "The set denoiser draws each row's failures from the other rows: use --batch_size >= 2."
+            )
         if not bool(self.recovery_trained):
             self.recovery.start_from(self.base)
             self.recovery_trained.fill_(True)
-        z_set, z_mask, repeats = draw_failure_sets(self.feature.from_chunk(chunk, self.outcomes),
-                                                   FAILURE_SET_TRAIN_SIZE, cfg.delta_z)
+        z_set, z_mask, repeats = draw_failure_sets(
+            self.feature.from_chunk(chunk, self.outcomes), FAILURE_SET_TRAIN_SIZE, cfg.delta_z
+        )
         noise, timesteps, noisy = self._noised(chunk)
         loss = F.mse_loss(self.recovery(noisy, timesteps, state, z_set, z_mask), noise, reduction="none")
         kept = (~repeats).to(loss.dtype)
@@ -428,7 +489,8 @@ class CCDPModel(nn.Module):
         cfg = self.config
         z = batch.get(FAILURE_FEATURE_KEY)
         if z is not None and z.ndim == 1 and cfg.failure_feature_dim == 1:
-            z = z[:, None]  # LeRobotDataset stores a feature of shape (1,) as a scalar column: a batch is (B,)
+            # LeRobotDataset stores a feature of shape (1,) as a scalar column: a batch is (B,)
+            z = z[:, None]
         if z is None or z.shape[-1] != cfg.failure_feature_dim:
             got = "no such column" if z is None else f"shape {tuple(z.shape)}"
             raise ValueError(
@@ -439,7 +501,8 @@ class CCDPModel(nn.Module):
         chunk = batch[ACTION]
         if chunk.ndim != 3 or chunk.shape[1] != cfg.horizon:
             raise ValueError(
-                f"Recovery rows hold whole chunks (B, {cfg.horizon}, A) under {ACTION!r}; got {tuple(chunk.shape)}."
+                f"Recovery rows hold whole chunks (B, {cfg.horizon}, A) under {ACTION!r}; got "
+                f"{tuple(chunk.shape)}."
             )
         self.recovery_trained.fill_(True)
         noise, timesteps, noisy = self._noised(chunk)
@@ -457,26 +520,39 @@ class CCDPModel(nn.Module):
 
     @torch.no_grad()
     def sample_exploratory(self, state: Tensor, w_s: float, noise: Tensor | None = None) -> Tensor:
-        """Chunks (R, horizon, A) drawn from eq. (7) for normalised state conditions (R, n_obs_steps * frame_dim):
-        no history, no failures. Recovery synthesis uses it to propose candidate actions around demo states."""
+        """Chunks (R, horizon, A) drawn from eq. (7) for normalised state conditions
+        (R, n_obs_steps * frame_dim): no history, no failures. Recovery synthesis uses it to propose candidate
+        actions around demo states."""
         cfg = self.config
         r = state.shape[0]
         if noise is None:
             noise = torch.randn(r, cfg.horizon, cfg.action_dim, device=state.device)
         history = torch.zeros(r, self.base.history_cond_dim, device=state.device)
         no_failures = torch.zeros(r, 0, cfg.failure_feature_dim, device=state.device)
-        return self.denoise(noise, state, history, no_failures, no_failures[..., 0].bool(),
-                             CompositionWeights.exploration(w_s))
+        return self.denoise(
+            noise,
+            state,
+            history,
+            no_failures,
+            no_failures[..., 0].bool(),
+            CompositionWeights.exploration(w_s),
+        )
 
     def denoise(
-        self, sample: Tensor, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor,
-        weights: CompositionWeights | None = None, generators: list[torch.Generator] | None = None,
+        self,
+        sample: Tensor,
+        state: Tensor,
+        history: Tensor,
+        z: Tensor,
+        z_mask: Tensor,
+        weights: CompositionWeights | None = None,
+        generators: list[torch.Generator] | None = None,
     ) -> Tensor:
-        """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given): one base
-        call and at most one recovery call per step, whatever the number of failures. With the classifier head the
-        failures enter by guidance instead (`guide_away_from_failures`); with the set denoiser, by its single
-        failure-set term (`compose_with_failure_set`). The reverse steps' noise comes from `generators` (one per row,
-        `noise_streams`) when given, else from torch's global generator."""
+        """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given):
+        one base call and at most one recovery call per step, whatever the number of failures. With the
+        classifier head the failures enter by guidance instead (`guide_away_from_failures`); with the set
+        denoiser, by its single failure-set term (`compose_with_failure_set`). The reverse steps' noise comes
+        from `generators` (one per row, `noise_streams`) when given, else from torch's global generator."""
         weights = weights or self.weights
         if z.shape[1] and self.config.recovery_head == "set_denoiser":
             estimate = self._failure_set_estimate(weights, state, history, z, z_mask)
@@ -489,8 +565,8 @@ class CCDPModel(nn.Module):
         return sample
 
     def _base_estimates(self, terms: list[str], state: Tensor, history: Tensor):
-        """A function of (noisy sample, timestep) giving the base network's `terms` ("a": eps_a, "s": eps_s, "h":
-        eps_h) for every row, in one call with the conditions repeated once per term."""
+        """A function of (noisy sample, timestep) giving the base network's `terms` ("a": eps_a, "s": eps_s,
+        "h": eps_h) for every row, in one call with the conditions repeated once per term."""
         r, k = state.shape[0], len(terms)
         if not k or not r:
             return lambda sample, t: {}
@@ -507,10 +583,11 @@ class CCDPModel(nn.Module):
 
         return estimates
 
-    def _composed_estimate(self, weights: CompositionWeights, state: Tensor, history: Tensor, z: Tensor,
-                           z_mask: Tensor):
-        """eq. (4) with one term per failure (eps_z heads), or the classifier's guidance, as a function of (noisy
-        sample, timestep)."""
+    def _composed_estimate(
+        self, weights: CompositionWeights, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor
+    ):
+        """eq. (4) with one term per failure (eps_z heads), or the classifier's guidance, as a function of
+        (noisy sample, timestep)."""
         n = z.shape[1]
         guided = n > 0 and self.config.recovery_head == "classifier"
         base = self._base_estimates(weights.base_terms(z_mask.sum(dim=1) * (not guided)), state, history)
@@ -521,29 +598,33 @@ class CCDPModel(nn.Module):
             by_term = base(sample, t)
             if not guided:  # eps_z of every failure slot: the failures enter eq. (4)
                 eps_z, eps_z_null = self._recovery_terms(sample, t, z_rows, keep_z, n) if n else (None, None)
-                return compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask,
-                                   eps_z_null)
+                return compose_eps(
+                    weights, by_term.get("a"), by_term.get("s"), by_term.get("h"), eps_z, z_mask, eps_z_null
+                )
             composed = compose_eps(weights, by_term.get("a"), by_term.get("s"), by_term.get("h"))
             if guided and failed.any():
                 step = torch.full((int(failed.sum()),), t, dtype=torch.long, device=sample.device)
                 gradient = torch.zeros_like(sample)
-                gradient[failed] = self._no_repeat_gradient(sample[failed], step, state[failed], z[failed],
-                                                            z_mask[failed])
+                gradient[failed] = self._no_repeat_gradient(
+                    sample[failed], step, state[failed], z[failed], z_mask[failed]
+                )
                 alpha_bar = self.noise_scheduler.alphas_cumprod[t].to(sample.device)
                 composed = guide_away_from_failures(composed, gradient, alpha_bar, weights.w_z)
             return composed
 
         return estimate
 
-    def _failure_set_estimate(self, weights: CompositionWeights, state: Tensor, history: Tensor, z: Tensor,
-                              z_mask: Tensor):
-        """`compose_with_failure_set` for the rows with failures (eps_{s,F} in one recovery call, plus the base terms
-        whose coefficient is not zero: none at w_s = w_z = 1, w_h = 0) and the base composition for the other rows
-        as a function of (noisy sample, timestep)."""
+    def _failure_set_estimate(
+        self, weights: CompositionWeights, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor
+    ):
+        """`compose_with_failure_set` for the rows with failures (eps_{s,F} in one recovery call, plus the
+        base terms whose coefficient is not zero: none at w_s = w_z = 1, w_h = 0) and the base composition for
+        the other rows as a function of (noisy sample, timestep)."""
         failed = z_mask.any(dim=1)
         no_failures = z[:, :0], z_mask[:, :0]
-        plain_rest = self._composed_estimate(weights, state[~failed], history[~failed], no_failures[0][~failed],
-                                             no_failures[1][~failed])
+        plain_rest = self._composed_estimate(
+            weights, state[~failed], history[~failed], no_failures[0][~failed], no_failures[1][~failed]
+        )
         base = self._base_estimates(weights.failure_set_base_terms(), state[failed], history[failed])
         z_failed, mask_failed, state_failed = z[failed], z_mask[failed], state[failed]
 
@@ -553,7 +634,9 @@ class CCDPModel(nn.Module):
                 eps[~failed] = plain_rest(sample[~failed], t)
             noisy = sample[failed]
             step = torch.full((noisy.shape[0],), t, dtype=torch.long, device=sample.device)
-            estimates = base(noisy, t) | {"sF": self.recovery(noisy, step, state_failed, z_failed, mask_failed)}
+            estimates = base(noisy, t) | {
+                "sF": self.recovery(noisy, step, state_failed, z_failed, mask_failed)
+            }
             eps[failed] = compose_with_failure_set(weights, estimates)
             return eps
 
@@ -562,8 +645,8 @@ class CCDPModel(nn.Module):
     def _recovery_terms(
         self, sample: Tensor, t: int, z_rows: Tensor, keep_z: Tensor, n: int
     ) -> tuple[Tensor, Tensor | None]:
-        """eps_z(z_i) for every failure slot (R, N, horizon, A) and, when `z_rows` ends with the z-dropped rows,
-        eps_z_null (R, horizon, A): one recovery call for all of them."""
+        """eps_z(z_i) for every failure slot (R, N, horizon, A) and, when `z_rows` ends with the z-dropped
+        rows, eps_z_null (R, horizon, A): one recovery call for all of them."""
         r, chunk = sample.shape[0], sample.shape[1:]
         noisy = sample[:, None].expand(r, n, *chunk).reshape(r * n, *chunk)
         null_row = z_rows.shape[0] > r * n
@@ -573,22 +656,32 @@ class CCDPModel(nn.Module):
         eps = self.recovery(noisy, step, z_rows, keep_z)
         return eps[: r * n].view(r, n, *chunk), (eps[r * n :] if null_row else None)
 
-    def _no_repeat_gradient(self, sample: Tensor, step: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
+    def _no_repeat_gradient(
+        self, sample: Tensor, step: Tensor, state: Tensor, z: Tensor, z_mask: Tensor
+    ) -> Tensor:
         """grad_{a_t} log P(a_0 outside F | a_t, s) from the classifier head. LeRobot samples under
-        torch.inference_mode(), where no gradient exists: the inputs are copied into ordinary tensors first."""
+        torch.inference_mode(), where no gradient exists: the inputs are copied into ordinary tensors
+        first."""
         with torch.inference_mode(False), torch.enable_grad():
             noisy = sample.clone().requires_grad_(True)
             step, state, z, z_mask = step.clone(), state.clone(), z.clone(), z_mask.clone()
             rows, n = z_mask.shape  # one classifier call for every (row, failure) pair
-            logits = self.recovery(noisy.repeat_interleave(n, dim=0), step.repeat_interleave(n, dim=0),
-                                   state.repeat_interleave(n, dim=0), z.reshape(rows * n, 1, -1),
-                                   z_mask.new_ones(rows * n, 1))
-            log_outside = log_no_repeat(logits.view(rows, n), distinct_failures(z, z_mask, self.config.delta_z))
+            logits = self.recovery(
+                noisy.repeat_interleave(n, dim=0),
+                step.repeat_interleave(n, dim=0),
+                state.repeat_interleave(n, dim=0),
+                z.reshape(rows * n, 1, -1),
+                z_mask.new_ones(rows * n, 1),
+            )
+            log_outside = log_no_repeat(
+                logits.view(rows, n), distinct_failures(z, z_mask, self.config.delta_z)
+            )
             (gradient,) = torch.autograd.grad(log_outside.sum(), noisy)
         return gradient
 
     # ----- inputs ---------------------------------------------------------------------------------------
 
     def frames(self, batch: dict[str, Tensor]) -> Tensor:
-        """Observation frames (B, [T,] frame_dim) as the networks see them (`observations.observation_frames`)."""
+        """Observation frames (B, [T,] frame_dim) as the networks see them
+        (`observations.observation_frames`)."""
         return observation_frames(self.config, self.images, batch, self.constant_inputs)

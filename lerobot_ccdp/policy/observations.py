@@ -13,10 +13,15 @@ from lerobot_ccdp.policy.image_encoder import ImageEncoder
 
 logger = logging.getLogger(__name__)
 
-# Per normalisation mode: the stats whose difference is the spread LeRobot divides by (replaced by its eps where 0),
-# and the normalised value of every frame of a dimension whose spread is 0 (x == min gives -1, x == mean gives 0).
-_ZERO_SPREAD = {NormalizationMode.MIN_MAX: (("max", "min"), -1.0), NormalizationMode.QUANTILES: (("q99", "q01"), -1.0),
-                NormalizationMode.QUANTILE10: (("q90", "q10"), -1.0), NormalizationMode.MEAN_STD: (("std",), 0.0)}
+# Per normalisation mode: the stats whose difference is the spread LeRobot divides by (replaced by its eps
+# where 0), and the normalised value of every frame of a dimension whose spread is 0 (x == min gives -1,
+# x == mean gives 0).
+_ZERO_SPREAD = {
+    NormalizationMode.MIN_MAX: (("max", "min"), -1.0),
+    NormalizationMode.QUANTILES: (("q99", "q01"), -1.0),
+    NormalizationMode.QUANTILE10: (("q90", "q10"), -1.0),
+    NormalizationMode.MEAN_STD: (("std",), 0.0),
+}
 
 
 def vector_keys(config: CCDPConfig) -> list[str]:
@@ -25,13 +30,15 @@ def vector_keys(config: CCDPConfig) -> list[str]:
 
 
 class ConstantInputs(nn.Module):
-    """Vector input dimensions that held one value throughout the training data, kept at that value at run time.
+    """Vector input dimensions that held one value throughout the training data, kept at that value at run
+    time.
 
-    LeRobot's normaliser divides by the dimension's spread, replaced by 1e-8 where it is 0. A dimension constant in
-    the demonstrations (the Bartender's `cup3_filled`: the demonstrator fills cup 3 last, so no frame shows it full)
-    becomes 2e8 the first time it changes at run time, and every chunk planned from that frame is garbage. The
-    dimension told the networks nothing in training, so it is held at the value it always had. The mask is a
-    buffer: a checkpoint carries it, and checkpoints saved before it existed load with nothing held.
+    LeRobot's normaliser divides by the dimension's spread, replaced by 1e-8 where it is 0. A dimension
+    constant in the demonstrations (the Bartender's `cup3_filled`: the demonstrator fills cup 3 last, so no
+    frame shows it full) becomes 2e8 the first time it changes at run time, and every chunk planned from that
+    frame is garbage. The dimension told the networks nothing in training, so it is held at the value it
+    always had. The mask is a buffer: a checkpoint carries it, and checkpoints saved before it existed load
+    with nothing held.
     """
 
     def __init__(self, config: CCDPConfig):
@@ -39,18 +46,24 @@ class ConstantInputs(nn.Module):
         dim = sum(config.input_features[key].shape[0] for key in vector_keys(config))
         self.register_buffer("held", torch.zeros(dim, dtype=torch.bool))
         self.register_buffer("value", torch.zeros(dim))
-        self._names = [f"{key}[{i}]" for key in vector_keys(config) for i in range(config.input_features[key].shape[0])]
+        self._names = [
+            f"{key}[{i}]" for key in vector_keys(config) for i in range(config.input_features[key].shape[0])
+        ]
         self._warned = False
 
     def fill(self, config: CCDPConfig, stats: dict) -> None:
         """Mark the dimensions whose training spread is 0 under their normalisation mode."""
         held, value = [], []
         for key in vector_keys(config):
-            mode = config.normalization_mapping.get(config.input_features[key].type.value, NormalizationMode.IDENTITY)
+            mode = config.normalization_mapping.get(
+                config.input_features[key].type.value, NormalizationMode.IDENTITY
+            )
             size, column = config.input_features[key].shape[0], stats.get(key, {})
             names, normalised = _ZERO_SPREAD.get(mode, ((), 0.0))
             if names and all(name in column for name in names):
-                high, *low = (torch.as_tensor(column[name], dtype=torch.float64).reshape(size) for name in names)
+                high, *low = (
+                    torch.as_tensor(column[name], dtype=torch.float64).reshape(size) for name in names
+                )
                 held.append(high - sum(low) == 0)
             else:  # IDENTITY, or stats without the mode's entries: nothing is divided by a spread
                 held.append(torch.zeros(size, dtype=torch.bool))
@@ -59,39 +72,55 @@ class ConstantInputs(nn.Module):
         self.value.copy_(torch.cat(value))
 
     def forward(self, vector: Tensor) -> Tensor:
-        """`vector` (..., dim) with the held dimensions at their training value; the first change is logged once."""
+        """`vector` (..., dim) with the held dimensions at their training value; the first change is logged
+        once."""
         if not bool(self.held.any()):
             return vector
         if not self._warned:
-            moved = (((vector - self.value).abs() > 1e-3) & self.held).reshape(-1, vector.shape[-1]).any(dim=0)
+            moved = (
+                (((vector - self.value).abs() > 1e-3) & self.held).reshape(-1, vector.shape[-1]).any(dim=0)
+            )
             if bool(moved.any()):
                 self._warned = True
                 names = [name for name, m in zip(self._names, moved) if m]
-                logger.warning("Input(s) %s never varied in the training data and now do: the policy holds them at "
-                               "their training value, as it cannot have learned what they mean. Record demonstrations "
-                               "that show them varying to let the policy use them.", names)
+                logger.warning(
+                    "Input(s) %s never varied in the training data and now do: the policy holds them at "
+                    "their training value, as it cannot have learned what they mean. Record demonstrations "
+                    "that show them varying to let the policy use them.",
+                    names,
+                )
         return torch.where(self.held, self.value.to(vector.dtype), vector)
 
 
-def observation_frames(config: CCDPConfig, images: ImageEncoder | None, batch: dict[str, Tensor],
-                       constant: ConstantInputs | None = None) -> Tensor:
+def observation_frames(
+    config: CCDPConfig,
+    images: ImageEncoder | None,
+    batch: dict[str, Tensor],
+    constant: ConstantInputs | None = None,
+) -> Tensor:
     """Observation frames (B, [T,] frame_dim): robot state, environment state, then the encoded cameras.
-    `batch` holds normalised inputs, one frame (B, ...) or a window (B, T, ...) each; `constant` holds the vector
-    dimensions that never varied in training at their training value."""
+    `batch` holds normalised inputs, one frame (B, ...) or a window (B, T, ...) each; `constant` holds the
+    vector dimensions that never varied in training at their training value."""
     parts = []
     for key in vector_keys(config):
         value = _input(config, batch, key)
         expected = config.input_features[key].shape[0]
         if value.ndim < 2:
-            raise ValueError(f"{key!r} has shape {tuple(value.shape)}; the policy takes a batch (B, {expected}), as "
-                             "LeRobot's preprocessor makes it. Add the batch dimension: value.unsqueeze(0).")
+            raise ValueError(
+                f"{key!r} has shape {tuple(value.shape)}; the policy takes a batch (B, {expected}), as "
+                "LeRobot's preprocessor makes it. Add the batch dimension: value.unsqueeze(0)."
+            )
         if not value.is_floating_point():
             value = value.float()  # a robot's integer encoder counts, normalised by no preprocessor
         if value.shape[-1] != expected:
-            raise ValueError(f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}.")
+            raise ValueError(
+                f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}."
+            )
         if not torch.isfinite(value).all():
-            raise ValueError(f"{key!r} contains NaN or inf; fix the dataset or env observation before calling the "
-                             "policy (a non-finite input would make that row's actions NaN).")
+            raise ValueError(
+                f"{key!r} contains NaN or inf; fix the dataset or env observation before calling the "
+                "policy (a non-finite input would make that row's actions NaN)."
+            )
         parts.append(value)
     if constant is not None:
         parts = [constant(torch.cat(parts, dim=-1))]
@@ -101,13 +130,14 @@ def observation_frames(config: CCDPConfig, images: ImageEncoder | None, batch: d
 
 
 def refuse_unknown_cameras(config: CCDPConfig, batch: dict[str, Tensor]) -> None:
-    """A camera dataset given to a checkpoint that never saw those cameras would silently train without them."""
+    """A camera dataset given to a checkpoint that never saw those cameras would silently train without
+    them."""
     unknown = [k for k in _camera_keys(batch) if k not in config.image_features]
     if unknown:
         raise ValueError(
-            f"The dataset has cameras {unknown} that this policy does not encode (its inputs: {_inputs(config)}). "
-            "To use them, train a new base stage on this dataset (--policy.type=ccdp, no --policy.path); to train "
-            "without them, use a dataset without those cameras."
+            f"The dataset has cameras {unknown} that this policy does not encode (its inputs: "
+            f"{_inputs(config)}). To use them, train a new base stage on this dataset (--policy.type=ccdp, "
+            "no --policy.path); to train without them, use a dataset without those cameras."
         )
 
 
@@ -117,20 +147,27 @@ def refuse_non_finite_stats(config: CCDPConfig, stats: dict) -> None:
     for key in [*config.input_features, *config.output_features]:
         for name, value in stats.get(key, {}).items():
             if not torch.isfinite(torch.as_tensor(value, dtype=torch.float64)).all():
-                raise ValueError(f"The dataset's {name} of {key!r} is not finite: the dataset holds NaN or inf in "
-                                 f"{key!r}. Remove or re-record those frames, then recompute its stats.")
+                raise ValueError(
+                    f"The dataset's {name} of {key!r} is not finite: the dataset holds NaN or inf in "
+                    f"{key!r}. Remove or re-record those frames, then recompute its stats."
+                )
 
 
 def refuse_non_finite_batch(batch: dict[str, Tensor], otherwise: str) -> None:
     """Raise for a batch that made a non-finite loss or frame: a ValueError naming its NaN or inf keys, else
-    FloatingPointError(`otherwise`). The policy must neither train on them (LeRobot trains on to a NaN checkpoint
-    and exits 0) nor act on them (NaN actions sent to the robot)."""
-    bad = sorted(key for key, value in batch.items()
-                 if isinstance(value, Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all()))
+    FloatingPointError(`otherwise`). The policy must neither train on them (LeRobot trains on to a NaN
+    checkpoint and exits 0) nor act on them (NaN actions sent to the robot)."""
+    bad = sorted(
+        key
+        for key, value in batch.items()
+        if isinstance(value, Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all())
+    )
     if not bad:
         raise FloatingPointError(otherwise)
-    raise ValueError(f"The batch holds NaN or inf in {bad}. In a dataset, remove or re-record those frames and "
-                     "recompute its stats; on a robot or env, check the sensor or observation that produced them.")
+    raise ValueError(
+        f"The batch holds NaN or inf in {bad}. In a dataset, remove or re-record those frames and "
+        "recompute its stats; on a robot or env, check the sensor or observation that produced them."
+    )
 
 
 def _input(config: CCDPConfig, batch: dict[str, Tensor], key: str) -> Tensor:
@@ -138,10 +175,14 @@ def _input(config: CCDPConfig, batch: dict[str, Tensor], key: str) -> Tensor:
         cameras = _camera_keys(batch)
         hint = ""
         if cameras and key not in config.image_features:
-            hint = (f" The batch holds cameras {cameras} instead: this checkpoint was trained on other observations "
-                    "(for a ccdp task, evaluate it with the --env.obs_type it was trained with).")
-        raise KeyError(f"CCDP needs {key!r} in every batch (it was trained with inputs {_inputs(config)}); got keys "
-                       f"{sorted(batch)}.{hint}")
+            hint = (
+                f" The batch holds cameras {cameras} instead: this checkpoint was trained on other "
+                "observations (for a ccdp task, evaluate it with the --env.obs_type it was trained with)."
+            )
+        raise KeyError(
+            f"CCDP needs {key!r} in every batch (it was trained with inputs {_inputs(config)}); got keys "
+            f"{sorted(batch)}.{hint}"
+        )
     return batch[key]
 
 
@@ -153,9 +194,9 @@ def _camera(config: CCDPConfig, batch: dict[str, Tensor], key: str, lead: torch.
     expected = tuple(config.image_features[key].shape)
     if tuple(image.shape[-3:]) != expected or image.shape[:-3] != lead:
         raise ValueError(
-            f"{key!r} has shape {tuple(image.shape)}; the policy expects {(*lead, *expected)} (channels, height, "
-            "width as in its training data). Render or resize this camera to that size (for a ccdp task: "
-            "--env.observation_height/--env.observation_width), or train on images of this size."
+            f"{key!r} has shape {tuple(image.shape)}; the policy expects {(*lead, *expected)} (channels, "
+            "height, width as in its training data). Render or resize this camera to that size (for a ccdp "
+            "task: --env.observation_height/--env.observation_width), or train on images of this size."
         )
     return image
 
@@ -165,5 +206,8 @@ def _inputs(config: CCDPConfig) -> list[str]:
 
 
 def _camera_keys(batch: dict[str, Tensor]) -> list[str]:
-    """The batch's camera entries (`observation.image` or `observation.images.<name>`, not their pad masks)."""
-    return sorted(k for k in batch if (k.startswith(f"{OBS_IMAGES}.") or k == OBS_IMAGE) and not k.endswith("_is_pad"))
+    """The batch's camera entries (`observation.image` or `observation.images.<name>`, not their pad
+    masks)."""
+    return sorted(
+        k for k in batch if (k.startswith(f"{OBS_IMAGES}.") or k == OBS_IMAGE) and not k.endswith("_is_pad")
+    )

@@ -65,7 +65,9 @@ def normalize_batch(config: CCDPConfig, stats: dict, batch: dict[str, Any]) -> d
 
 def unnormalize_batch(config: CCDPConfig, stats: dict, batch: dict[str, Any]) -> dict[str, Any]:
     """Invert `normalize_batch` (for code that writes datasets from the policy's normalised space)."""
-    return transition_to_batch(_normalizer(config, stats, UnnormalizerProcessorStep)(batch_to_transition(batch)))
+    return transition_to_batch(
+        _normalizer(config, stats, UnnormalizerProcessorStep)(batch_to_transition(batch))
+    )
 
 
 def _normalizer(

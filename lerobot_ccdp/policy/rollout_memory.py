@@ -67,7 +67,8 @@ class RolloutMemory:
 
     @ordinary_tensors
     def set_plan(self, rows: Tensor, chunk: Tensor, start: int) -> None:
-        """Store a freshly sampled chunk (R, horizon, A) for `rows`; the attempt's first chunk is kept apart."""
+        """Store a freshly sampled chunk (R, horizon, A) for `rows`; the attempt's first chunk is kept
+        apart."""
         self.plan[rows] = chunk[:, start : start + self.plan.shape[1]]
         self.plan_pos[rows] = 0
         index = rows.nonzero().flatten()

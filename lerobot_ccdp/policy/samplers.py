@@ -27,7 +27,8 @@ if TYPE_CHECKING:  # the model module imports this one
 @dataclass
 class PlanRows:
     """The rows that need a plan: their conditions, their failures (`z` (R, N, z_dim), `z_mask` (R, N)), the
-    caller's initial noise for them (or None: drawn) and one noise stream per row (`noise_streams`, or None)."""
+    caller's initial noise for them (or None: drawn) and one noise stream per row (`noise_streams`, or
+    None)."""
 
     state: Tensor
     history: Tensor
@@ -44,12 +45,14 @@ class PlanRows:
 def plan_dp(model: CCDPModel, rows: PlanRows) -> Tensor:
     """The base policy's plan: what was recorded as failed plays no part."""
     no_failures = rows.z[:, :0], rows.z_mask[:, :0]
-    return model.denoise(rows.initial_noise(model), rows.state, rows.history, *no_failures, generators=rows.streams)
+    return model.denoise(
+        rows.initial_noise(model), rows.state, rows.history, *no_failures, generators=rows.streams
+    )
 
 
 def plan_dp_star(model: CCDPModel, rows: PlanRows) -> Tensor:
-    """DP*: `dp_star_candidates` base plans per round for up to `dp_star_rounds` rounds, the first whose outcome
-    repeats no failure kept. Rows without failures plan as DP."""
+    """DP*: `dp_star_candidates` base plans per round for up to `dp_star_rounds` rounds, the first whose
+    outcome repeats no failure kept. Rows without failures plan as DP."""
     if not rows.z_mask.any():
         return plan_dp(model, rows)
     cfg = model.config
@@ -57,11 +60,13 @@ def plan_dp_star(model: CCDPModel, rows: PlanRows) -> Tensor:
 
 
 def plan_ccdp(model: CCDPModel, rows: PlanRows) -> Tensor:
-    """CCDP: one sample from eq. (4) with every recorded failure. With `ccdp_redraws`, a plan whose outcome still
-    repeats a failure is drawn again (DP*'s lookup: the hybrid "CCDP + k redraws")."""
+    """CCDP: one sample from eq. (4) with every recorded failure. With `ccdp_redraws`, a plan whose outcome
+    still repeats a failure is drawn again (DP*'s lookup: the hybrid "CCDP + k redraws")."""
     sample = rows.initial_noise(model)
     if model.config.ccdp_redraws and rows.z_mask.any():
-        return sample_without_repeats(model, rows, 1, 1 + model.config.ccdp_redraws, guided=True, first_noise=sample)
+        return sample_without_repeats(
+            model, rows, 1, 1 + model.config.ccdp_redraws, guided=True, first_noise=sample
+        )
     return model.denoise(sample, rows.state, rows.history, rows.z, rows.z_mask, generators=rows.streams)
 
 
@@ -72,13 +77,19 @@ SAMPLERS: dict[str, Callable[[CCDPModel, PlanRows], Tensor]] = {
 }
 
 
-def sample_without_repeats(model: CCDPModel, rows: PlanRows, candidates: int, rounds: int, guided: bool,
-                           first_noise: Tensor | None = None) -> Tensor:
-    """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round draws
-    `candidates` chunks per pending row, from CCDP's composition (`guided`, the first round from `first_noise`) or
-    from the base with failures ignored (DP*), and labels them with the outcome of the nearest demonstrated chunk.
-    With row streams, each row's first candidate of the first round draws from its row's stream, later draws from
-    torch's global generator."""
+def sample_without_repeats(
+    model: CCDPModel,
+    rows: PlanRows,
+    candidates: int,
+    rounds: int,
+    guided: bool,
+    first_noise: Tensor | None = None,
+) -> Tensor:
+    """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round
+    draws `candidates` chunks per pending row, from CCDP's composition (`guided`, the first round from
+    `first_noise`) or from the base with failures ignored (DP*), and labels them with the outcome of the
+    nearest demonstrated chunk. With row streams, each row's first candidate of the first round draws from its
+    row's stream, later draws from torch's global generator."""
     cfg, failures = model.config, slice(None) if guided else slice(0)
     state, history, z, z_mask = rows.state, rows.history, rows.z, rows.z_mask
     first_round = iter([(first_noise, first_candidates(rows.streams, candidates))])

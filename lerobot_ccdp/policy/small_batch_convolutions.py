@@ -2,10 +2,11 @@
 
 On CPU, oneDNN's 1-D convolution is slower than ATen's for this UNet at 2-4 rows with more than one thread
 (benchmarks/bench_policy.py); composed sampling runs exactly such small batches, one row per score term.
-`torch.backends.mkldnn.flags(enabled=False)` would select ATen's kernel, but it sets a process-wide flag (ATen's
-global context, not thread-local): other threads' convolutions lose oneDNN meanwhile, and two threads saving and
-restoring it can leave it off for good. So the choice is made per call, inside the convolution modules: they call
-the 2-D kernel that convolution itself uses for a 1-D input with oneDNN off (same results, bit for bit).
+`torch.backends.mkldnn.flags(enabled=False)` would select ATen's kernel, but it sets a process-wide flag
+(ATen's global context, not thread-local): other threads' convolutions lose oneDNN meanwhile, and two threads
+saving and restoring it can leave it off for good. So the choice is made per call, inside the convolution
+modules: they call the 2-D kernel that convolution itself uses for a 1-D input with oneDNN off (same results,
+bit for bit).
 """
 
 import torch
@@ -28,8 +29,9 @@ class _SmallBatchConv1d(nn.Conv1d):
         if not _small_batch(input):
             return super()._conv_forward(input, weight, bias)
         kernel, stride, padding = self._args_2d
-        return torch._C._nn.thnn_conv2d(input.contiguous().unsqueeze(2), weight.unsqueeze(2), kernel, bias, stride,
-                                        padding).squeeze(2)
+        return torch._C._nn.thnn_conv2d(
+            input.contiguous().unsqueeze(2), weight.unsqueeze(2), kernel, bias, stride, padding
+        ).squeeze(2)
 
 
 class _SmallBatchConvTranspose1d(nn.ConvTranspose1d):
@@ -39,18 +41,29 @@ class _SmallBatchConvTranspose1d(nn.ConvTranspose1d):
         if output_size is not None or not _small_batch(input):
             return super().forward(input, output_size)
         kernel, stride, padding, output_padding, dilation = self._args_2d
-        return torch._C._nn.slow_conv_transpose2d(input.contiguous().unsqueeze(2), self.weight.unsqueeze(2), kernel,
-                                                  self.bias, stride, padding, output_padding, dilation).squeeze(2)
+        return torch._C._nn.slow_conv_transpose2d(
+            input.contiguous().unsqueeze(2),
+            self.weight.unsqueeze(2),
+            kernel,
+            self.bias,
+            stride,
+            padding,
+            output_padding,
+            dilation,
+        ).squeeze(2)
 
 
 def with_small_batch_convolutions(network: nn.Module) -> nn.Module:
-    """Turn a network's plain 1-D convolutions (zero padding given as numbers, one group, no dilation) into the
-    small-batch classes above, in place; parameters and state dict are unchanged."""
+    """Turn a network's plain 1-D convolutions (zero padding given as numbers, one group, no dilation) into
+    the small-batch classes above, in place; parameters and state dict are unchanged."""
     if not ATEN_KERNELS:
         return network
     for module in network.modules():
-        if type(module) not in (nn.Conv1d, nn.ConvTranspose1d) or isinstance(module.padding, str) or (
-            module.padding_mode, module.groups, module.dilation) != ("zeros", 1, (1,)):
+        if (
+            type(module) not in (nn.Conv1d, nn.ConvTranspose1d)
+            or isinstance(module.padding, str)
+            or (module.padding_mode, module.groups, module.dilation) != ("zeros", 1, (1,))
+        ):
             continue
         kernel, stride, padding = [1, *module.kernel_size], [1, *module.stride], [0, *module.padding]
         if type(module) is nn.Conv1d:

@@ -24,8 +24,8 @@ class CompositionWeights:
     z_reference: str = "eps_a"
 
     def uses_unconditional(self, n_failures: Tensor) -> bool:
-        """Whether eps_a carries weight for any row: its coefficient is 1 - w_s - w_h - w_z * N_row, without the
-        failure part when the failure terms are measured against eps_z_null instead."""
+        """Whether eps_a carries weight for any row: its coefficient is 1 - w_s - w_h - w_z * N_row, without
+        the failure part when the failure terms are measured against eps_z_null instead."""
         per_failure = self.w_z if self.z_reference == "eps_a" else 0.0
         coefficient = 1.0 - self.w_s - self.w_h - per_failure * n_failures.to(torch.float32)
         return bool((coefficient.abs() > 1e-9).any())
@@ -36,17 +36,18 @@ class CompositionWeights:
         return bool(self.w_z) and self.z_reference == "eps_z_null"
 
     def base_terms(self, n_failures: Tensor) -> list[str]:
-        """Which outputs of the base network eq. (4) needs for rows remembering `n_failures` failures (zero when
-        the failures enter otherwise): "a" (eps_a), "s" (eps_s), "h" (eps_h). Zero-weight terms are not evaluated."""
+        """Which outputs of the base network eq. (4) needs for rows remembering `n_failures` failures (zero
+        when the failures enter otherwise): "a" (eps_a), "s" (eps_s), "h" (eps_h). Zero-weight terms are not
+        evaluated."""
         terms = [name for name, w in (("s", self.w_s), ("h", self.w_h)) if w]
         if self.uses_unconditional(n_failures * bool(self.w_z)) or not terms:
             terms.insert(0, "a")
         return terms
 
     def failure_set_coefficients(self) -> dict[str, float]:
-        """The coefficient of each estimate in `compose_with_failure_set` for a row with failures: "a" (eps_a),
-        "s" (eps_s), "h" (eps_h) and "sF" (eps_{s,F}). At w_s = w_z = 1, w_h = 0 only eps_{s,F} remains: one network
-        call per step."""
+        """The coefficient of each estimate in `compose_with_failure_set` for a row with failures: "a"
+        (eps_a), "s" (eps_s), "h" (eps_h) and "sF" (eps_{s,F}). At w_s = w_z = 1, w_h = 0 only eps_{s,F}
+        remains: one network call per step."""
         return {"a": 1.0 - self.w_s - self.w_h, "s": self.w_s - self.w_z, "h": self.w_h, "sF": self.w_z}
 
     def failure_set_base_terms(self) -> list[str]:
@@ -102,14 +103,15 @@ def compose_eps(
 
 
 def compose_with_failure_set(weights: CompositionWeights, estimates: dict[str, Tensor]) -> Tensor:
-    """eps = eps_a + w_s (eps_s - eps_a) + w_h (eps_h - eps_a) + w_z (eps_{s,F} - eps_s)   (eq. 4, failure-set head)
+    """eps = eps_a + w_s (eps_s - eps_a) + w_h (eps_h - eps_a) + w_z (eps_{s,F} - eps_s)
+    (eq. 4, failure-set head)
 
-    `recovery_head="set_denoiser"`: one term for the whole failure set F, where eq. (4) sums one term per failure.
-    eps_{s,F} (`denoisers.FailureSetDenoiser`) is the noise estimate of p_s restricted to the options outside F, so at
-    w_z = 1 the failure term replaces eps_s by it: exact "everything but what failed" in the demonstrated proportions
-    at every noise level, up to the network's error, and w_z > 1 pushes further from F as classifier-free guidance
-    does. `estimates` maps "a", "s", "h", "sF" to (B, horizon, action_dim) tensors; those whose coefficient
-    (`CompositionWeights.failure_set_coefficients`) is zero may be absent.
+    `recovery_head="set_denoiser"`: one term for the whole failure set F, where eq. (4) sums one term per
+    failure. eps_{s,F} (`denoisers.FailureSetDenoiser`) is the noise estimate of p_s restricted to the options
+    outside F, so at w_z = 1 the failure term replaces eps_s by it: exact "everything but what failed" in the
+    demonstrated proportions at every noise level, up to the network's error, and w_z > 1 pushes further from
+    F as classifier-free guidance does. `estimates` maps "a", "s", "h", "sF" to (B, horizon, action_dim)
+    tensors; those whose coefficient (`CompositionWeights.failure_set_coefficients`) is zero may be absent.
     """
     eps = None
     for name, coefficient in weights.failure_set_coefficients().items():
@@ -120,9 +122,9 @@ def compose_with_failure_set(weights: CompositionWeights, estimates: dict[str, T
 
 
 def recovery_conditions(z: Tensor, null_row: bool) -> tuple[Tensor, Tensor]:
-    """The recovery head's z rows (R * N [+ R], z_dim) and keep flags for eq. (4)'s failure terms, fixed for a whole
-    reverse diffusion: one row per failure slot (R, N, z_dim) and, with `null_row`, one z-dropped row per batch row
-    for eps_z_null; all of them go through the recovery head in one call per step."""
+    """The recovery head's z rows (R * N [+ R], z_dim) and keep flags for eq. (4)'s failure terms, fixed for a
+    whole reverse diffusion: one row per failure slot (R, N, z_dim) and, with `null_row`, one z-dropped row
+    per batch row for eps_z_null; all of them go through the recovery head in one call per step."""
     r, n, dim = z.shape
     z_rows, keep_z = z.reshape(r * n, dim), z.new_ones(r * n, 1)
     if null_row:
@@ -130,28 +132,30 @@ def recovery_conditions(z: Tensor, null_row: bool) -> tuple[Tensor, Tensor]:
     return z_rows, keep_z
 
 
-def guide_away_from_failures(eps: Tensor, no_repeat_gradient: Tensor, alpha_bar: Tensor, w_z: float) -> Tensor:
+def guide_away_from_failures(
+    eps: Tensor, no_repeat_gradient: Tensor, alpha_bar: Tensor, w_z: float
+) -> Tensor:
     """eps - w_z sqrt(1 - alpha_bar_t) grad_{a_t} log P(a_0 outside F | a_t, s)   (classifier guidance)
 
-    `recovery_head="classifier"`: p_s(a_t | s) P(a_0 outside F | a_t, s) is the noised p_s restricted to the chunks
-    that repeat no failure of the set F, at every noise level. So at w_z = 1 this is the exact noise estimate of
-    "everything but what failed" in the demonstrated proportions, up to the classifier's error, with one term for
-    all failures; a sum of per-failure terms (`compose_eps`) is the score of their product only near zero noise.
-    eps is the base composition (eq. 4 without failure terms), `no_repeat_gradient` (B, horizon, A) the gradient of
-    the log probability and `alpha_bar` the step's cumulative signal level.
+    `recovery_head="classifier"`: p_s(a_t | s) P(a_0 outside F | a_t, s) is the noised p_s restricted to the
+    chunks that repeat no failure of the set F, at every noise level. So at w_z = 1 this is the exact noise
+    estimate of "everything but what failed" in the demonstrated proportions, up to the classifier's error,
+    with one term for all failures; a sum of per-failure terms (`compose_eps`) is the score of their product
+    only near zero noise. eps is the base composition (eq. 4 without failure terms), `no_repeat_gradient`
+    (B, horizon, A) the gradient of the log probability and `alpha_bar` the step's cumulative signal level.
     """
     return eps - w_z * (1 - alpha_bar).sqrt() * no_repeat_gradient
 
 
 def log_no_repeat(logits: Tensor, distinct: Tensor) -> Tensor:
     """log P(a_0 outside F | a_t, s), the quantity whose gradient `guide_away_from_failures` follows, from the
-    classifier's logits of "repeats a failure": (R, N) logits, one per failure z_i queried alone, with `distinct`
-    (R, N) marking each row's distinct failures.
+    classifier's logits of "repeats a failure": (R, N) logits, one per failure z_i queried alone, with
+    `distinct` (R, N) marking each row's distinct failures.
 
-    A chunk heads to one option, so "repeats z_i" and "repeats z_j" are disjoint events for distinct failed options,
-    and at every noise level P(a_0 outside F) = 1 - sum_i P(a_0 repeats z_i), exact wherever the per-failure
-    probabilities are, however many failures F holds. (Querying the whole set F at once kept the base's proportions
-    no better on the 2-D family, docs/benchmarks.md.)
+    A chunk heads to one option, so "repeats z_i" and "repeats z_j" are disjoint events for distinct failed
+    options, and at every noise level P(a_0 outside F) = 1 - sum_i P(a_0 repeats z_i), exact wherever the
+    per-failure probabilities are, however many failures F holds. (Querying the whole set F at once kept the
+    base's proportions no better on the 2-D family, docs/benchmarks.md.)
     """
     inside = (torch.sigmoid(logits) * distinct).sum(dim=1)
     return (1 - inside).clamp_min(MIN_OUTSIDE).log()

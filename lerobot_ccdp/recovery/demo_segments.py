@@ -1,11 +1,12 @@
-"""Where each demonstrated option ends, so a demonstrated chunk's `final_state` z is the state its option reaches.
+"""Where each demonstrated option ends, so a demonstrated chunk's `final_state` z is the state its option
+reaches.
 
-The paper reads z at the end of a primitive (III-B.1). Labels mark primitives directly. Without labels, the end
-of an option is found in the demonstrator's own commands, after the keyframe heuristic of James & Davison (2022,
-Q-attention: a keyframe where the gripper changes state or the arm stops):
+The paper reads z at the end of a primitive (III-B.1). Labels mark primitives directly. Without labels, the
+end of an option is found in the demonstrator's own commands, after the keyframe heuristic of James & Davison
+(2022, Q-attention: a keyframe where the gripper changes state or the arm stops):
 - `releases`: an option ends where the gripper lets go (pick and place: which crate the object went into);
-- `drops`: the same, but the option keeps the opening command and the frames after it while the arm holds still
-  (the fingers opening, the object falling), as a demonstrator's labels do;
+- `drops`: the same, but the option keeps the opening command and the frames after it while the arm holds
+  still (the fingers opening, the object falling), as a demonstrator's labels do;
 - `pauses`: an option ends where the commanded action holds still (a pour over a cup, a press of a button).
 A segment never crosses an episode's end, and every episode's last frame ends one.
 """
@@ -28,12 +29,12 @@ def segment_ends(
 ) -> np.ndarray:
     """Boolean per frame (frames sorted by episode): True where a segment ends under `rule`.
 
-    `labels`: runs of one label (the whole episode without labels). `releases`: the last frame before the gripper
-    command (`actions[:, gripper_dim]`) crosses the middle of its demonstrated range back to the side it held at
-    its episode's first frame, i.e. each release of a hand that starts open. `drops`: each release's end moved on to
-    the opening frame and the still frames right after it. `pauses`: the last frame of each run of at least
-    `pause_steps` frames whose action moved less than `pause_tolerance` (largest change of any dim) since the frame
-    before.
+    `labels`: runs of one label (the whole episode without labels). `releases`: the last frame before the
+    gripper command (`actions[:, gripper_dim]`) crosses the middle of its demonstrated range back to the side
+    it held at its episode's first frame, i.e. each release of a hand that starts open. `drops`: each
+    release's end moved on to the opening frame and the still frames right after it. `pauses`: the last frame
+    of each run of at least `pause_steps` frames whose action moved less than `pause_tolerance` (largest
+    change of any dim) since the frame before.
     """
     if rule not in SEGMENT_RULES:
         raise ValueError(f"Unknown segment rule {rule!r}; choose one of {list(SEGMENT_RULES)}.")
@@ -51,9 +52,11 @@ def segment_ends(
     if rule in ("releases", "drops"):
         gripper = actions[:, gripper_dim]
         closed_side = gripper > (gripper.min() + gripper.max()) / 2
-        away = closed_side != closed_side[episode_bounds(episode_index)[0]]  # off the side its episode began on
+        # off the side its episode began on
+        away = closed_side != closed_side[episode_bounds(episode_index)[0]]
         releases = np.flatnonzero(away[:-1] & ~away[1:] & same_episode)
-        if rule == "drops":  # from the opening command (same episode) to the frame before the next non-still one
+        # from the opening command (same episode) to the frame before the next non-still one
+        if rule == "drops":
             moves = np.flatnonzero(~np.append(still, False))
             releases = moves[np.searchsorted(moves, releases + 2)] - 1
         ends[releases] = True

@@ -52,18 +52,19 @@ class FailureBuffer:
 
 
 def distinct_failures(z: Tensor, z_mask: Tensor, delta_z: float) -> Tensor:
-    """(R, N) mask of the failures that are not a repeat of an earlier one in their row: within `delta_z` (squared
-    distance, as the classifier's labels and DP*'s rejection measure it) of an earlier failure is the same option."""
+    """(R, N) mask of the failures that are not a repeat of an earlier one in their row: within `delta_z`
+    (squared distance, as the classifier's labels and DP*'s rejection measure it) of an earlier failure is the
+    same option."""
     close = ((z[:, :, None] - z[:, None]) ** 2).sum(dim=-1) <= delta_z  # (R, N, N): failure i near failure j
     earlier = torch.ones(z.shape[1], z.shape[1], dtype=torch.bool, device=z.device).tril(diagonal=-1)
     return z_mask & ~(close & earlier & z_mask[:, None]).any(dim=-1)
 
 
 def draw_failure_sets(z: Tensor, size: int, delta_z: float) -> tuple[Tensor, Tensor, Tensor]:
-    """Training failure sets for the rows of a batch with outcomes z (B, z_dim): each row gets 1..`size` failures
-    drawn from the other rows (so its set does not depend on its own chunk). Returns the sets (B, size, z_dim), their
-    masks (B, size) and whether each row's own z lies within `delta_z` (squared distance) of a failure in its set
-    (B,): a repeat."""
+    """Training failure sets for the rows of a batch with outcomes z (B, z_dim): each row gets 1..`size`
+    failures drawn from the other rows (so its set does not depend on its own chunk). Returns the sets
+    (B, size, z_dim), their masks (B, size) and whether each row's own z lies within `delta_z` (squared
+    distance) of a failure in its set (B,): a repeat."""
     b = z.shape[0]
     others = (torch.arange(b, device=z.device)[:, None] + torch.randint(1, b, (b, size), device=z.device)) % b
     z_set = z[others]

@@ -1,9 +1,9 @@
 """Failure key features z (paper III-B.1), computed the same way by the policy and the recovery recipe.
 
 z always lives in the normalised space of its source: `final_state` takes dims of the normalised
-observation, `action` steps (and dims) of the normalised chunk, `primitive` a one-hot label. A recovery dataset
-stores z in raw units under FAILURE_FEATURE_KEY with the stats from `failure_feature_stats`, so LeRobot's
-normaliser maps stored z onto exactly the values the policy computes at run time.
+observation, `action` steps (and dims) of the normalised chunk, `primitive` a one-hot label. A recovery
+dataset stores z in raw units under FAILURE_FEATURE_KEY with the stats from `failure_feature_stats`, so
+LeRobot's normaliser maps stored z onto exactly the values the policy computes at run time.
 """
 
 import numpy as np
@@ -58,16 +58,17 @@ class FailureFeature:
         """z_f of failed attempts: the state where the attempt ended (`final_state` at "attempt_end") or the
         final state of the demonstration it was following ("demonstrated_end"), the attempt's first chunk, the
         one that chose the option (`action`), or the label of the chunk executing when the failure was flagged
-        (`primitive`). A label is a property of the whole attempt, and the latest chunk, near where the attempt
-        failed, names it far more reliably than the first, whose steps are mostly the approach that every option
-        shares (ButtonSearch: 0.99 vs 0.75 of failures given their true option, under DP*)."""
+        (`primitive`). A label is a property of the whole attempt, and the latest chunk, near where the
+        attempt failed, names it far more reliably than the first, whose steps are mostly the approach that
+        every option shares (ButtonSearch: 0.99 vs 0.75 of failures given their true option, under DP*)."""
         if self.reads_failure_frame:
             return self.from_frame(frame_at_failure)
         return self.from_chunk(attempt_chunk if self.kind == "action" else latest_chunk, outcomes)
 
     @property
     def reads_failure_frame(self) -> bool:
-        """Whether a failure's z comes from the observed state, so an attempt that planned no chunk has one."""
+        """Whether a failure's z comes from the observed state, so an attempt that planned no chunk has
+        one."""
         return self.kind == "final_state" and self.config.failure_state_at == "attempt_end"
 
     def one_hot(self, labels: Tensor) -> Tensor:
@@ -97,4 +98,8 @@ def failure_feature_stats(config: CCDPConfig, source_stats: dict[str, dict]) -> 
     stats = source_stats["action"]
     repeats = len(config.failure_action_steps) or config.horizon
     dims = config.failure_action_dims or list(range(len(np.asarray(stats["mean"]))))
-    return {k: np.tile(np.asarray(v)[dims], repeats) for k, v in stats.items() if k in ("mean", "std", "min", "max")}
+    return {
+        k: np.tile(np.asarray(v)[dims], repeats)
+        for k, v in stats.items()
+        if k in ("mean", "std", "min", "max")
+    }

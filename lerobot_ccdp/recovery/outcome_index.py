@@ -11,7 +11,8 @@ from torch import Tensor, nn
 
 
 class OutcomeIndex(nn.Module):
-    """Demonstrated chunks (M, horizon * action_dim) with their final states (M, z_dim) and primitives (M,)."""
+    """Demonstrated chunks (M, horizon * action_dim) with their final states (M, z_dim) and primitives
+    (M,)."""
 
     def __init__(self):
         super().__init__()
@@ -39,8 +40,8 @@ class OutcomeIndex(nn.Module):
     def _distances(self, chunk: Tensor) -> Tensor:
         if len(self) == 0:
             raise RuntimeError(
-                "This policy holds no demonstrated outcomes, so a sampled chunk's final state or primitive is "
-                "unknown. Train the base stage from a dataset (lerobot-train builds the table), or use "
+                "This policy holds no demonstrated outcomes, so a sampled chunk's final state or primitive "
+                "is unknown. Train the base stage from a dataset (lerobot-train builds the table), or use "
                 "--policy.failure_feature=action."
             )
         return torch.cdist(chunk.flatten(start_dim=1), self.chunks)
@@ -54,9 +55,10 @@ class OutcomeIndex(nn.Module):
 
 
 def options_after_failures(policy, batch: dict[str, Tensor], failed_options: list[int], seed: int = 0):
-    """Plan one chunk per row of `batch` (normalised observations) after reporting failures at `failed_options`
-    in every row; returns the chunks (rows, horizon, A) and the option of each (its nearest demonstrated
-    chunk's primitive). The measurement behind the recovery tests and the option-share benchmarks."""
+    """Plan one chunk per row of `batch` (normalised observations) after reporting failures at
+    `failed_options` in every row; returns the chunks (rows, horizon, A) and the option of each (its nearest
+    demonstrated chunk's primitive). The measurement behind the recovery tests and the option-share
+    benchmarks."""
     torch.manual_seed(seed)
     policy.reset()
     policy.select_action(batch)

@@ -23,15 +23,21 @@ def build_outcome_table(
     if config.failure_feature == "primitive":
         required.append(config.primitive_key)
     columns = read_columns(meta, required, optional=[config.primitive_key])
-    normalized = normalize_batch(config, stats or meta.stats, {
-        key: torch.from_numpy(columns[key]) for key in (ACTION, config.failure_state_key)
-    })
+    normalized = normalize_batch(
+        config,
+        stats or meta.stats,
+        {key: torch.from_numpy(columns[key]) for key in (ACTION, config.failure_state_key)},
+    )
     episodes, primitives = columns["episode_index"], columns.get(config.primitive_key)
     chunks = demo_chunks(episodes, normalized[ACTION].numpy(), 1 - config.n_obs_steps, config.horizon)
     ends = segment_ends(config.failure_segments, episodes, normalized[ACTION].numpy(), primitives)
     finals = segment_final_states(normalized[config.failure_state_key].numpy(), ends)
     finals = finals[:, config.failure_state_dims or slice(None)]
-    labels = np.zeros(len(chunks), dtype=np.int64) if primitives is None else primitives.reshape(-1).astype(np.int64)
+    labels = (
+        np.zeros(len(chunks), dtype=np.int64)
+        if primitives is None
+        else primitives.reshape(-1).astype(np.int64)
+    )
     if config.failure_feature == "primitive" and labels.max() >= config.num_primitives:
         raise ValueError(
             f"Column {config.primitive_key!r} holds label {labels.max()}, but num_primitives is "
@@ -41,13 +47,16 @@ def build_outcome_table(
     return torch.from_numpy(chunks[keep]), torch.from_numpy(finals[keep]), torch.from_numpy(labels[keep])
 
 
-def read_columns(meta: LeRobotDatasetMetadata, required: list[str], optional: list[str] = ()) -> dict[str, np.ndarray]:
+def read_columns(
+    meta: LeRobotDatasetMetadata, required: list[str], optional: list[str] = ()
+) -> dict[str, np.ndarray]:
     """Whole columns of a local LeRobot dataset as float32 arrays (frames in episode order)."""
     missing = [k for k in required if k not in meta.features]
     if missing:
         raise ValueError(
-            f"Dataset {meta.repo_id!r} at {meta.root} lacks column(s) {missing} (it has {sorted(meta.features)}). "
-            "Record it with the needed features, or change the policy's failure feature settings."
+            f"Dataset {meta.repo_id!r} at {meta.root} lacks column(s) {missing} (it has "
+            f"{sorted(meta.features)}). Record it with the needed features, or change the policy's failure "
+            "feature settings."
         )
     data = LeRobotDataset(meta.repo_id, root=meta.root).hf_dataset.with_format("numpy")
     keys = dict.fromkeys([*required, *(k for k in optional if k in meta.features)])

@@ -16,13 +16,15 @@ def recovery_pair_mask(
     """mask[..., i, j] is True when candidate j (feature z[j] at state x[j]) recovers from failure i.
 
     Shapes: z_fail (..., I, Dz), x_fail (..., I, Dx), z (..., J, Dz), x (..., J, Dx) -> (..., I, J). Distances
-    are summed exactly in float64 (no matmul shortcut, no square root) so that the thresholds mean what they say.
+    are summed exactly in float64 (no matmul shortcut, no square root) so that the thresholds mean what they
+    say.
     """
     return (squared_distances(z_fail, z) > delta_z) & (squared_distances(x_fail, x) < delta_x)
 
 
 def squared_distances(a: Tensor, b: Tensor) -> Tensor:
-    """||a_i - b_j||^2 for a (..., I, D) and b (..., J, D) -> (..., I, J), one dimension at a time to bound memory."""
+    """||a_i - b_j||^2 for a (..., I, D) and b (..., J, D) -> (..., I, J), one dimension at a time to bound
+    memory."""
     a, b = a.double(), b.double()
     out = torch.zeros(*a.shape[:-1], b.shape[-2], dtype=torch.float64)
     for d in range(a.shape[-1]):

@@ -1,13 +1,14 @@
-"""`lerobot-ccdp-synthesize`: turn demonstrations and a base checkpoint into a recovery dataset (paper eq. 5-7).
+"""`lerobot-ccdp-synthesize`: turn demonstrations and a base checkpoint into a recovery dataset
+(paper eq. 5-7).
 
 It builds a pool of chunks with their states and failure features z: `n_states` demo states x_s, perturbed
 (x = x_s + xi, xi ~ N(0, sigma^2), eq. 6), with `chunks_per_state` chunks sampled at each from the base
 composition of eq. (7), plus up to `demo_frames` demonstrated chunks ("pairs straight from the demos"). z of
 every chunk comes from the policy's own `FailureFeature`; a sampled chunk borrows the outcome of its nearest
 demonstrated chunk, so with `outcome_radius` > 0 sampled chunks farther than that from every demonstrated
-chunk (RMS per action element) are dropped: no demonstration says what they lead to. Every pool sample then serves as a failure
-(a_f, x_f), and up to `pairs_per_failure` recoveries are drawn among the pool samples that satisfy eq. (5)
-against it. Every row holds one pair:
+chunk (RMS per action element) are dropped: no demonstration says what they lead to. Every pool sample then
+serves as a failure (a_f, x_f), and up to `pairs_per_failure` recoveries are drawn among the pool samples that
+satisfy eq. (5) against it. Every row holds one pair:
 
     action                       the recovery chunk a (horizon, action_dim), raw units
     observation.failure_feature  z of the failed chunk, raw units (stats from `failure_feature_stats`)
@@ -27,7 +28,8 @@ dataset; it carries the cameras' normalisation stats, which the recovery checkpo
     lerobot-ccdp-synthesize --config_path=datasets_recipes/door_opening.yaml \
         --dataset.repo_id=local/door_opening --dataset.root=data/door_opening \
         --policy.path=<base run>/checkpoints/last/pretrained_model \
-        --output.repo_id=local/door_opening_recovery --output.root=data/door_opening_recovery [--recovery.sigma=0.05]
+        --output.repo_id=local/door_opening_recovery --output.root=data/door_opening_recovery
+        [--recovery.sigma=0.05]
 """
 
 from __future__ import annotations
@@ -72,12 +74,14 @@ PAIR_SOURCE = "pair_source"
 RECIPE_COPY = "meta/ccdp_recovery_recipe.yaml"
 SYNTHESISED, FROM_DEMOS = 0, 1
 PAIR_BLOCK = 256  # failures whose eq. (5) masks against the whole pool are computed at once
-EPISODE_ROWS = 1000  # rows per dataset episode (recovery rows have no temporal order; episodes only group them)
+# rows per dataset episode (recovery rows have no temporal order; episodes only group them)
+EPISODE_ROWS = 1000
 
 
 @dataclass
 class Samples:
-    """Chunks with the state they were taken in and their failure feature, in the policy's normalised space."""
+    """Chunks with the state they were taken in and their failure feature, in the policy's normalised
+    space."""
 
     windows: Tensor  # (R, n_obs_steps, state_dim): the observation window the chunk starts from
     chunks: Tensor  # (R, horizon, A)
@@ -86,7 +90,9 @@ class Samples:
 
     @staticmethod
     def cat(parts: list[Samples]) -> Samples:
-        return Samples(*(torch.cat([getattr(p, name) for p in parts]) for name in Samples.__dataclass_fields__))
+        return Samples(
+            *(torch.cat([getattr(p, name) for p in parts]) for name in Samples.__dataclass_fields__)
+        )
 
     def __len__(self) -> int:
         return self.chunks.shape[0]
@@ -102,8 +108,8 @@ class Demos:
 
 
 def synthesis_device(saved: str | None, requested: str | None) -> str:
-    """`requested` (--policy.device) if this machine has it; else the checkpoint's saved device, or the CPU where that
-    one is absent (a base trained on a GPU is synthesised from on any machine)."""
+    """`requested` (--policy.device) if this machine has it; else the checkpoint's saved device, or the CPU
+    where that one is absent (a base trained on a GPU is synthesised from on any machine)."""
     if requested is None:
         return saved if saved and is_torch_device_available(saved) else "cpu"
     try:
@@ -111,38 +117,53 @@ def synthesis_device(saved: str | None, requested: str | None) -> str:
     except ValueError:
         available = False
     if not available:
-        raise ValueError(f"--policy.device={requested} is not available on this machine. Pass --policy.device=cpu (or "
-                         "cuda, mps where present), or leave it out to follow the checkpoint's device.")
+        raise ValueError(
+            f"--policy.device={requested} is not available on this machine. Pass --policy.device=cpu (or "
+            "cuda, mps where present), or leave it out to follow the checkpoint's device."
+        )
     return requested
 
 
 def check_demo_root(root: str | Path) -> None:
-    """The demos must be a local dataset: named here, a wrong --dataset.root is not mistaken for a Hub download."""
+    """The demos must be a local dataset: named here, a wrong --dataset.root is not mistaken for a Hub
+    download."""
     root = Path(root)
     if not (root / "meta" / "info.json").is_file():
         problem = "the folder does not exist" if not root.exists() else "it has no meta/info.json"
-        raise FileNotFoundError(f"No LeRobot dataset at --dataset.root={root}: {problem}. Record the demos there first "
-                                "(lerobot-ccdp-record) or fix the path.")
+        raise FileNotFoundError(
+            f"No LeRobot dataset at --dataset.root={root}: {problem}. Record the demos there first "
+            "(lerobot-ccdp-record) or fix the path."
+        )
 
 
 def load_checkpoint(
     policy_path: str | Path, device: str | None = None
 ) -> tuple[CCDPPolicy, dict[str, dict[str, Tensor]]]:
-    """The base policy on the device `synthesis_device` picks, and the normalisation stats of its saved preprocessor."""
-    with checkpoint_loading(policy_path):  # names a missing or damaged folder; refuses unknown processor classes
+    """The base policy on the device `synthesis_device` picks, and the normalisation stats of its saved
+    preprocessor."""
+    # names a missing or damaged folder; refuses unknown processor classes
+    with checkpoint_loading(policy_path):
         config = PreTrainedConfig.from_pretrained(policy_path)
     if not isinstance(config, CCDPConfig):
-        raise ValueError(f"{policy_path} holds a {config.type!r} policy; synthesis needs a ccdp base checkpoint "
-                         "(lerobot-train --policy.type=ccdp on the demo dataset).")
+        raise ValueError(
+            f"{policy_path} holds a {config.type!r} policy; synthesis needs a ccdp base checkpoint "
+            "(lerobot-train --policy.type=ccdp on the demo dataset)."
+        )
     config.device = synthesis_device(config.device, device)
     policy = CCDPPolicy.from_pretrained(policy_path, config=config).eval()
-    # The saved preprocessor names the training device, which this machine may lack (LeRobot's scripts override it too).
-    pre = PolicyProcessorPipeline.from_pretrained(policy_path, config_filename="policy_preprocessor.json",
-                                                  overrides={"device_processor": {"device": config.device}})
+    # The saved preprocessor names the training device, which this machine may lack (LeRobot's scripts
+    # override it too).
+    pre = PolicyProcessorPipeline.from_pretrained(
+        policy_path,
+        config_filename="policy_preprocessor.json",
+        overrides={"device_processor": {"device": config.device}},
+    )
     normalizers = [s for s in pre.steps if isinstance(s, NormalizerProcessorStep)]
     if not normalizers or not normalizers[0].stats:
-        raise ValueError(f"{policy_path} has no normaliser stats in policy_preprocessor.json; save the checkpoint "
-                         "with its processors (lerobot-train does).")
+        raise ValueError(
+            f"{policy_path} has no normaliser stats in policy_preprocessor.json; save the checkpoint "
+            "with its processors (lerobot-train does)."
+        )
     stats = {k: {s: torch.as_tensor(v) for s, v in d.items()} for k, d in normalizers[0].stats.items()}
     return policy, stats
 
@@ -154,8 +175,10 @@ def check_recipe_matches(recipe: RecoveryRecipe, config: CCDPConfig, source: str
     if mismatched:
         details = ", ".join(f"{k}: recipe {v!r} vs checkpoint {c!r}" for k, (v, c) in mismatched.items())
         flags = " ".join(f"--policy.{k}={v}" for k, v in wanted.items())
-        raise ValueError(f"The recipe {source} and the base checkpoint define z differently ({details}). Train the "
-                         f"base with `{flags}`, or edit the recipe's `recovery:` section to match the checkpoint.")
+        raise ValueError(
+            f"The recipe {source} and the base checkpoint define z differently ({details}). Train the "
+            f"base with `{flags}`, or edit the recipe's `recovery:` section to match the checkpoint."
+        )
 
 
 def check_features_match(config: CCDPConfig, meta: LeRobotDatasetMetadata) -> None:
@@ -168,9 +191,11 @@ def check_features_match(config: CCDPConfig, meta: LeRobotDatasetMetadata) -> No
         return ", ".join(f"{k} {tuple(features[k].shape) if k in features else 'absent'}" for k in keys)
 
     if layout(expected) != layout(found):
-        raise ValueError(f"The base checkpoint expects {layout(expected)}; dataset {meta.repo_id} has "
-                         f"{layout(found)}. Pass the checkpoint trained on these demos (--policy.path), or "
-                         "the demos it was trained on (--dataset.root).")
+        raise ValueError(
+            f"The base checkpoint expects {layout(expected)}; dataset {meta.repo_id} has "
+            f"{layout(found)}. Pass the checkpoint trained on these demos (--policy.path), or "
+            "the demos it was trained on (--dataset.root)."
+        )
 
 
 def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) -> Demos:
@@ -187,29 +212,37 @@ def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) ->
     return Demos(
         windows=torch.from_numpy(demo_chunks(episodes, frames, start, config.n_obs_steps)),
         chunks=torch.from_numpy(demo_chunks(episodes, normalized[ACTION].numpy(), start, config.horizon)),
-        starts=torch.from_numpy(option_starts(config, episodes, normalized[ACTION].numpy(),
-                                              columns.get(config.primitive_key))),
+        starts=torch.from_numpy(
+            option_starts(config, episodes, normalized[ACTION].numpy(), columns.get(config.primitive_key))
+        ),
     )
 
 
-def option_starts(config: CCDPConfig, episodes: np.ndarray, actions: np.ndarray, labels: np.ndarray | None) -> np.ndarray:
-    """The first frame of every demonstrated option: each episode's first frame and the frame after each end of an
-    option (`demo_segments.segment_ends` under `failure_segments`, the rule that gives z its final state). An attempt
-    starts at such a state, and after a failure the env puts the robot back there: on tasks with two decisions per
-    episode (packing, the Bartender) the second decision's start is one too."""
+def option_starts(
+    config: CCDPConfig, episodes: np.ndarray, actions: np.ndarray, labels: np.ndarray | None
+) -> np.ndarray:
+    """The first frame of every demonstrated option: each episode's first frame and the frame after each end
+    of an option (`demo_segments.segment_ends` under `failure_segments`, the rule that gives z its final
+    state). An attempt starts at such a state, and after a failure the env puts the robot back there: on tasks
+    with two decisions per episode (packing, the Bartender) the second decision's start is one too."""
     ends = segment_ends(config.failure_segments, episodes.reshape(-1), actions, labels)
     return np.flatnonzero(np.r_[True, ends[:-1]])
 
 
 def synthesised_samples(
-    policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator, progress: bool = True,
-    images: Callable[[Tensor], Tensor] | None = None, among: Tensor | None = None,
+    policy: CCDPPolicy,
+    recipe: RecoveryRecipe,
+    demos: Demos,
+    generator: torch.Generator,
+    progress: bool = True,
+    images: Callable[[Tensor], Tensor] | None = None,
+    among: Tensor | None = None,
 ) -> Samples:
     """Eq. (6) and (7): demo states x_s perturbed by N(0, sigma^2), `chunks_per_state` chunks sampled at each.
 
-    The states are drawn among every demo frame, or among the frames `among` names. `images` maps demo frame indices
-    to their encoded camera windows (b, n_obs, F), for checkpoints with cameras. Random draws come from `generator`
-    on the CPU, so a seed gives the same inputs on every device.
+    The states are drawn among every demo frame, or among the frames `among` names. `images` maps demo frame
+    indices to their encoded camera windows (b, n_obs, F), for checkpoints with cameras. Random draws come
+    from `generator` on the CPU, so a seed gives the same inputs on every device.
     """
     cfg, k, device = policy.config, recipe.chunks_per_state, torch.device(policy.config.device)
     among = torch.arange(len(demos.windows)) if among is None else among
@@ -221,7 +254,8 @@ def synthesised_samples(
         condition = x if images is None else torch.cat([x, images(batch).repeat_interleave(k, dim=0)], dim=-1)
         noise = torch.randn(len(x), cfg.horizon, cfg.action_dim, generator=generator)
         condition, noise = condition.flatten(start_dim=1).to(device), noise.to(device)
-        chunks = policy.model.sample_exploratory(condition, recipe.w_s, noise)  # eq. (7), on the policy's device
+        # eq. (7), on the policy's device
+        chunks = policy.model.sample_exploratory(condition, recipe.w_s, noise)
         if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
             near = policy.model.outcomes.rms_distance(chunks) <= recipe.outcome_radius
             x, chunks = x[near.cpu()], chunks[near]
@@ -230,7 +264,9 @@ def synthesised_samples(
     return Samples.cat(parts)
 
 
-def camera_encoder(policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata) -> Callable[[Tensor], Tensor]:
+def camera_encoder(
+    policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata
+) -> Callable[[Tensor], Tensor]:
     """Demo frame indices -> the base's encoding of their camera windows (b, n_obs, F), as at run time."""
     cameras = list(policy.config.image_features)
     windows = CameraWindows(meta, cameras, policy.config.n_obs_steps)
@@ -243,10 +279,15 @@ def camera_encoder(policy: CCDPPolicy, stats: dict, meta: LeRobotDatasetMetadata
     return encode
 
 
-def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, generator: torch.Generator,
-                 among: Tensor | None = None) -> Samples:
-    """Up to `demo_frames` demonstrated chunks (among the frames `among` names, if given), with their z computed like
-    any other chunk's."""
+def demo_samples(
+    policy: CCDPPolicy,
+    recipe: RecoveryRecipe,
+    demos: Demos,
+    generator: torch.Generator,
+    among: Tensor | None = None,
+) -> Samples:
+    """Up to `demo_frames` demonstrated chunks (among the frames `among` names, if given), with their z
+    computed like any other chunk's."""
     among = torch.arange(len(demos.windows)) if among is None else among
     pick = among[torch.randperm(len(among), generator=generator)[: recipe.demo_frames]]
     chunks = demos.chunks[pick]
@@ -254,13 +295,18 @@ def demo_samples(policy: CCDPPolicy, recipe: RecoveryRecipe, demos: Demos, gener
     return Samples(demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS))
 
 
-def recovery_pairs(pool: Samples, recipe: RecoveryRecipe, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+def recovery_pairs(
+    pool: Samples, recipe: RecoveryRecipe, generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
     """Eq. (5) over the whole pool: every sample is a failure (a_f, x_f); up to `pairs_per_failure` recoveries
-    are drawn uniformly among the pool samples that satisfy eq. (5) against it. Returns (failure, recovery) indices."""
+    are drawn uniformly among the pool samples that satisfy eq. (5) against it. Returns (failure, recovery)
+    indices."""
     states = pool.windows.flatten(start_dim=1)
     failures, recoveries = [], []
     for block in torch.arange(len(pool)).split(PAIR_BLOCK):
-        mask = recovery_pair_mask(pool.z[block], states[block], pool.z, states, recipe.delta_z, recipe.delta_x)
+        mask = recovery_pair_mask(
+            pool.z[block], states[block], pool.z, states, recipe.delta_z, recipe.delta_x
+        )
         row, _, j = pick_pairs(mask[:, None], recipe.pairs_per_failure, generator)
         failures.append(block[row])
         recoveries.append(j)
@@ -268,9 +314,10 @@ def recovery_pairs(pool: Samples, recipe: RecoveryRecipe, generator: torch.Gener
 
 
 def attempt_start_rows(pool: Samples) -> tuple[Tensor, Tensor]:
-    """For `recovery_head=set_denoiser`: every pool sample is a row of its own (its z is its own outcome), with no
-    pairing. Drawn where attempts start, at w_s = 1 they are the base's own plans there, which the set denoiser
-    learns to restrict to the options outside a failure set; the same (failure, recovery) indices as `recovery_pairs`."""
+    """For `recovery_head=set_denoiser`: every pool sample is a row of its own (its z is its own outcome),
+    with no pairing. Drawn where attempts start, at w_s = 1 they are the base's own plans there, which the set
+    denoiser learns to restrict to the options outside a failure set; the same (failure, recovery) indices as
+    `recovery_pairs`."""
     rows = torch.arange(len(pool))
     return rows, rows
 
@@ -288,8 +335,8 @@ def synthesize_recovery_dataset(
     recipe_source: str = "recipe",
     device: str | None = None,
 ) -> Path:
-    """Write the recovery dataset of `recipe` at `out_root` (atomically) and return `out_root`. The pool and the
-    dataset are built on the CPU; the policy's networks run on `device` (see `synthesis_device`)."""
+    """Write the recovery dataset of `recipe` at `out_root` (atomically) and return `out_root`. The pool and
+    the dataset are built on the CPU; the policy's networks run on `device` (see `synthesis_device`)."""
     started = time.perf_counter()
     # Before minutes of loading and sampling, not after.
     inputs = {"--dataset.root": demo_root}
@@ -302,8 +349,10 @@ def synthesize_recovery_dataset(
     config = policy.config
     check_recipe_matches(recipe, config, recipe_source)
     if config.failure_feature != "action" and len(policy.model.outcomes) == 0:
-        raise ValueError(f"{policy_path} holds no demonstrated outcomes, so z of a sampled chunk is unknown; "
-                         "train the base stage from the demo dataset with lerobot-train.")
+        raise ValueError(
+            f"{policy_path} holds no demonstrated outcomes, so z of a sampled chunk is unknown; "
+            "train the base stage from the demo dataset with lerobot-train."
+        )
     meta = LeRobotDatasetMetadata(demo_repo_id, root=demo_root)
     check_features_match(config, meta)
     demos = load_demos(config, stats, meta)
@@ -311,23 +360,37 @@ def synthesize_recovery_dataset(
     torch.manual_seed(recipe.seed)
     sampling_started = time.perf_counter()
     images = camera_encoder(policy, stats, meta) if config.image_features else None
-    # The set denoiser learns from the chunks where attempts start (`attempt_start_rows`); eq. (4)'s eps_z from pairs.
+    # The set denoiser learns from the chunks where attempts start (`attempt_start_rows`); eq. (4)'s eps_z
+    # from pairs.
     among = demos.starts if config.recovery_head == "set_denoiser" else None
-    parts = [synthesised_samples(policy, recipe, demos, generator, progress, images, among)] if recipe.n_states else []
+    parts = (
+        [synthesised_samples(policy, recipe, demos, generator, progress, images, among)]
+        if recipe.n_states
+        else []
+    )
     sampling_seconds = time.perf_counter() - sampling_started
     if recipe.demo_frames:
         parts.append(demo_samples(policy, recipe, demos, generator, among))
     pool = Samples.cat(parts)
     if recipe.n_states and recipe.outcome_radius and not (pool.source == SYNTHESISED).any():
-        raise ValueError(f"Every sampled chunk lies farther than outcome_radius={recipe.outcome_radius} from the "
-                         "demonstrated chunks, so none has an outcome to borrow. Raise outcome_radius (0 keeps all) "
-                         "or train the base checkpoint longer.")
-    failure, recovery = attempt_start_rows(pool) if among is not None else recovery_pairs(pool, recipe, generator)
+        raise ValueError(
+            f"Every sampled chunk lies farther than outcome_radius={recipe.outcome_radius} from the "
+            "demonstrated chunks, so none has an outcome to borrow. Raise outcome_radius (0 keeps all) "
+            "or train the base checkpoint longer."
+        )
+    failure, recovery = (
+        attempt_start_rows(pool) if among is not None else recovery_pairs(pool, recipe, generator)
+    )
     if len(failure) == 0:
-        raise ValueError(f"No pair satisfies eq. (5) with delta_z={recipe.delta_z}, delta_x={recipe.delta_x}: the "
-                         "sampled chunks never differ in z at nearby states. Lower delta_z, raise delta_x, sigma or "
-                         "chunks_per_state, or lower w_s to widen the proposals.")
-    stats = {**stats, FAILURE_FEATURE_KEY: {k: torch.as_tensor(v) for k, v in failure_feature_stats(config, stats).items()}}
+        raise ValueError(
+            f"No pair satisfies eq. (5) with delta_z={recipe.delta_z}, delta_x={recipe.delta_x}: the "
+            "sampled chunks never differ in z at nearby states. Lower delta_z, raise delta_x, sigma or "
+            "chunks_per_state, or lower w_s to widen the proposals."
+        )
+    stats = {
+        **stats,
+        FAILURE_FEATURE_KEY: {k: torch.as_tensor(v) for k, v in failure_feature_stats(config, stats).items()},
+    }
     result = {
         "rows": len(failure),
         "sampled": recipe.n_states * recipe.chunks_per_state,
@@ -346,21 +409,39 @@ def synthesize_recovery_dataset(
             "result": result,
         }
         (path / RECIPE_COPY).write_text(yaml.safe_dump(record, sort_keys=False))
-    logger.info("Wrote %d recovery pairs from a pool of %d synthesised and %d demonstrated chunks to %s in %.1f s",
-                result["rows"], result["pool_synthesised"], result["pool_demo"], out_root, result["seconds"])
+    logger.info(
+        "Wrote %d recovery pairs from a pool of %d synthesised and %d demonstrated chunks to %s in %.1f s",
+        result["rows"],
+        result["pool_synthesised"],
+        result["pool_demo"],
+        out_root,
+        result["seconds"],
+    )
     return Path(out_root)
 
 
-def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pool: Samples, failure: Tensor,
-           recovery: Tensor, meta: LeRobotDatasetMetadata) -> None:
+def _write(
+    path: Path,
+    repo_id: str,
+    config: CCDPConfig,
+    stats: dict,
+    pool: Samples,
+    failure: Tensor,
+    recovery: Tensor,
+    meta: LeRobotDatasetMetadata,
+) -> None:
     """One dataset row per (failure, recovery) pair, in raw units, with the checkpoint's stats."""
     keys = [OBS_STATE] + ([OBS_ENV_STATE] if config.env_state_feature else [])
     sizes = [config.input_features[k].shape[0] for k in keys]
-    raw = unnormalize_batch(config, stats, {
-        **dict(zip(keys, pool.windows[recovery, -1].split(sizes, dim=-1), strict=True)),
-        FAILURE_FEATURE_KEY: pool.z[failure],
-        ACTION: pool.chunks[recovery],
-    })
+    raw = unnormalize_batch(
+        config,
+        stats,
+        {
+            **dict(zip(keys, pool.windows[recovery, -1].split(sizes, dim=-1), strict=True)),
+            FAILURE_FEATURE_KEY: pool.z[failure],
+            ACTION: pool.chunks[recovery],
+        },
+    )
     raw[FAILURE_ACTION] = unnormalize_batch(config, stats, {ACTION: pool.chunks[failure]})[ACTION]
     raw[PAIR_SOURCE] = pool.source[recovery][:, None]
     chunk_spec = {"dtype": "float32", "shape": tuple(pool.chunks.shape[1:]), "names": None}
@@ -381,7 +462,8 @@ def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pool: Samp
             dataset.save_episode()
     finally:
         dataset.finalize()
-    # The chunk columns' per-frame stats are meaningless for the normaliser: use the checkpoint's, per action dim.
+    # The chunk columns' per-frame stats are meaningless for the normaliser: use the checkpoint's, per action
+    # dim.
     written = {**dataset.meta.stats}
     for key in [*keys, *config.image_features, ACTION, FAILURE_FEATURE_KEY]:
         written[key] = {k: v.numpy() for k, v in stats[key].items()}
@@ -390,13 +472,22 @@ def _write(path: Path, repo_id: str, config: CCDPConfig, stats: dict, pool: Samp
 
 
 def main(args: list[str] | None = None) -> None:
-    """`lerobot-ccdp-synthesize --config_path=<recipe yaml> --dataset.* --policy.path=... --output.*` (see --help)."""
+    """`lerobot-ccdp-synthesize --config_path=<recipe yaml> --dataset.* --policy.path=... --output.*` (see
+    --help)."""
     cfg = parse_cli(SynthesizeConfig, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     source = parser.parse_arg("config_path", args) or "given by --recovery.* flags"
-    synthesize_recovery_dataset(cfg.recovery, cfg.dataset.repo_id, cfg.dataset.root, cfg.policy.path,
-                                cfg.output.repo_id, cfg.output.root, overwrite=cfg.overwrite, recipe_source=source,
-                                device=cfg.policy.device)
+    synthesize_recovery_dataset(
+        cfg.recovery,
+        cfg.dataset.repo_id,
+        cfg.dataset.root,
+        cfg.policy.path,
+        cfg.output.repo_id,
+        cfg.output.root,
+        overwrite=cfg.overwrite,
+        recipe_source=source,
+        device=cfg.policy.device,
+    )
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
-"""The main job end to end through the real CLIs, reduced (tiny steps, one task, a few episodes): every stage's
-outputs exist, load, and feed the next; the report and a resumed run agree."""
+"""The main job end to end through the real CLIs, reduced (tiny steps, one task, a few episodes): every
+stage's outputs exist, load, and feed the next; the report and a resumed run agree."""
 
 import json
 import shutil
@@ -54,16 +54,18 @@ def _shrunk_settings(root: Path, slug: str, n_episodes: int = N_EPISODES) -> tup
     (configs / slug).mkdir(parents=True)
     recipes.mkdir()
     train = {"steps": 10, "batch_size": 8, "save_freq": 10, "log_freq": 5}
-    # Episodes of 50 steps, not 150: the oracle needs at most 37 here (two attempts); an untrained policy uses all.
-    # One batch, as the video rerun's: a batch of another size differs in floating point, which can flip a close
-    # episode, and the rerun is compared episode by episode.
+    # Episodes of 50 steps, not 150: the oracle needs at most 37 here (two attempts); an untrained policy uses
+    # all. One batch, as the video rerun's: a batch of another size differs in floating point, which can flip
+    # a close episode, and the rerun is compared episode by episode.
     evaluation = {"env": {"episode_length": 50}, "eval": {"n_episodes": n_episodes, "batch_size": n_episodes}}
     for name, changes in {"train_base": train, "train_recovery": train, "eval": evaluation}.items():
         _shrink_json(REPO / "configs" / slug / f"{name}.json", configs / slug / f"{name}.json", changes)
     recipe = yaml.safe_load((REPO / "datasets_recipes" / f"{slug}.yaml").read_text())
     recipe["record"]["n_episodes"] = N_DEMOS
-    recipe["recovery"].update({"n_states": 8, "chunks_per_state": 4, "batch_states": 8, "pairs_per_failure": 4,
-                               "demo_frames": 64})  # RecoveryRecipe refuses unknown keys
+    # RecoveryRecipe refuses unknown keys
+    recipe["recovery"].update(
+        {"n_states": 8, "chunks_per_state": 4, "batch_states": 8, "pairs_per_failure": 4, "demo_frames": 64}
+    )
     (recipes / f"{slug}.yaml").write_text(yaml.safe_dump(recipe))
     return configs, recipes
 
@@ -73,18 +75,40 @@ def settings(tmp_path_factory) -> tuple[Path, Path]:
     configs, recipes = _shrunk_settings(tmp_path_factory.mktemp("settings"), SLUG)
     # DP*'s own repeat threshold, which the report must name rather than the checkpoint's, and a CCDP sampling
     # setting that lerobot-eval must accept as a flag
-    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32, "delta_z": 0.3},
-                                                             "ccdp": {"w_z": 2.0}}))
+    (configs / SLUG / "methods.json").write_text(
+        json.dumps({"dp_star": {"dp_star_candidates": 32, "delta_z": 0.3}, "ccdp": {"w_z": 2.0}})
+    )
     return configs, recipes
 
 
 def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str, methods: list[str] = METHODS) -> str:
     result = subprocess.run(
-        [sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--tasks", TASK, "--methods", *methods, "--out", str(out),
-         "--configs", str(configs), "--recipes", str(recipes), "--eval-seed", str(EVAL_SEED), *extra],
-        capture_output=True, text=True, cwd=REPO)
+        [
+            sys.executable,
+            "-m",
+            "lerobot_ccdp.benchmark.pipeline",
+            "--tasks",
+            TASK,
+            "--methods",
+            *methods,
+            "--out",
+            str(out),
+            "--configs",
+            str(configs),
+            "--recipes",
+            str(recipes),
+            "--eval-seed",
+            str(EVAL_SEED),
+            *extra,
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
     if result.returncode != 0:
-        pytest.fail(f"pipeline failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}")
+        pytest.fail(
+            f"pipeline failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
+        )
     return result.stdout
 
 
@@ -114,17 +138,21 @@ def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
 
     recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
     assert bool(recovery.model.recovery_trained)
-    for name, weight in base.model.base.state_dict().items():  # the recovery stage starts from the base and freezes it
+    # the recovery stage starts from the base and freezes it
+    for name, weight in base.model.base.state_dict().items():
         assert torch.equal(weight, recovery.model.base.state_dict()[name]), name
 
     for method in METHODS:
         episodes = Episodes.from_eval_info(task_out / "eval" / method / "eval_info.json")
         assert len(episodes) == N_EPISODES
-        # One-stage task: every attempt after the first follows a failure (the env's count reached eval_info.json).
+        # One-stage task: every attempt after the first follows a failure (the env's count reached
+        # eval_info.json).
         assert (episodes.attempts_after_failure == np.maximum(episodes.attempts - 1, 0)).all()
         assert not list((task_out / "eval" / method).rglob("*.mp4"))  # timed evaluations render nothing
         rendered = task_out / "videos" / method  # what lerobot_ccdp.benchmark.watch shows, made apart
-        assert len(list(rendered.rglob("eval_episode_*.mp4"))) == (N_EPISODES if method in VIDEO_METHODS else 0)
+        assert len(list(rendered.rglob("eval_episode_*.mp4"))) == (
+            N_EPISODES if method in VIDEO_METHODS else 0
+        )
         if method in VIDEO_METHODS:  # the same episodes as the evaluation's: seeds and noise streams
             again = Episodes.from_eval_info(rendered / "eval_info.json")
             assert (again.success == episodes.success).all() and (again.attempts == episodes.attempts).all()
@@ -135,16 +163,26 @@ def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
 def test_report_table_chart_and_timings(pipeline_run):
     out, stdout = pipeline_run
     report = (out / "report.md").read_text()
-    for label in ("| DoorOpening-lite-v0 | DP |", "| DoorOpening-lite-v0 | CCDP |", "| DoorOpening-lite-v0 | no-repeat oracle |",
-                  "success > DP", "attempts within 15% of oracle", "data loading"):
+    for label in (
+        "| DoorOpening-lite-v0 | DP |",
+        "| DoorOpening-lite-v0 | CCDP |",
+        "| DoorOpening-lite-v0 | no-repeat oracle |",
+        "success > DP",
+        "attempts within 15% of oracle",
+        "data loading",
+    ):
         assert label in report, label
     assert report.split("## Targets")[0] in stdout  # the table is printed too
-    form = report.split("## What ran")[1].split("## Targets")[0]  # the form of the method that ran, and the seeds
-    assert (f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 2 against "
-            "eps_z_null |") in form
+    # the form of the method that ran, and the seeds
+    form = report.split("## What ran")[1].split("## Targets")[0]
+    assert (
+        f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 2 against "
+        "eps_z_null |"
+    ) in form
     assert "| 32 candidates, 4 round(s), delta_z 0.3 |" in form
     assert "--policy.w_z=2.0" in stdout
-    lost = report.split("## Lost episodes")[1].split("## Time per stage")[0]  # each method's lost episodes, by cause
+    # each method's lost episodes, by cause
+    lost = report.split("## Lost episodes")[1].split("## Time per stage")[0]
     for method in METHODS:
         episodes = Episodes.from_eval_info(out / SLUG / "eval" / method / "eval_info.json")
         assert f"| {TASK} | {method.upper()} | {(~episodes.success).sum()}: " in lost
@@ -158,23 +196,44 @@ def test_report_table_chart_and_timings(pipeline_run):
     for method in METHODS:  # lerobot-eval logs its config: the seed it was given
         assert f"'seed': {EVAL_SEED}," in (out / SLUG / "logs" / f"eval_{method}.log").read_text()
     timings = json.loads((out / SLUG / "timings.json").read_text())
-    assert set(timings) == {"record", "train_base", "synthesize", "train_recovery", *(f"eval_{m}" for m in METHODS),
-                            *(f"videos_{m}" for m in METHODS)}  # both test methods are watched
+    assert set(timings) == {
+        "record",
+        "train_base",
+        "synthesize",
+        "train_recovery",
+        *(f"eval_{m}" for m in METHODS),
+        *(f"videos_{m}" for m in METHODS),  # both test methods are watched
+    }
 
 
 def test_watch_shows_both_methods_on_the_same_rendered_episode(pipeline_run, tmp_path):
     out, _ = pipeline_run
     gif = tmp_path / "watch.gif"
-    subprocess.run([sys.executable, "-m", "lerobot_ccdp.benchmark.watch", "--eval-root", str(out / SLUG / "videos"),
-                    "--episode", "1", "--out", str(gif)], check=True, cwd=REPO)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "lerobot_ccdp.benchmark.watch",
+            "--eval-root",
+            str(out / SLUG / "videos"),
+            "--episode",
+            "1",
+            "--out",
+            str(gif),
+        ],
+        check=True,
+        cwd=REPO,
+    )
     with Image.open(gif) as image:
-        assert image.n_frames > 5 and image.width > 2 * 160 and image.height > 120  # two 160x120 panels, titled
+        # two 160x120 panels, titled
+        assert image.n_frames > 5 and image.width > 2 * 160 and image.height > 120
 
 
 def test_a_second_run_resumes_every_stage_however_the_folder_is_spelled(settings, pipeline_run, tmp_path):
     out, _ = pipeline_run
     summary = (out / "summary.json").read_text()
-    (tmp_path / "link").symlink_to(out)  # the stages' commands name the folder's real path, as the first run did
+    # the stages' commands name the folder's real path, as the first run did
+    (tmp_path / "link").symlink_to(out)
     stdout = _run_pipeline(*settings, tmp_path / "link")
     assert stdout.count("done already") == 4 + 2 * len(METHODS)  # and each watched method's video run
     assert (out / "summary.json").read_text() == summary
@@ -202,10 +261,14 @@ def test_a_changed_config_reruns_its_stage_and_those_after_it(settings, pipeline
     base_weights = (out / SLUG / "base" / CHECKPOINT / "model.safetensors").read_bytes()
     stdout = _run_pipeline(configs, settings[1], out)
     assert stdout.count("done already") == 3  # record, base, synthesis
-    assert stdout.count("its inputs changed") == 1 + 2 * len(METHODS)  # recovery, every evaluation and video run
+    # recovery, every evaluation and video run
+    assert stdout.count("its inputs changed") == 1 + 2 * len(METHODS)
     assert (out / SLUG / "base" / CHECKPOINT / "model.safetensors").read_bytes() == base_weights
-    step = json.loads((out / SLUG / "recovery" / "checkpoints" / "last" / "training_state" / "training_step.json")
-                      .read_text())
+    step = json.loads(
+        (
+            out / SLUG / "recovery" / "checkpoints" / "last" / "training_state" / "training_step.json"
+        ).read_text()
+    )
     assert step["step"] == 12
 
 
@@ -223,21 +286,26 @@ def test_a_method_setting_reruns_only_that_method_with_its_flags(settings, pipel
 
 
 def test_method_settings_name_known_methods(tmp_path):
-    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG)  # the module's settings hold a methods.json
+    # the module's settings hold a methods.json
+    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG)
     files = TaskFiles.locate(TASK, configs, recipes, tmp_path)
     assert files.method_flags("dp_star") == []  # no methods.json: the checkpoint's settings
-    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32}, "DP": {}}))
+    (configs / SLUG / "methods.json").write_text(
+        json.dumps({"dp_star": {"dp_star_candidates": 32}, "DP": {}})
+    )
     with pytest.raises(ValueError, match=r"unknown method\(s\) \['DP'\]"):
         files.method_flags("dp_star")
 
 
 def test_the_compute_matched_baseline_is_dp_star_with_few_candidates(tmp_path):
-    """`dp_star_matched` evaluates recovery_mode=dp_star with 2 candidates and 1 round unless methods.json names its
-    own, beside (not instead of) DP*'s tuned settings."""
+    """`dp_star_matched` evaluates recovery_mode=dp_star with 2 candidates and 1 round unless methods.json
+    names its own, beside (not instead of) DP*'s tuned settings."""
     configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG)
     (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32}}))
     files = TaskFiles.locate(TASK, configs, recipes, tmp_path)
-    command = files.eval_command(Path("ck"), "dp_star_matched", 1000, tmp_path, files.method_flags("dp_star_matched"))
+    command = files.eval_command(
+        Path("ck"), "dp_star_matched", 1000, tmp_path, files.method_flags("dp_star_matched")
+    )
     assert "--policy.recovery_mode=dp_star" in command
     assert {"--policy.dp_star_candidates=2", "--policy.dp_star_rounds=1"} <= set(command)
     assert "--policy.dp_star_candidates=32" in files.method_flags("dp_star")
@@ -269,8 +337,10 @@ def test_stamps_follow_settings_files_and_upstream_stages(tmp_path):
 
 def test_console_progress_is_the_latest_bar_state_of_the_log(tmp_path):
     log = tmp_path / "train.log"
-    log.write_text("INFO start\rTraining:  10%|█         | 80/800 [00:30<04:30,  2.66step/s]"
-                   "\rTraining:  11%|█▏        | 88/800 [00:33<04:27,  2.66step/s]\nINFO step:88 loss:0.1")
+    log.write_text(
+        "INFO start\rTraining:  10%|█         | 80/800 [00:30<04:30,  2.66step/s]"
+        "\rTraining:  11%|█▏        | 88/800 [00:33<04:27,  2.66step/s]\nINFO step:88 loss:0.1"
+    )
     assert latest_progress(log) == "Training: 11% 88/800 [00:33<04:27, 2.66step/s]"
     log.write_text("no bar yet")
     assert latest_progress(log) == ""
@@ -278,15 +348,43 @@ def test_console_progress_is_the_latest_bar_state_of_the_log(tmp_path):
 
 def test_a_second_pipeline_on_the_same_folder_is_refused(settings, tmp_path):
     configs, recipes = settings
-    with exclusive(tmp_path / "out"), pytest.raises(SystemExit, match=r"Another pipeline \(pid \d+\) is running"):
-        main(["--tasks", TASK, "--out", str(tmp_path / "out"), "--configs", str(configs), "--recipes", str(recipes)])
+    with (
+        exclusive(tmp_path / "out"),
+        pytest.raises(SystemExit, match=r"Another pipeline \(pid \d+\) is running"),
+    ):
+        main(
+            [
+                "--tasks",
+                TASK,
+                "--out",
+                str(tmp_path / "out"),
+                "--configs",
+                str(configs),
+                "--recipes",
+                str(recipes),
+            ]
+        )
 
 
 def test_a_killed_pipeline_leaves_no_stage_running_and_a_rerun_resumes(settings, tmp_path):
     configs, recipes = settings
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--tasks", TASK, "--methods", "dp", "--out", str(out),
-               "--configs", str(configs), "--recipes", str(recipes), "--no-chart"]
+    command = [
+        sys.executable,
+        "-m",
+        "lerobot_ccdp.benchmark.pipeline",
+        "--tasks",
+        TASK,
+        "--methods",
+        "dp",
+        "--out",
+        str(out),
+        "--configs",
+        str(configs),
+        "--recipes",
+        str(recipes),
+        "--no-chart",
+    ]
     pipeline = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, text=True)
     for line in pipeline.stdout:  # wait until the base stage's lerobot-train is running
         if "train_base: lerobot-train" in line:
@@ -300,9 +398,12 @@ def test_a_killed_pipeline_leaves_no_stage_running_and_a_rerun_resumes(settings,
     pipeline.wait()
     while any(_running(pid) for pid in children):  # the kernel delivers the child's death signal
         time.sleep(0.2)
-    assert "End of training" not in (out / SLUG / "logs" / "train_base.log").read_text()  # killed, not finished
-    stdout = _run_pipeline(configs, recipes, out, "--train-only", methods=["dp"])  # the evaluations add nothing here
-    assert "record: done already" in stdout and "train_base: lerobot-train" in stdout  # the killed stage reruns
+    # killed, not finished
+    assert "End of training" not in (out / SLUG / "logs" / "train_base.log").read_text()
+    # the evaluations add nothing here
+    stdout = _run_pipeline(configs, recipes, out, "--train-only", methods=["dp"])
+    # the killed stage reruns
+    assert "record: done already" in stdout and "train_base: lerobot-train" in stdout
     assert "End of training" in (out / SLUG / "logs" / "train_base.log").read_text()
     assert (out / SLUG / "recovery" / CHECKPOINT / "model.safetensors").exists()  # and the stages after it
 
@@ -327,8 +428,8 @@ def test_bad_task_and_missing_settings_are_named(settings, tmp_path):
 
 @pytest.mark.slow  # about 100 s; the camera paths are covered stage by stage in tests/policy/test_cameras.py
 def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
-    """--obs-type pixels_agent_pos: camera demos as video, a camera checkpoint, image-free recovery rows, and CCDP
-    evaluated on rendered frames (DP runs the same checkpoint with its recovery off)."""
+    """--obs-type pixels_agent_pos: camera demos as video, a camera checkpoint, image-free recovery rows, and
+    CCDP evaluated on rendered frames (DP runs the same checkpoint with its recovery off)."""
     slug = f"{SLUG}_pixels"
     configs, recipes = _shrunk_settings(tmp_path / "settings", slug, n_episodes=2)
     out = tmp_path / "out"
@@ -338,7 +439,9 @@ def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
     demos = LeRobotDataset(f"local/{slug}", root=task_out / "demos", video_backend=video_backend())
     assert demos.meta.video_keys == [f"{OBS_IMAGES}.front"]
     recovery = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
-    assert bool(recovery.model.recovery_trained) and list(recovery.config.image_features) == [f"{OBS_IMAGES}.front"]
+    assert bool(recovery.model.recovery_trained) and list(recovery.config.image_features) == [
+        f"{OBS_IMAGES}.front"
+    ]
     recovery_meta = LeRobotDataset(f"local/{slug}_recovery", root=task_out / "recovery_data").meta
     assert not recovery_meta.video_keys and f"{OBS_IMAGES}.front" in recovery_meta.stats
     assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
@@ -346,7 +449,8 @@ def test_the_pixel_variant_runs_every_stage_on_cameras(tmp_path):
 
 
 def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):
-    """State configs filed under the pixel variant's name would train a state policy and report it as pixels."""
+    """State configs filed under the pixel variant's name would train a state policy and report it as
+    pixels."""
     configs, recipes = settings
     shutil.copytree(configs / SLUG, tmp_path / f"{SLUG}_pixels")
     shutil.copy(recipes / f"{SLUG}.yaml", tmp_path / f"{SLUG}_pixels.yaml")
@@ -354,14 +458,18 @@ def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):
         TaskFiles.locate(TASK, tmp_path, tmp_path, tmp_path / "out", "pixels_agent_pos")
 
 
-@pytest.mark.slow  # about 80 s; the classifier head trains and samples in CI through tests/recovery/test_preferences.py
+# about 80 s; the classifier head trains and samples in CI through tests/recovery/test_preferences.py
+@pytest.mark.slow
 def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
-    """A base config naming `recovery_head: classifier` makes the recovery stage learn from the demonstrations:
-    no synthesis stage runs, the checkpoint holds a trained classifier, lerobot-eval runs CCDP with the sampling
-    settings of methods.json (repeats redrawn), and the report names that form."""
+    """A base config naming `recovery_head: classifier` makes the recovery stage learn from the
+    demonstrations: no synthesis stage runs, the checkpoint holds a trained classifier, lerobot-eval runs CCDP
+    with the sampling settings of methods.json (repeats redrawn), and the report names that form."""
     configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG, n_episodes=2)
-    _shrink_json(configs / SLUG / "train_base.json", configs / SLUG / "train_base.json",
-                 {"policy": {"recovery_head": "classifier", "w_z": 1.0}})
+    _shrink_json(
+        configs / SLUG / "train_base.json",
+        configs / SLUG / "train_base.json",
+        {"policy": {"recovery_head": "classifier", "w_z": 1.0}},
+    )
     (configs / SLUG / "methods.json").write_text(json.dumps({"ccdp": {"ccdp_redraws": 2}}))
     out = tmp_path / "out"
     stdout = _run_pipeline(configs, recipes, out, "--no-chart", methods=["ccdp"])
@@ -379,9 +487,16 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
 
 
 def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_end():
-    settings = {"failure_feature": "final_state", "failure_state_key": "observation.state", "failure_state_dims": [1, 2],
-                "failure_state_at": "demonstrated_end"}
-    assert z_description(settings) == "final_state: observation.state dims [1, 2], a failure's read at demonstrated_end"
+    settings = {
+        "failure_feature": "final_state",
+        "failure_state_key": "observation.state",
+        "failure_state_dims": [1, 2],
+        "failure_state_at": "demonstrated_end",
+    }
+    assert (
+        z_description(settings)
+        == "final_state: observation.state dims [1, 2], a failure's read at demonstrated_end"
+    )
     assert z_description({"failure_feature": "primitive"}) == "primitive"
     action = {"failure_feature": "action", "failure_action_steps": [23], "failure_action_dims": [1, 2]}
     assert z_description(action) == "action: steps [23] of the attempt's first chunk, dims [1, 2]"

@@ -1,5 +1,6 @@
-"""`benchmarks/tune_methods.py` keeps the grid's first setting unless a paired interval says another is better: a
-higher mean that the development seeds cannot tell from noise is a tie, not a win (issue 17's honest comparison)."""
+"""`benchmarks/tune_methods.py` keeps the grid's first setting unless a paired interval says another is
+better: a higher mean that the development seeds cannot tell from noise is a tie, not a win (issue 17's honest
+comparison)."""
 
 import importlib.util
 from pathlib import Path
@@ -23,8 +24,14 @@ def episodes(successes: int, repeats: int = 0, shift: int = 0) -> Episodes:
     failure, the last `repeats` with one repeated failure."""
     success = (np.arange(N) - shift) % N < successes
     repeated = (np.arange(N) >= N - repeats).astype(int)
-    return Episodes(success=success, attempts=np.full(N, 3), repeated_failures=repeated,
-                    preference_matched=success, attempts_after_failure=np.full(N, 2.0), failures=np.ones(N))
+    return Episodes(
+        success=success,
+        attempts=np.full(N, 3),
+        repeated_failures=repeated,
+        preference_matched=success,
+        attempts_after_failure=np.full(N, 2.0),
+        failures=np.ones(N),
+    )
 
 
 def test_a_higher_mean_success_within_noise_keeps_the_first_setting():

@@ -1,4 +1,5 @@
-"""`Literal` config fields parse from LeRobot's command line and checkpoints, and a value outside them is named."""
+"""`Literal` config fields parse from LeRobot's command line and checkpoints, and a value outside them is
+named."""
 
 from dataclasses import dataclass
 from typing import Literal
@@ -19,8 +20,15 @@ class Command:
 
 
 def test_a_literal_field_parses_from_the_command_line_and_back_from_a_saved_checkpoint(tmp_path):
-    parsed = draccus.parse(Command, args=["--policy.type=ccdp", "--policy.recovery_head=set_denoiser",
-                                          "--policy.z_reference=eps_a", "--policy.device=cpu"]).policy
+    parsed = draccus.parse(
+        Command,
+        args=[
+            "--policy.type=ccdp",
+            "--policy.recovery_head=set_denoiser",
+            "--policy.z_reference=eps_a",
+            "--policy.device=cpu",
+        ],
+    ).policy
     assert (parsed.recovery_head, parsed.z_reference) == ("set_denoiser", "eps_a")
     parsed._save_pretrained(tmp_path)
     loaded = PreTrainedConfig.from_pretrained(tmp_path, cli_overrides=["--recovery_mode=dp_star"])
@@ -28,7 +36,9 @@ def test_a_literal_field_parses_from_the_command_line_and_back_from_a_saved_chec
 
 
 def test_a_value_outside_the_choices_is_refused_naming_them():
-    with pytest.raises(draccus.utils.DecodingError, match=r"'mlp' is not one of \['unet', 'classifier', 'set_denoiser'\]"):
+    with pytest.raises(
+        draccus.utils.DecodingError, match=r"'mlp' is not one of \['unet', 'classifier', 'set_denoiser'\]"
+    ):
         draccus.parse(Command, args=["--policy.type=ccdp", "--policy.recovery_head=mlp"])
 
 

@@ -97,8 +97,10 @@ def test_inf_in_an_observation_is_refused_before_it_reaches_the_actions():
 
 def test_a_dataset_with_nan_actions_is_refused_before_training():
     config = make_policy().config
-    stats = {"observation.state": {"mean": torch.zeros(2), "std": torch.ones(2)},
-             "action": {"mean": torch.tensor([0.0, float("nan")]), "std": torch.ones(2)}}
+    stats = {
+        "observation.state": {"mean": torch.zeros(2), "std": torch.ones(2)},
+        "action": {"mean": torch.tensor([0.0, float("nan")]), "std": torch.ones(2)},
+    }
     with pytest.raises(ValueError, match=r"mean of 'action' is not finite.*NaN or inf in 'action'"):
         CCDPPolicy(config, dataset_stats=stats)
 
@@ -115,8 +117,9 @@ def test_a_batch_size_change_that_drops_failures_says_so(caplog):
 
 def fill_the_disk(monkeypatch: pytest.MonkeyPatch, at_open: bool) -> list[int]:
     """Make pyarrow's parquet writers see a disk that fills at the third table written (the second episode's
-    frames): that write fails with ENOSPC and later ones with "Operation on closed file"; with `at_open`, opening a
-    writer then fails with ENOSPC once its file exists, as a real one does. Returns the count of writes, live."""
+    frames): that write fails with ENOSPC and later ones with "Operation on closed file"; with `at_open`,
+    opening a writer then fails with ENOSPC once its file exists, as a real one does. Returns the count of
+    writes, live."""
     write_table, open_writer, writes = pq.ParquetWriter.write_table, pq.ParquetWriter.__init__, [0]
 
     def write(writer, table, row_group_size=None):
@@ -139,13 +142,19 @@ def fill_the_disk(monkeypatch: pytest.MonkeyPatch, at_open: bool) -> list[int]:
 
 @pytest.mark.parametrize("at_open", [False, True])
 def test_a_full_disk_while_writing_a_dataset_is_named_and_leaves_nothing(tmp_path, monkeypatch, at_open):
-    """Neither LeRobot's later "Operation on closed file" nor its own ENOSPC on closing the dataset hides the full
-    disk, and no destructor run after the failure writes a new partial folder."""
+    """Neither LeRobot's later "Operation on closed file" nor its own ENOSPC on closing the dataset hides the
+    full disk, and no destructor run after the failure writes a new partial folder."""
     writes = fill_the_disk(monkeypatch, at_open)
     out = tmp_path / "out"
-    with pytest.raises(OSError, match=f"No space left on device in {out} while writing demos.*Free space") as error:
-        record_dataset(RecordRecipe(task="DoorOpening-lite-v0", n_episodes=2, seed=0), "local/d", out / "demos",
-                       progress=False)
+    with pytest.raises(
+        OSError, match=f"No space left on device in {out} while writing demos.*Free space"
+    ) as error:
+        record_dataset(
+            RecordRecipe(task="DoorOpening-lite-v0", n_episodes=2, seed=0),
+            "local/d",
+            out / "demos",
+            progress=False,
+        )
     assert error.value.errno == errno.ENOSPC and writes[0] >= 3
     del error
     gc.collect()
@@ -162,8 +171,8 @@ def test_a_z_of_the_wrong_shape_is_refused_even_with_the_right_size():
 
 
 def test_a_training_batch_with_other_windows_than_the_policys_is_refused_naming_them():
-    """A dataset loaded with another policy's delta timestamps (here history_length 2) is named, not a shape error
-    deep in the UNet."""
+    """A dataset loaded with another policy's delta timestamps (here history_length 2) is named, not a shape
+    error deep in the UNet."""
     policy = make_policy().train()
     batch = {"observation.state": torch.zeros(4, 3, 2), "action": torch.zeros(4, 18, 2)}
     with pytest.raises(ValueError, match=r"observation windows \(B, 1, D\).*\(B, 16, A\).*delta timestamps"):

@@ -34,14 +34,24 @@ Z_SETTINGS = {
     "final_state": {"failure_feature": "final_state", "failure_state_dims": [0, 1, 2]},
     "action": {"failure_feature": "action", "failure_action_steps": [7, 15]},
 }
-SMALL = {"n_states": 12, "chunks_per_state": 4, "batch_states": 6, "pairs_per_failure": 2, "demo_frames": 100,
-         "delta_x": 100.0, "delta_z": 0.1, "sigma": 0.05}
+SMALL = {
+    "n_states": 12,
+    "chunks_per_state": 4,
+    "batch_states": 6,
+    "pairs_per_failure": 2,
+    "demo_frames": 100,
+    "delta_x": 100.0,
+    "delta_z": 0.1,
+    "sigma": 0.05,
+}
 
 
 @pytest.fixture(scope="module")
 def pixel_root(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("pixels") / "demos"
-    record_dataset(RecordRecipe(task=TASK, n_episodes=4, seed=0, env_kwargs=PIXELS), REPO_ID, root, progress=False)
+    record_dataset(
+        RecordRecipe(task=TASK, n_episodes=4, seed=0, env_kwargs=PIXELS), REPO_ID, root, progress=False
+    )
     return root
 
 
@@ -70,8 +80,8 @@ def test_camera_windows_pad_episode_starts_like_lerobot(pixel_root):
 
 @pytest.fixture(scope="module", params=list(Z_SETTINGS))
 def synthesised(request, pixel_root, tmp_path_factory):
-    """A recovery dataset from an untrained camera base, with every eq. (7) condition the recipe sampled with and
-    the demo frame each condition was built from."""
+    """A recovery dataset from an untrained camera base, with every eq. (7) condition the recipe sampled with
+    and the demo frame each condition was built from."""
     settings = Z_SETTINGS[request.param]
     tmp = tmp_path_factory.mktemp(f"pixel_synth_{request.param}")
     checkpoint = untrained_checkpoint(pixel_root, tmp / "base", repo_id=REPO_ID, **ENCODER, **settings)
@@ -89,8 +99,15 @@ def synthesised(request, pixel_root, tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(CCDPModel, "sample_exploratory", recording_sample)
         patch.setattr(CameraWindows, "__call__", recording_windows)
-        root = synthesize_recovery_dataset(RecoveryRecipe.from_dict({**settings, **SMALL}), REPO_ID, pixel_root,
-                                           checkpoint, "local/recovery", tmp / "recovery", progress=False)
+        root = synthesize_recovery_dataset(
+            RecoveryRecipe.from_dict({**settings, **SMALL}),
+            REPO_ID,
+            pixel_root,
+            checkpoint,
+            "local/recovery",
+            tmp / "recovery",
+            progress=False,
+        )
     return checkpoint, root, torch.cat(conditions), torch.cat(frames)
 
 
@@ -100,8 +117,9 @@ def test_recovery_rows_carry_no_images_but_the_camera_stats(synthesised, pixel_r
     assert not recovery.camera_keys and not any("image" in key for key in recovery.features)
     demo_stats = LeRobotDatasetMetadata(REPO_ID, root=pixel_root).stats
     for stat in ("mean", "std"):  # the recovery checkpoint's preprocessor normalises cameras with these
-        torch.testing.assert_close(torch.as_tensor(recovery.stats[CAMERA][stat]),
-                                   torch.as_tensor(demo_stats[CAMERA][stat]))
+        torch.testing.assert_close(
+            torch.as_tensor(recovery.stats[CAMERA][stat]), torch.as_tensor(demo_stats[CAMERA][stat])
+        )
 
 
 def test_camera_rows_store_the_policys_z_of_the_failed_chunk(synthesised):
@@ -110,18 +128,24 @@ def test_camera_rows_store_the_policys_z_of_the_failed_chunk(synthesised):
 
 
 def test_eq7_conditions_perturb_the_state_and_reuse_the_frames_images(synthesised, pixel_root):
-    """Each condition is [that demo frame's state + N(0, sigma^2), the base's encoding of that frame's image]."""
+    """Each condition is [that demo frame's state + N(0, sigma^2), the base's encoding of that frame's
+    image]."""
     checkpoint, _, conditions, frames = synthesised
     policy = CCDPPolicy.from_pretrained(checkpoint).eval()
     pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
     dataset = LeRobotDataset(REPO_ID, root=pixel_root, video_backend=video_backend())
-    demo = pre({OBS_STATE: torch.stack([dataset[int(i)][OBS_STATE] for i in frames]),
-                CAMERA: torch.stack([dataset[int(i)][CAMERA] for i in frames])})
+    demo = pre(
+        {
+            OBS_STATE: torch.stack([dataset[int(i)][OBS_STATE] for i in frames]),
+            CAMERA: torch.stack([dataset[int(i)][CAMERA] for i in frames]),
+        }
+    )
     with torch.no_grad():
         encoded = policy.model.images([demo[CAMERA]])
     state_dim = policy.config.state_dim
     assert conditions.shape == (len(frames), state_dim + encoded.shape[1])
-    # The image part is the recorded frame's encoding (to the round-off of encoding in batches of another size).
+    # The image part is the recorded frame's encoding (to the round-off of encoding in batches of another
+    # size).
     torch.testing.assert_close(conditions[:, state_dim:], encoded, atol=1e-3, rtol=1e-3)
     assert torch.cdist(encoded, encoded).max() > 0.1, "the frames' encodings differ, so the check can fail"
     offsets = conditions[:, :state_dim] - demo[OBS_STATE]
@@ -135,12 +159,18 @@ def test_synthesis_record_names_the_camera_dataset(synthesised):
     assert record["source"]["policy_path"] == str(checkpoint) and record["result"]["rows"] > 0
 
 
-
 def test_a_one_frame_window_from_lerobot_dataset_trains(pixel_root, tmp_path):
-    """n_obs_steps=1 without history: LeRobotDataset squeezes the one-frame video window to (C, H, W) while the
-    state keeps its window axis; the policy restores the axis instead of refusing the camera."""
-    checkpoint = untrained_checkpoint(pixel_root, tmp_path, repo_id=REPO_ID, history_length=0, n_obs_steps=1,
-                                      **ENCODER, **Z_SETTINGS["primitive"])
+    """n_obs_steps=1 without history: LeRobotDataset squeezes the one-frame video window to (C, H, W) while
+    the state keeps its window axis; the policy restores the axis instead of refusing the camera."""
+    checkpoint = untrained_checkpoint(
+        pixel_root,
+        tmp_path,
+        repo_id=REPO_ID,
+        history_length=0,
+        n_obs_steps=1,
+        **ENCODER,
+        **Z_SETTINGS["primitive"],
+    )
     policy = CCDPPolicy.from_pretrained(checkpoint).train()
     meta = LeRobotDatasetMetadata(REPO_ID, root=pixel_root)
     delta = resolve_delta_timestamps(policy.config, meta)
@@ -151,14 +181,16 @@ def test_a_one_frame_window_from_lerobot_dataset_trains(pixel_root, tmp_path):
     loss, _ = policy.forward(preprocessor(batch))
     assert torch.isfinite(loss)
 
-# ----- bad input ---------------------------------------------------------------------------------------------
+
+# ----- bad input --------------------------------------------------------------------------------------------
 
 
 @pytest.fixture(scope="module")
 def camera_policy(pixel_root, tmp_path_factory) -> CCDPPolicy:
     out = tmp_path_factory.mktemp("camera_policy")
-    return CCDPPolicy.from_pretrained(untrained_checkpoint(pixel_root, out, repo_id=REPO_ID, **ENCODER,
-                                                           **Z_SETTINGS["primitive"])).eval()
+    return CCDPPolicy.from_pretrained(
+        untrained_checkpoint(pixel_root, out, repo_id=REPO_ID, **ENCODER, **Z_SETTINGS["primitive"])
+    ).eval()
 
 
 def test_a_camera_of_another_size_names_the_key_and_the_fix(camera_policy):
@@ -180,16 +212,25 @@ def test_state_observations_for_a_camera_checkpoint_name_what_it_needs(camera_po
 
 def test_cameras_for_a_state_checkpoint_name_the_obs_type(tmp_path):
     record_reaching_dataset(tmp_path / "r2d", REACHING_REPO_ID, n_episodes=4)
-    policy = CCDPPolicy.from_pretrained(untrained_checkpoint(tmp_path / "r2d", tmp_path / "ckpt",
-                                                             **Z_SETTINGS["action"])).eval()
+    policy = CCDPPolicy.from_pretrained(
+        untrained_checkpoint(tmp_path / "r2d", tmp_path / "ckpt", **Z_SETTINGS["action"])
+    ).eval()
     with pytest.raises(KeyError, match="holds cameras.*--env.obs_type"):
         policy.select_action({CAMERA: torch.zeros(1, 3, SIZE, SIZE)})
     policy.train()
-    batch = {OBS_STATE: torch.zeros(2, 3, 2), CAMERA: torch.zeros(2, 3, 3, SIZE, SIZE), ACTION: torch.zeros(2, 18, 2)}
-    with pytest.raises(ValueError, match=rf"cameras \['{CAMERA}'\] that this policy does not encode.*new base stage"):
+    batch = {
+        OBS_STATE: torch.zeros(2, 3, 2),
+        CAMERA: torch.zeros(2, 3, 3, SIZE, SIZE),
+        ACTION: torch.zeros(2, 18, 2),
+    }
+    with pytest.raises(
+        ValueError, match=rf"cameras \['{CAMERA}'\] that this policy does not encode.*new base stage"
+    ):
         policy.forward(batch)
 
 
 def test_images_too_small_for_the_backbone_name_the_fix(pixel_root, tmp_path):
     with pytest.raises(ValueError, match=r"1x1 feature map after 4 ResNet stages.*vision_backbone_stages"):
-        untrained_checkpoint(pixel_root, tmp_path, repo_id=REPO_ID, resize_shape=(32, 32), **Z_SETTINGS["primitive"])
+        untrained_checkpoint(
+            pixel_root, tmp_path, repo_id=REPO_ID, resize_shape=(32, 32), **Z_SETTINGS["primitive"]
+        )

@@ -1,6 +1,6 @@
 """Loading a checkpoint never reads a dataset: lerobot-record hands make_policy the metadata of a new, empty
-recording dataset, which has no label column; the outcome table must come from the checkpoint. Weights that do not
-fit are refused, not left at random values."""
+recording dataset, which has no label column; the outcome table must come from the checkpoint. Weights that do
+not fit are refused, not left at random values."""
 
 import shutil
 
@@ -23,8 +23,9 @@ def recording_meta(demo_root, root) -> LeRobotDatasetMetadata:
     """What lerobot-record passes: a new dataset with the robot's features only (no `primitive` label)."""
     demos = LeRobotDatasetMetadata(REACHING_REPO_ID, root=demo_root)
     features = {k: v for k, v in demos.features.items() if k != "primitive"}
-    return LeRobotDatasetMetadata.create("local/recording", fps=demos.fps, features=features, root=root,
-                                         use_videos=False)
+    return LeRobotDatasetMetadata.create(
+        "local/recording", fps=demos.fps, features=features, root=root, use_videos=False
+    )
 
 
 def test_make_policy_with_a_recording_datasets_meta_loads_the_saved_outcome_table(
@@ -41,7 +42,9 @@ def test_make_policy_with_a_recording_datasets_meta_loads_the_saved_outcome_tabl
 
 def test_from_pretrained_ignores_dataset_arguments(untrained_primitive_checkpoint, reaching_root, tmp_path):
     meta = recording_meta(reaching_root, tmp_path / "recording")
-    policy = CCDPPolicy.from_pretrained(untrained_primitive_checkpoint, dataset_meta=meta, dataset_stats=meta.stats)
+    policy = CCDPPolicy.from_pretrained(
+        untrained_primitive_checkpoint, dataset_meta=meta, dataset_stats=meta.stats
+    )
     saved = load_file(untrained_primitive_checkpoint / "model.safetensors")
     torch.testing.assert_close(policy.model.outcomes.primitives, saved["model.outcomes.primitives"])
 
@@ -63,7 +66,12 @@ def test_weights_that_do_not_fit_are_refused_with_the_fix(untrained_primitive_ch
     old = tmp_path / "old_layout"
     shutil.copytree(untrained_primitive_checkpoint, old)
     weights = load_file(old / "model.safetensors")
-    save_file({key.removeprefix("model."): value for key, value in weights.items()}, old / "model.safetensors")
-    expected = r"do not fit the ccdp policy its config describes: \d+ missing \(model\.base\..*unexpected \(base\..*retrain"
+    save_file(
+        {key.removeprefix("model."): value for key, value in weights.items()}, old / "model.safetensors"
+    )
+    expected = (
+        r"do not fit the ccdp policy its config describes: \d+ missing \(model\.base\..*"
+        r"unexpected \(base\..*retrain"
+    )
     with pytest.raises(ValueError, match=expected):
         CCDPPolicy.from_pretrained(old)

@@ -1,5 +1,6 @@
-"""An input dimension that never varied in the training data is held at its training value: LeRobot's normaliser
-turns its first change into 2e8 (a spread of 0 replaced by 1e-8), which would make every planned chunk garbage."""
+"""An input dimension that never varied in the training data is held at its training value: LeRobot's
+normaliser turns its first change into 2e8 (a spread of 0 replaced by 1e-8), which would make every planned
+chunk garbage."""
 
 import logging
 
@@ -13,17 +14,28 @@ from lerobot_ccdp.policy.processor_ccdp import make_ccdp_pre_post_processors
 STATS = {
     "observation.state": {"min": [-1.0, -1.0], "max": [1.0, 1.0], "mean": [0.0, 0.0], "std": [0.5, 0.5]},
     # dim 1: a flag that was 0 in every training frame (the Bartender's cup3_filled)
-    "observation.environment_state": {"min": [0.0, 0.0], "max": [1.0, 0.0], "mean": [0.5, 0.0], "std": [0.3, 0.0]},
+    "observation.environment_state": {
+        "min": [0.0, 0.0],
+        "max": [1.0, 0.0],
+        "mean": [0.5, 0.0],
+        "std": [0.3, 0.0],
+    },
     "action": {"min": [-1.0, -1.0], "max": [1.0, 1.0], "mean": [0.0, 0.0], "std": [0.5, 0.5]},
 }
 
 
 def _policy(env_mode: NormalizationMode = NormalizationMode.MIN_MAX) -> CCDPPolicy:
     config = CCDPConfig(
-        input_features={"observation.state": PolicyFeature(FeatureType.STATE, (2,)),
-                        "observation.environment_state": PolicyFeature(FeatureType.ENV, (2,))},
+        input_features={
+            "observation.state": PolicyFeature(FeatureType.STATE, (2,)),
+            "observation.environment_state": PolicyFeature(FeatureType.ENV, (2,)),
+        },
         output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))},
-        failure_feature="action", horizon=8, n_action_steps=4, down_dims=(16, 32), device="cpu",
+        failure_feature="action",
+        horizon=8,
+        n_action_steps=4,
+        down_dims=(16, 32),
+        device="cpu",
     )
     config.normalization_mapping = {**config.normalization_mapping, "ENV": env_mode}
     torch.manual_seed(0)
@@ -32,8 +44,12 @@ def _policy(env_mode: NormalizationMode = NormalizationMode.MIN_MAX) -> CCDPPoli
 
 def _first_action(policy: CCDPPolicy, flag: float) -> torch.Tensor:
     pre, post = make_ccdp_pre_post_processors(policy.config, STATS)
-    observation = pre({"observation.state": torch.tensor([[0.2, -0.3]]),
-                       "observation.environment_state": torch.tensor([[0.4, flag]])})
+    observation = pre(
+        {
+            "observation.state": torch.tensor([[0.2, -0.3]]),
+            "observation.environment_state": torch.tensor([[0.4, flag]]),
+        }
+    )
     policy.reset()
     torch.manual_seed(1)
     with torch.inference_mode():
@@ -43,8 +59,9 @@ def _first_action(policy: CCDPPolicy, flag: float) -> torch.Tensor:
 def test_lerobots_normaliser_blows_up_a_constant_dimension_that_changes():
     policy = _policy()
     pre, _ = make_ccdp_pre_post_processors(policy.config, STATS)
-    normalised = pre({"observation.state": torch.zeros(1, 2),
-                      "observation.environment_state": torch.tensor([[0.4, 1.0]])})["observation.environment_state"]
+    normalised = pre(
+        {"observation.state": torch.zeros(1, 2), "observation.environment_state": torch.tensor([[0.4, 1.0]])}
+    )["observation.environment_state"]
     assert normalised[0, 1] > 1e7  # the hazard the policy guards against
 
 

@@ -1,5 +1,6 @@
-"""A missing, damaged or untrusted checkpoint folder is refused with its path and the fix, before LeRobot reads it:
-through CCDPPolicy.from_pretrained (also what lerobot-eval and lerobot-record call) and lerobot-ccdp-synthesize."""
+"""A missing, damaged or untrusted checkpoint folder is refused with its path and the fix, before LeRobot
+reads it: through CCDPPolicy.from_pretrained (also what lerobot-eval and lerobot-record call) and
+lerobot-ccdp-synthesize."""
 
 import json
 import shutil
@@ -37,11 +38,17 @@ def garble_config(folder: Path) -> None:
 
 def synthesize_from(policy_path: Path | str, demo_root: Path, out_root: Path) -> None:
     recipe = RecoveryRecipe.from_dict({**SETTINGS, "n_states": 4, "chunks_per_state": 2})
-    synthesize_recovery_dataset(recipe, REACHING_REPO_ID, demo_root, policy_path, "local/r", out_root, progress=False)
+    synthesize_recovery_dataset(
+        recipe, REACHING_REPO_ID, demo_root, policy_path, "local/r", out_root, progress=False
+    )
 
 
-@pytest.mark.parametrize(("damage", "file"), [(truncate_weights, "model.safetensors"), (garble_config, "config.json")])
-def test_a_damaged_checkpoint_file_is_named_with_the_fix(untrained_primitive_checkpoint, reaching_root, tmp_path, damage, file):
+@pytest.mark.parametrize(
+    ("damage", "file"), [(truncate_weights, "model.safetensors"), (garble_config, "config.json")]
+)
+def test_a_damaged_checkpoint_file_is_named_with_the_fix(
+    untrained_primitive_checkpoint, reaching_root, tmp_path, damage, file
+):
     folder = damaged_copy(untrained_primitive_checkpoint, tmp_path, damage)
     message = f"Checkpoint file {folder / file} {DAMAGED}"
     with pytest.raises(ValueError, match=message):
@@ -53,7 +60,8 @@ def test_a_damaged_checkpoint_file_is_named_with_the_fix(untrained_primitive_che
 
 @pytest.mark.parametrize("missing", ["does/not/exist", "outputs/base"])
 def test_a_missing_checkpoint_folder_is_named_not_taken_for_a_repo_id(reaching_root, tmp_path, missing):
-    """`outputs/base` has a repo id's form: the Hub is asked (offline here), then the missing folder is named."""
+    """`outputs/base` has a repo id's form: the Hub is asked (offline here), then the missing folder is
+    named."""
     message = f"Checkpoint folder {missing} does not exist .*checkpoints/last/pretrained_model"
     with pytest.raises(FileNotFoundError, match=message):
         CCDPPolicy.from_pretrained(missing)
@@ -62,12 +70,16 @@ def test_a_missing_checkpoint_folder_is_named_not_taken_for_a_repo_id(reaching_r
 
 
 def test_a_folder_that_is_no_checkpoint_is_named(reaching_root):
-    with pytest.raises(FileNotFoundError, match=f"{reaching_root} holds no config.json, so it is not a policy"):
+    with pytest.raises(
+        FileNotFoundError, match=f"{reaching_root} holds no config.json, so it is not a policy"
+    ):
         CCDPPolicy.from_pretrained(reaching_root)
 
 
 def test_a_missing_demo_folder_says_it_does_not_exist(untrained_primitive_checkpoint, tmp_path):
-    with pytest.raises(FileNotFoundError, match=f"--dataset.root={tmp_path / 'demos'}: the folder does not exist"):
+    with pytest.raises(
+        FileNotFoundError, match=f"--dataset.root={tmp_path / 'demos'}: the folder does not exist"
+    ):
         synthesize_from(untrained_primitive_checkpoint, tmp_path / "demos", tmp_path / "recovery")
 
 
@@ -88,8 +100,11 @@ def test_a_processor_step_from_outside_lerobot_and_ccdp_is_refused_before_it_run
 ):
     """Checkpoints are code: LeRobot's loader would import and call the class a processor file names."""
     marker = tmp_path / "ran"
-    step = ({"registry_name": foreign_registry_name} if entry == "foreign"
-            else {"class": entry, "config": {"command": f"touch {marker}"}})
+    step = (
+        {"registry_name": foreign_registry_name}
+        if entry == "foreign"
+        else {"class": entry, "config": {"command": f"touch {marker}"}}
+    )
 
     def add_step(folder: Path) -> None:
         processor = folder / "policy_preprocessor.json"
@@ -99,8 +114,10 @@ def test_a_processor_step_from_outside_lerobot_and_ccdp_is_refused_before_it_run
 
     folder = damaged_copy(untrained_primitive_checkpoint, tmp_path, add_step)
     name = foreign_registry_name if entry == "foreign" else entry
-    message = (f"{folder / 'policy_preprocessor.json'}: step 1 names '{name}', which is not a processor step of "
-               "LeRobot or lerobot_ccdp.*Checkpoints are code: load only ones you trust")
+    message = (
+        f"{folder / 'policy_preprocessor.json'}: step 1 names '{name}', which is not a processor step of "
+        "LeRobot or lerobot_ccdp.*Checkpoints are code: load only ones you trust"
+    )
     with pytest.raises(ValueError, match=message):
         CCDPPolicy.from_pretrained(folder)
     with pytest.raises(ValueError, match=message):
@@ -119,4 +136,7 @@ def test_processor_steps_named_by_lerobot_class_path_are_accepted(untrained_prim
             entry["class"] = f"{step.__module__}.{step.__name__}"
         processor.write_text(json.dumps(content))
 
-    assert CCDPPolicy.from_pretrained(damaged_copy(untrained_primitive_checkpoint, tmp_path, spell_out_classes)) is not None
+    assert (
+        CCDPPolicy.from_pretrained(damaged_copy(untrained_primitive_checkpoint, tmp_path, spell_out_classes))
+        is not None
+    )

@@ -51,10 +51,12 @@ class ScriptedDraws:
 
 
 def test_dp_star_keeps_the_first_accepted_candidate_and_redraws_only_rows_all_rejected():
-    draws = ScriptedDraws([
-        torch.tensor([[0.0, 0.0, 0.7, 0.9], [0.01, 0.05, 0.02, 0.0]]),  # row 1: all within delta_z
-        torch.tensor([[9.0, 9.0, 9.0, 9.0], [0.0, 0.0, 0.0, 0.6]]),
-    ])
+    draws = ScriptedDraws(
+        [
+            torch.tensor([[0.0, 0.0, 0.7, 0.9], [0.01, 0.05, 0.02, 0.0]]),  # row 1: all within delta_z
+            torch.tensor([[9.0, 9.0, 9.0, 9.0], [0.0, 0.0, 0.0, 0.6]]),
+        ]
+    )
     chunks = reject_repeats(draws, rows=2, rounds=3, delta_z=0.5, device=torch.device("cpu"))
     assert draws.calls == [[0, 1], [1]]  # row 0 was served in round 0; nothing pending after round 1
     assert chunks[0, 0].tolist() == [0.0, 2.0]  # round 0, first accepted candidate
@@ -65,7 +67,8 @@ def test_dp_star_falls_back_to_the_farthest_candidate_over_all_rounds():
     draws = ScriptedDraws([torch.tensor([[0.01, 0.3, 0.02]]), torch.tensor([[0.2, 0.1, 0.0]])])
     chunks = reject_repeats(draws, rows=1, rounds=2, delta_z=0.5, device=torch.device("cpu"))
     assert chunks[0, 0].tolist() == [0.0, 1.0]  # 0.3 in round 0 beats round 1's best, 0.2
-    one_round = ScriptedDraws([torch.zeros(1, 3)])  # one-hot z: every candidate repeats the failure, distances tie
+    # one-hot z: every candidate repeats the failure, distances tie
+    one_round = ScriptedDraws([torch.zeros(1, 3)])
     chunks = reject_repeats(one_round, rows=1, rounds=1, delta_z=0.5, device=torch.device("cpu"))
     assert chunks[0, 0].tolist() == [0.0, 0.0]
 

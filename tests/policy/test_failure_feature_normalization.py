@@ -12,10 +12,18 @@ from lerobot_ccdp.recovery.outcome_index import OutcomeIndex
 from fixtures.policy_factory import make_policy
 
 STATS = {
-    "observation.state": {"min": np.array([-2.0, 0.0, 1.0]), "max": np.array([2.0, 4.0, 3.0]),
-                          "mean": np.array([0.1, 2.0, 2.0]), "std": np.array([1.0, 1.5, 0.5])},
-    "action": {"min": np.array([-1.0, -3.0]), "max": np.array([1.0, 5.0]),
-               "mean": np.array([0.0, 1.0]), "std": np.array([0.5, 2.0])},
+    "observation.state": {
+        "min": np.array([-2.0, 0.0, 1.0]),
+        "max": np.array([2.0, 4.0, 3.0]),
+        "mean": np.array([0.1, 2.0, 2.0]),
+        "std": np.array([1.0, 1.5, 0.5]),
+    },
+    "action": {
+        "min": np.array([-1.0, -3.0]),
+        "max": np.array([1.0, 5.0]),
+        "mean": np.array([0.0, 1.0]),
+        "std": np.array([0.5, 2.0]),
+    },
 }
 
 
@@ -24,8 +32,13 @@ STATS = {
 def test_stored_z_normalises_onto_runtime_z(kind, action_dims, mode):
     from lerobot.configs.types import NormalizationMode
 
-    policy = make_policy(state_dim=3, failure_feature=kind, failure_state_dims=[2, 0], failure_action_steps=[0, 7],
-                         failure_action_dims=action_dims)
+    policy = make_policy(
+        state_dim=3,
+        failure_feature=kind,
+        failure_state_dims=[2, 0],
+        failure_action_steps=[0, 7],
+        failure_action_dims=action_dims,
+    )
     for key in ("STATE", "ACTION"):
         policy.config.normalization_mapping[key] = NormalizationMode[mode]
     stats = {**STATS, "observation.failure_feature": failure_feature_stats(policy.config, STATS)}

@@ -1,6 +1,6 @@
-"""recovery_head=set_denoiser: eps_{s,F} starts as the base's eps_s, trains only on rows whose outcome lies outside
-their drawn failure set, costs one network call per reverse step for a row with failures, and refuses the settings it
-cannot serve."""
+"""recovery_head=set_denoiser: eps_{s,F} starts as the base's eps_s, trains only on rows whose outcome lies
+outside their drawn failure set, costs one network call per reverse step for a row with failures, and refuses
+the settings it cannot serve."""
 
 import torch
 
@@ -8,14 +8,22 @@ from lerobot_ccdp.recovery.failure_buffer import draw_failure_sets
 
 from fixtures.policy_factory import make_policy
 
-SETTINGS = {"failure_feature": "primitive", "num_primitives": 3, "recovery_head": "set_denoiser", "history_length": 0}
+SETTINGS = {
+    "failure_feature": "primitive",
+    "num_primitives": 3,
+    "recovery_head": "set_denoiser",
+    "history_length": 0,
+}
 
 
 def test_start_from_copies_the_base_so_the_head_begins_as_eps_s_whatever_the_failures():
     torch.manual_seed(0)
     policy = make_policy(**SETTINGS)
     noisy, step, state = torch.randn(5, 16, 2), torch.randint(0, 100, (5,)), torch.randn(5, 2)
-    z, z_mask = torch.eye(3)[torch.randint(0, 3, (5, 2))], torch.tensor([[True, False]] * 3 + [[True, True]] * 2)
+    z, z_mask = (
+        torch.eye(3)[torch.randint(0, 3, (5, 2))],
+        torch.tensor([[True, False]] * 3 + [[True, True]] * 2),
+    )
     ones, no_history = torch.ones(5, 1), torch.zeros(5, 0)
     eps_s = policy.model.base(noisy, step, state, ones, no_history, 0 * ones)
     assert not torch.allclose(policy.model.recovery(noisy, step, state, z, z_mask), eps_s, atol=1e-3)
@@ -33,7 +41,8 @@ def test_failure_sets_come_from_other_rows_and_flag_the_rows_whose_outcome_they_
 
 
 def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set():
-    """With a single option, every drawn failure set holds each row's own outcome: no row is kept, so no gradient."""
+    """With a single option, every drawn failure set holds each row's own outcome: no row is kept, so no
+    gradient."""
     torch.manual_seed(0)
     policy = make_policy(**{**SETTINGS, "training_stage": "recovery"}).train()
     policy.model.outcomes.fill(torch.zeros(4, 16 * 2), torch.zeros(4, 2), torch.zeros(4, dtype=torch.long))
@@ -50,8 +59,9 @@ def count_calls(module: torch.nn.Module) -> list[int]:
 
 
 def test_a_plan_after_failures_calls_only_the_set_denoiser_once_per_step():
-    """At w_s = w_z = 1, w_h = 0, eq. (4)'s failure-set form is eps_{s,F} alone: rows remembering failures cost what DP
-    costs, one call per reverse step (here with 4 failures), while rows without failures keep using the base."""
+    """At w_s = w_z = 1, w_h = 0, eq. (4)'s failure-set form is eps_{s,F} alone: rows remembering failures
+    cost what DP costs, one call per reverse step (here with 4 failures), while rows without failures keep
+    using the base."""
     torch.manual_seed(0)
     policy = make_policy(**SETTINGS)
     policy.model.recovery_trained.fill_(True)

@@ -1,14 +1,14 @@
 """Pushing a CCDP policy to the Hub uploads a complete, loadable policy.
 
-The real huggingface_hub client talks to a small in-memory Hub on 127.0.0.1 (tests/fixtures/hub_server.py). Because
-huggingface_hub reads HF_ENDPOINT when it is imported, the push and the reload each run in a fresh
+The real huggingface_hub client talks to a small in-memory Hub on 127.0.0.1 (tests/fixtures/hub_server.py).
+Because huggingface_hub reads HF_ENDPOINT when it is imported, the push and the reload each run in a fresh
 subprocess (this file run as a script) with HF_ENDPOINT pointing at the server, HF_HUB_OFFLINE=0, a dummy
 token and their own HF_HOME, so the reload really downloads from the server.
 
 Loopback only: the subprocesses install, through huggingface_hub's public `configure_http_backend`, a
 requests session that refuses every host but the loopback server. The one hard-coded Hub URL the client
-uses, `RepoCard.validate()`'s https://huggingface.co/api/validate-yaml (LeRobot's generate_model_card calls it),
-is sent to the loopback server instead.
+uses, `RepoCard.validate()`'s https://huggingface.co/api/validate-yaml (LeRobot's generate_model_card calls
+it), is sent to the loopback server instead.
 
 What is pushed, one commit each, to one repo:
   1. policy.push_to_hub(repo_id)          -> config.json, model.safetensors (LeRobot's HubMixin; no card)
@@ -57,10 +57,14 @@ def _client(phase: str, hub, work: Path, home: Path) -> subprocess.CompletedProc
         "HF_HUB_DOWNLOAD_TIMEOUT": "5",
         "NO_PROXY": "127.0.0.1,localhost",
     }
-    result = subprocess.run([sys.executable, str(HERE), phase, REPO_ID, str(work)], env=env,
-                            capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, str(HERE), phase, REPO_ID, str(work)], env=env, capture_output=True, text=True
+    )
     if result.returncode != 0:
-        pytest.fail(f"{phase} subprocess failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}")
+        pytest.fail(
+            f"{phase} subprocess failed ({result.returncode}):\n"
+            f"{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
+        )
     return result
 
 
@@ -68,14 +72,21 @@ def test_push_to_hub_uploads_a_complete_loadable_policy(hub, tmp_path):
     _client("push", hub, tmp_path, tmp_path / "home_push")
     commits = hub.commits(REPO_ID)
     assert len(commits) == 4, [c.summary for c in commits]
-    assert [c.summary for c in commits[:2]] == ["Upload policy", "Upload policy weights, train config and readme"]
+    assert [c.summary for c in commits[:2]] == [
+        "Upload policy",
+        "Upload policy weights, train config and readme",
+    ]
 
     # 1. policy.push_to_hub: config and weights, the weights through LFS as on the real Hub.
     first = commits[0]
     assert sorted(first.changed) == ["config.json", "model.safetensors"]
     assert "model.safetensors" in first.lfs
     config = json.loads(first.files["config.json"])
-    assert config["type"] == "ccdp" and config["failure_feature"] == "primitive" and config["num_primitives"] == 4
+    assert (
+        config["type"] == "ccdp"
+        and config["failure_feature"] == "primitive"
+        and config["num_primitives"] == 4
+    )
     assert len(first.files["model.safetensors"]) > 100_000
 
     # 2. push_model_to_hub: + model card (validated through the loopback server) and train config.
@@ -98,11 +109,17 @@ def test_push_to_hub_uploads_a_complete_loadable_policy(hub, tmp_path):
     (tmp_path / "commits.json").write_text(json.dumps([c.sha for c in commits]))
     n_requests = len(hub.log)
     _client("reload", hub, tmp_path, tmp_path / "home_reload")
-    # Resolved = HEAD (metadata) then GET unless the blob is already cached (the two stats files are identical).
+    # Resolved = HEAD (metadata) then GET unless the blob is already cached (the two stats files are
+    # identical).
     downloads = [p for m, p in hub.log[n_requests:] if m in ("HEAD", "GET") and "/resolve/" in p]
     assert any(p.endswith("/model.safetensors") for m, p in hub.log[n_requests:] if m == "GET")
-    for name in ("config.json", "model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json",
-                 *stats_files):
+    for name in (
+        "config.json",
+        "model.safetensors",
+        "policy_preprocessor.json",
+        "policy_postprocessor.json",
+        *stats_files,
+    ):
         assert any(p.endswith(f"/{name}") for p in downloads), f"{name} was not resolved: {downloads}"
     # The reload of commit 1 (push_to_hub alone) asked for that revision.
     assert any(f"/resolve/{first.sha}/model.safetensors" in p for p in downloads)
@@ -110,7 +127,8 @@ def test_push_to_hub_uploads_a_complete_loadable_policy(hub, tmp_path):
 
 
 def _check_model_card(card: str) -> None:
-    """The card tells a reader what the policy is, how to install it, train it in two stages and evaluate it."""
+    """The card tells a reader what the policy is, how to install it, train it in two stages and evaluate
+    it."""
     assert "library_name: lerobot" in card and "model_name: ccdp" in card and "- ccdp" in card
     assert "local/reaching2d" in card  # the training dataset, in the metadata
     assert "not recognized" not in card
@@ -125,7 +143,8 @@ def _check_model_card(card: str) -> None:
     assert "recovery head trained" in card and "failure feature `primitive`" in card
 
 
-# ----- the client side (run in a subprocess: python tests/policy/test_hub_push.py push|reload REPO_ID WORK) ------
+# ----- the client side --------------------------------------------------------------------------------
+# (run in a subprocess: python tests/policy/test_hub_push.py push|reload REPO_ID WORK)
 
 
 def _loopback_only_http_backend() -> None:
@@ -168,7 +187,11 @@ def _make_policy_and_processors():
     config = CCDPConfig(
         input_features={"observation.state": PolicyFeature(FeatureType.STATE, (2,))},
         output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))},
-        device="cpu", failure_feature="primitive", num_primitives=4, push_to_hub=True, repo_id=REPO_ID,
+        device="cpu",
+        failure_feature="primitive",
+        num_primitives=4,
+        push_to_hub=True,
+        repo_id=REPO_ID,
     )
     policy = CCDPPolicy(config)
     # A checkpoint as after both stages: an outcome table (kept in the state dict) and a trained eps_z.
@@ -176,10 +199,18 @@ def _make_policy_and_processors():
     policy.model.outcomes.fill(torch.randn(n, chunk), torch.randn(n, 2), torch.randint(0, 4, (n,)))
     policy.model.recovery_trained.fill_(True)
     stats = {
-        "observation.state": {"min": torch.tensor([-1.1, -1.2]), "max": torch.tensor([1.3, 1.4]),
-                              "mean": torch.tensor([0.1, 0.2]), "std": torch.tensor([0.5, 0.6])},
-        "action": {"min": torch.tensor([-1.0, -0.9]), "max": torch.tensor([1.05, 0.95]),
-                   "mean": torch.tensor([0.0, 0.1]), "std": torch.tensor([0.4, 0.45])},
+        "observation.state": {
+            "min": torch.tensor([-1.1, -1.2]),
+            "max": torch.tensor([1.3, 1.4]),
+            "mean": torch.tensor([0.1, 0.2]),
+            "std": torch.tensor([0.5, 0.6]),
+        },
+        "action": {
+            "min": torch.tensor([-1.0, -0.9]),
+            "max": torch.tensor([1.05, 0.95]),
+            "mean": torch.tensor([0.0, 0.1]),
+            "std": torch.tensor([0.4, 0.45]),
+        },
     }
     preprocessor, postprocessor = make_ccdp_pre_post_processors(config, stats)
     return policy, preprocessor, postprocessor
@@ -192,11 +223,15 @@ def _push(repo_id: str, work: Path) -> None:
 
     policy, preprocessor, postprocessor = _make_policy_and_processors()
     policy.push_to_hub(repo_id)
-    policy.push_model_to_hub(TrainPipelineConfig(dataset=DatasetConfig(repo_id="local/reaching2d"), policy=policy.config))
+    policy.push_model_to_hub(
+        TrainPipelineConfig(dataset=DatasetConfig(repo_id="local/reaching2d"), policy=policy.config)
+    )
     preprocessor.push_to_hub(repo_id)
     postprocessor.push_to_hub(repo_id)
     # References for the reload.
-    save_file({k: v.contiguous() for k, v in policy.state_dict().items()}, str(work / "ref_policy.safetensors"))
+    save_file(
+        {k: v.contiguous() for k, v in policy.state_dict().items()}, str(work / "ref_policy.safetensors")
+    )
     policy.config.save_pretrained(work / "ref")
     save_file(preprocessor.steps[-1].state_dict(), str(work / "ref_pre.safetensors"))
     save_file(postprocessor.steps[0].state_dict(), str(work / "ref_post.safetensors"))
@@ -232,8 +267,10 @@ def _reload(repo_id: str, work: Path) -> None:
 
     pre = PolicyProcessorPipeline.from_pretrained(repo_id, config_filename="policy_preprocessor.json")
     post = PolicyProcessorPipeline.from_pretrained(
-        repo_id, config_filename="policy_postprocessor.json",
-        to_transition=policy_action_to_transition, to_output=transition_to_policy_action,
+        repo_id,
+        config_filename="policy_postprocessor.json",
+        to_transition=policy_action_to_transition,
+        to_output=transition_to_policy_action,
     )
     for pipeline, ref_file in ((pre, "ref_pre.safetensors"), (post, "ref_post.safetensors")):
         ref = load_file(str(work / ref_file))

@@ -45,10 +45,14 @@ def dummy_dataset_metadata(request, tmp_path) -> LeRobotDatasetMetadata:
         OBS_STATE: {"dtype": "float32", "shape": (6,), "names": JOINTS},
     }
     if request.param == "camera":
-        features[f"{OBS_IMAGES}.laptop"] = {"dtype": "video", "shape": (84, 84, 3),
-                                            "names": ["height", "width", "channels"]}
-    return LeRobotDatasetMetadata.create("dummy/repo", fps=30, features=features, root=tmp_path / "init",
-                                         use_videos=True)
+        features[f"{OBS_IMAGES}.laptop"] = {
+            "dtype": "video",
+            "shape": (84, 84, 3),
+            "names": ["height", "width", "channels"],
+        }
+    return LeRobotDatasetMetadata.create(
+        "dummy/repo", fps=30, features=features, root=tmp_path / "init", use_videos=True
+    )
 
 
 def _default_config_for(meta: LeRobotDatasetMetadata):
@@ -62,7 +66,9 @@ def _default_config_for(meta: LeRobotDatasetMetadata):
 def test_get_policy_and_config_classes():
     policy_cls, config = get_policy_class("ccdp"), make_policy_config("ccdp")
     assert policy_cls.name == "ccdp"
-    assert issubclass(config.__class__, inspect.signature(policy_cls.__init__).parameters["config"].annotation)
+    assert issubclass(
+        config.__class__, inspect.signature(policy_cls.__init__).parameters["config"].annotation
+    )
 
 
 def test_policy_defaults(dummy_dataset_metadata):
@@ -85,8 +91,12 @@ def demos(request, tmp_path_factory) -> tuple[str, LeRobotDataset]:
     """Four expert demos of the door task, observed through its front camera or as state."""
     obs_type = request.param
     root = tmp_path_factory.mktemp(f"contract_{obs_type}") / "demos"
-    recipe = RecordRecipe(task=TASK, n_episodes=4, seed=0, env_kwargs={"obs_type": obs_type, "observation_width": 32,
-                                                                       "observation_height": 32})
+    recipe = RecordRecipe(
+        task=TASK,
+        n_episodes=4,
+        seed=0,
+        env_kwargs={"obs_type": obs_type, "observation_width": 32, "observation_height": 32},
+    )
     record_dataset(recipe, "local/contract", root, progress=False)
     return obs_type, root
 
@@ -94,13 +104,27 @@ def demos(request, tmp_path_factory) -> tuple[str, LeRobotDataset]:
 @pytest.mark.parametrize("n_obs_steps", [1, 2])
 def test_policy(demos, n_obs_steps):
     obs_type, root = demos
-    config = make_policy_config("ccdp", n_obs_steps=n_obs_steps, history_length=1, down_dims=(16, 32),
-                                horizon=8, n_action_steps=4, failure_feature="primitive", num_primitives=2,
-                                spatial_softmax_num_keypoints=8, vision_backbone_stages=2, push_to_hub=False,
-                                device="cpu")
+    config = make_policy_config(
+        "ccdp",
+        n_obs_steps=n_obs_steps,
+        history_length=1,
+        down_dims=(16, 32),
+        horizon=8,
+        n_action_steps=4,
+        failure_feature="primitive",
+        num_primitives=2,
+        spatial_softmax_num_keypoints=8,
+        vision_backbone_stages=2,
+        push_to_hub=False,
+        device="cpu",
+    )
     meta = LeRobotDatasetMetadata("local/contract", root=root)
-    dataset = LeRobotDataset("local/contract", root=root, delta_timestamps=resolve_delta_timestamps(config, meta),
-                             video_backend=video_backend())
+    dataset = LeRobotDataset(
+        "local/contract",
+        root=root,
+        delta_timestamps=resolve_delta_timestamps(config, meta),
+        video_backend=video_backend(),
+    )
     policy = make_policy(config, ds_meta=meta)
     assert isinstance(policy, PreTrainedPolicy)
     assert (policy.model.images is not None) == (obs_type == "pixels_agent_pos")
@@ -117,18 +141,23 @@ def test_policy(demos, n_obs_steps):
         optimizer.step()
         optimizer.zero_grad()
         assert set(batch) == set(batch_), "Batch keys are not the same after a forward pass."
-        assert all(torch.equal(batch[k], batch_[k]) if isinstance(batch[k], torch.Tensor) else batch[k] == batch_[k]
-                   for k in batch), "Batch values are not the same after a forward pass."
+        assert all(
+            torch.equal(batch[k], batch_[k]) if isinstance(batch[k], torch.Tensor) else batch[k] == batch_[k]
+            for k in batch
+        ), "Batch values are not the same after a forward pass."
     after = [p for p in policy.parameters() if p.requires_grad]
     assert any(not torch.equal(a, b) for a, b in zip(after, before, strict=True)), "training updated nothing"
     if policy.model.images is not None:
         encoder = dict(policy.named_parameters())
-        assert any(k.startswith("model.images.") for k in encoder), "the camera encoder trains with the base stage"
+        assert any(k.startswith("model.images.") for k in encoder), (
+            "the camera encoder trains with the base stage"
+        )
 
     policy.eval()
     policy.reset()
-    env_config = CCDPEnvConfig(task=TASK, obs_type=obs_type, render_mode=None, observation_width=32,
-                               observation_height=32)
+    env_config = CCDPEnvConfig(
+        task=TASK, obs_type=obs_type, render_mode=None, observation_width=32, observation_height=32
+    )
     envs = make_env(env_config, n_envs=2)
     env = next(iter(next(iter(envs.values())).values()))
     try:
@@ -139,8 +168,11 @@ def test_policy(demos, n_obs_steps):
             with torch.inference_mode():
                 action = postprocessor(policy.select_action(observation))
             assert set(observation) == set(observation_)
-            assert all(torch.equal(observation[k], observation_[k]) for k in observation
-                       if isinstance(observation[k], torch.Tensor))
+            assert all(
+                torch.equal(observation[k], observation_[k])
+                for k in observation
+                if isinstance(observation[k], torch.Tensor)
+            )
             assert action.shape == (2, 4) and torch.isfinite(action).all()
             observation, *_ = env.step(action.numpy())
     finally:

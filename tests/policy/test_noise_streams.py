@@ -1,5 +1,5 @@
-"""Common random numbers (`row_noise_streams`): DP, DP* and CCDP draw the same noise for the same episode, whatever
-noise the other rows or earlier rollouts consumed, and a row without a failure plans as DP does."""
+"""Common random numbers (`row_noise_streams`): DP, DP* and CCDP draw the same noise for the same episode,
+whatever noise the other rows or earlier rollouts consumed, and a row without a failure plans as DP does."""
 
 import pytest
 import torch
@@ -15,8 +15,10 @@ def rollouts(mode: str, streams: bool) -> dict[str, torch.Tensor]:
     """Plans of two rollouts of a fresh policy (seed 7): the first plan, the plan after row 0 failed (DP*'s
     candidates and CCDP's redraws consume extra noise there) and the next rollout's first plan."""
     torch.manual_seed(7)
-    policy = make_policy(recovery_mode=mode, row_noise_streams=streams, dp_star_candidates=4, ccdp_redraws=2,
-                         delta_z=1e9)  # every candidate repeats the failure: DP* and CCDP draw all their rounds
+    # every candidate repeats the failure: DP* and CCDP draw all their rounds
+    policy = make_policy(
+        recovery_mode=mode, row_noise_streams=streams, dp_star_candidates=4, ccdp_redraws=2, delta_z=1e9
+    )
     policy.model.recovery_trained.fill_(True)
     obs = {"observation.state": torch.zeros(ROWS, 2)}
     with torch.inference_mode():
@@ -42,7 +44,8 @@ def test_every_method_draws_the_same_noise_for_the_same_episode():
 
 
 def test_without_row_streams_the_extra_draws_of_dp_star_shift_the_next_rollout():
-    """LeRobot's behaviour, the default: one global generator, so DP*'s candidates change DP*'s later plans."""
+    """LeRobot's behaviour, the default: one global generator, so DP*'s candidates change DP*'s later
+    plans."""
     dp, dp_star = rollouts("dp", streams=False), rollouts("dp_star", streams=False)
     torch.testing.assert_close(dp_star["first"], dp["first"])
     assert not torch.allclose(dp_star["second"], dp["second"], atol=1e-3)

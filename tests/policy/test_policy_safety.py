@@ -1,9 +1,9 @@
 """Adversarial inputs to the policy, as a careful user and a hostile checkpoint author would try them.
 
-A checkpoint never makes the policy delete or watch a file; every non-finite setting, input, z and batch is refused
-where it enters; a training that cannot work is refused before its first step; a config error is the last line
-of a LeRobot command's output (issue "Nothing a user types destroys data"). The NaN observation was refused
-before; every other test here failed (or, for the short dataset, hung) before that issue's change.
+A checkpoint never makes the policy delete or watch a file; every non-finite setting, input, z and batch is
+refused where it enters; a training that cannot work is refused before its first step; a config error is the
+last line of a LeRobot command's output (issue "Nothing a user types destroys data"). The NaN observation was
+refused before; every other test here failed (or, for the short dataset, hung) before that issue's change.
 """
 
 import json
@@ -45,17 +45,19 @@ def _crafted(checkpoint, tmp_path, **fields):
 
 
 def _load_as_lerobot_does(checkpoint, reaching_root, *cli_overrides):
-    """lerobot-eval / lerobot-record: the config with the command line's overrides, then LeRobot's make_policy."""
+    """lerobot-eval / lerobot-record: the config with the command line's overrides, then LeRobot's
+    make_policy."""
     config = PreTrainedConfig.from_pretrained(checkpoint, cli_overrides=list(cli_overrides))
     config.pretrained_path = checkpoint
     return lerobot_make_policy(config, ds_meta=LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root))
 
 
-# ----- a checkpoint cannot name a file ----------------------------------------------------------------------------
+# ----- a checkpoint cannot name a file ----------------------------------------------------------------------
 
 
-def test_a_checkpoint_naming_a_signal_file_neither_deletes_nor_watches_it(untrained_primitive_checkpoint, reaching_root, tmp_path,
-                                                                        caplog):
+def test_a_checkpoint_naming_a_signal_file_neither_deletes_nor_watches_it(
+    untrained_primitive_checkpoint, reaching_root, tmp_path, caplog
+):
     victim = tmp_path / "thesis.tex"
     victim.write_text("years of work")
     crafted = _crafted(untrained_primitive_checkpoint, tmp_path, failure_signal_file=str(victim))
@@ -66,16 +68,21 @@ def test_a_checkpoint_naming_a_signal_file_neither_deletes_nor_watches_it(untrai
     assert any("cannot choose a file" in r.getMessage() for r in caplog.records)
 
 
-def test_the_signal_file_comes_from_the_command_line_and_is_never_saved(untrained_primitive_checkpoint, reaching_root, tmp_path):
+def test_the_signal_file_comes_from_the_command_line_and_is_never_saved(
+    untrained_primitive_checkpoint, reaching_root, tmp_path
+):
     signal = tmp_path / "ccdp_failed"
-    policy = _load_as_lerobot_does(untrained_primitive_checkpoint, reaching_root, f"--failure_signal_file={signal}")
+    policy = _load_as_lerobot_does(
+        untrained_primitive_checkpoint, reaching_root, f"--failure_signal_file={signal}"
+    )
     assert policy.failure_signal is not None and policy.failure_signal.path == signal
     policy.save_pretrained(tmp_path / "saved")
     assert json.loads((tmp_path / "saved" / "config.json").read_text())["failure_signal_file"] is None
-    assert policy.config.failure_signal_file == str(signal)  # saving leaves the running policy's setting alone
+    # saving leaves the running policy's setting alone
+    assert policy.config.failure_signal_file == str(signal)
 
 
-# ----- the signal file: read, never deleted ------------------------------------------------------------------------
+# ----- the signal file: read, never deleted -----------------------------------------------------------------
 
 
 def test_an_existing_signal_file_with_content_is_kept_and_is_no_failure(tmp_path):
@@ -111,7 +118,7 @@ def test_a_signal_file_that_becomes_a_folder_mid_episode_warns_once_and_acts_on(
     assert policy.failure_count().tolist() == [0]
 
 
-# ----- non-finite numbers ------------------------------------------------------------------------------------------
+# ----- non-finite numbers -----------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("name", ["w_s", "w_z", "w_h", "delta_z", "optimizer_lr", "crop_ratio"])
@@ -127,14 +134,17 @@ def test_a_chunk_size_of_zero_is_refused(name):
         CCDPConfig(**{name: 0})
 
 
-@pytest.mark.parametrize("overrides,message", [
-    ({"delta_z": -0.1}, "`delta_z`"),
-    ({"down_dims": ()}, "`down_dims`"),
-    ({"kernel_size": 0}, "`kernel_size`"),
-    ({"dp_star_candidates": 0}, "`dp_star_candidates`"),
-    ({"scheduler_warmup_steps": -5}, "`scheduler_warmup_steps`"),
-    ({"num_train_timesteps": 5, "num_inference_steps": 10}, "cannot exceed `num_train_timesteps`"),
-])
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        ({"delta_z": -0.1}, "`delta_z`"),
+        ({"down_dims": ()}, "`down_dims`"),
+        ({"kernel_size": 0}, "`kernel_size`"),
+        ({"dp_star_candidates": 0}, "`dp_star_candidates`"),
+        ({"scheduler_warmup_steps": -5}, "`scheduler_warmup_steps`"),
+        ({"num_train_timesteps": 5, "num_inference_steps": 10}, "cannot exceed `num_train_timesteps`"),
+    ],
+)
 def test_a_size_that_would_fail_later_is_refused_at_once(overrides, message):
     """Each of these built a policy that failed at construction, at the first sample or after training."""
     with pytest.raises(ValueError, match=message):
@@ -184,18 +194,24 @@ def test_report_failure_refuses_negative_rows_and_takes_an_empty_list_as_no_fail
     assert policy.failure_count().tolist() == [0, 0, 0]
 
 
-# ----- trainings that cannot work, refused before the first step ---------------------------------------------------
+# ----- trainings that cannot work, refused before the first step --------------------------------------------
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True,
-                          env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    return subprocess.run(
+        [str(BIN / args[0]), *args[1:]],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+    )
 
 
 def test_lerobot_train_refuses_a_dataset_shorter_than_a_chunk(reaching_root, tmp_path):
-    """Its 32-frame episodes leave no window for a 48-step chunk: lerobot-train used to wait for a batch forever."""
-    result = _run(*train_args(reaching_root, tmp_path / "out", 10, "--policy.horizon=48",
-                              "--policy.n_action_steps=1"))
+    """Its 32-frame episodes leave no window for a 48-step chunk: lerobot-train used to wait for a batch
+    forever."""
+    result = _run(
+        *train_args(reaching_root, tmp_path / "out", 10, "--policy.horizon=48", "--policy.n_action_steps=1")
+    )
     assert result.returncode != 0
     assert "no frame to train on" in result.stderr.strip().splitlines()[-1]
 
@@ -218,7 +234,9 @@ def test_lerobot_train_stops_on_nan_actions_its_stats_do_not_show(reaching_root,
 
 def test_the_recovery_stage_without_a_base_is_refused_as_lerobot_train_builds_it(reaching_root):
     """lerobot-train without --policy.path: LeRobot's make_policy builds a fresh policy for the dataset."""
-    config = CCDPConfig(training_stage="recovery", failure_feature="primitive", num_primitives=4, device="cpu")
+    config = CCDPConfig(
+        training_stage="recovery", failure_feature="primitive", num_primitives=4, device="cpu"
+    )
     with pytest.raises(ValueError, match=r"--policy.path=<base run>/checkpoints"):
         lerobot_make_policy(config, ds_meta=LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root))
 
@@ -229,22 +247,28 @@ def test_a_config_error_is_the_last_line_of_lerobot_train(reaching_root, tmp_pat
     assert result.stderr.strip().splitlines()[-1].startswith("ValueError: `w_z` must be a finite number")
 
 
-# ----- a checkpoint of another kind ---------------------------------------------------------------------------------
+# ----- a checkpoint of another kind -------------------------------------------------------------------------
 
 
 def test_a_checkpoint_of_another_action_size_names_both_layouts(untrained_primitive_checkpoint):
     config = PreTrainedConfig.from_pretrained(untrained_primitive_checkpoint)
-    config.output_features = {"action": PolicyFeature(FeatureType.ACTION, (7,))}  # what make_policy sets from an env
+    # what make_policy sets from an env
+    config.output_features = {"action": PolicyFeature(FeatureType.ACTION, (7,))}
     with pytest.raises(ValueError, match=r"action \(2,\).*action \(7,\)"):
         CCDPPolicy.from_pretrained(untrained_primitive_checkpoint, config=config)
 
 
 def test_a_diffusion_checkpoint_is_refused_by_name(tmp_path):
     config = DiffusionConfig(
-        input_features={"observation.state": PolicyFeature(FeatureType.STATE, (2,)),
-                        "observation.environment_state": PolicyFeature(FeatureType.ENV, (2,))},
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))}, device="cpu",
-        down_dims=(8, 16), horizon=16)
+        input_features={
+            "observation.state": PolicyFeature(FeatureType.STATE, (2,)),
+            "observation.environment_state": PolicyFeature(FeatureType.ENV, (2,)),
+        },
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))},
+        device="cpu",
+        down_dims=(8, 16),
+        horizon=16,
+    )
     DiffusionPolicy(config).save_pretrained(tmp_path / "diffusion")
     with pytest.raises(ValueError, match="'diffusion' checkpoint, not a ccdp one"):
         CCDPPolicy.from_pretrained(tmp_path / "diffusion")

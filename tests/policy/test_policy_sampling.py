@@ -64,7 +64,9 @@ def test_sampling_with_analytic_denoisers_reaches_the_composed_mean():
     steps = slice(0, policy.config.n_action_steps)
     for name, (sel, mean) in expected.items():
         got = chunks[sel].mean(dim=0)
-        assert torch.allclose(got, mean[steps], atol=0.03), f"{name}: max error {(got - mean[steps]).abs().max()}"
+        assert torch.allclose(got, mean[steps], atol=0.03), (
+            f"{name}: max error {(got - mean[steps]).abs().max()}"
+        )
 
 
 DEMONSTRATED = torch.tensor([0.4, 0.3, 0.2, 0.1])  # preference over four modes, as on the 2-D task
@@ -142,7 +144,8 @@ def mixture_policy(**overrides):
 
 
 def mode_shares(policy, modes, failed: list[int], rows: int = 1024) -> torch.Tensor:
-    """Share of each mode among `rows` chunks planned after the modes `failed` were reported, in that order."""
+    """Share of each mode among `rows` chunks planned after the modes `failed` were reported, in that
+    order."""
     obs = {"observation.state": torch.zeros(rows, 2)}
     policy.reset()
     policy.predict_action_chunk(obs)
@@ -155,10 +158,10 @@ def mode_shares(policy, modes, failed: list[int], rows: int = 1024) -> torch.Ten
 
 
 def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_failed_in_proportion():
-    """With the exact noisy-chunk classifier, guidance (under LeRobot's inference mode) draws the remaining modes in
-    their demonstrated proportions after one and after two failures, unlike the per-failure sums of eq. (4) below,
-    asking about each distinct failure (a repeated failure counts once); in a batch where only some rows failed, the
-    others keep the base's shares."""
+    """With the exact noisy-chunk classifier, guidance (under LeRobot's inference mode) draws the remaining
+    modes in their demonstrated proportions after one and after two failures, unlike the per-failure sums of
+    eq. (4) below, asking about each distinct failure (a repeated failure counts once); in a batch where only
+    some rows failed, the others keep the base's shares."""
     policy, modes = mixture_policy(recovery_head="classifier")
     torch.manual_seed(1)
     for failed in ([0], [0, 1], [2], [1, 3, 1]):
@@ -176,14 +179,17 @@ def test_classifier_guidance_of_exact_mixtures_samples_everything_but_what_faile
     policy.report_failure(rows=list(range(rows // 2)), z=policy.model.feature.one_hot(torch.zeros(rows // 2)))
     chunks = policy.predict_action_chunk(obs)
     nearest = ((chunks[:, None] - modes[None, :, : chunks.shape[1]]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
-    failed_rows, fresh_rows = (torch.bincount(part, minlength=4) / (rows // 2) for part in nearest.split(rows // 2))
+    failed_rows, fresh_rows = (
+        torch.bincount(part, minlength=4) / (rows // 2) for part in nearest.split(rows // 2)
+    )
     assert failed_rows[0] < 0.02 and (fresh_rows - DEMONSTRATED).abs().max() < 0.05, (failed_rows, fresh_rows)
 
 
 def test_ccdp_redraws_drop_repeats_and_keep_the_remaining_shares():
-    """ccdp_redraws: a row whose chunk repeats a failure (its outcome looked up as DP* does) plans again. With the
-    guidance off (w_z = 0) CCDP samples the base, and three redraws leave about 0.4^4 of the failed mode's 0.4 while
-    the other modes keep their demonstrated proportions; without redraws the failed mode keeps its 0.4."""
+    """ccdp_redraws: a row whose chunk repeats a failure (its outcome looked up as DP* does) plans again. With
+    the guidance off (w_z = 0) CCDP samples the base, and three redraws leave about 0.4^4 of the failed mode's
+    0.4 while the other modes keep their demonstrated proportions; without redraws the failed mode keeps its
+    0.4."""
     shares = {}
     for redraws in (0, 3):
         policy, modes = mixture_policy(recovery_head="classifier", w_z=0.0, ccdp_redraws=redraws)
@@ -191,7 +197,10 @@ def test_ccdp_redraws_drop_repeats_and_keep_the_remaining_shares():
         torch.manual_seed(2)
         with torch.inference_mode():
             shares[redraws] = mode_shares(policy, modes, [0])
-    print("shares after mode 0 failed, by redraws:", {k: [round(x, 3) for x in v.tolist()] for k, v in shares.items()})
+    print(
+        "shares after mode 0 failed, by redraws:",
+        {k: [round(x, 3) for x in v.tolist()] for k, v in shares.items()},
+    )
     assert abs(shares[0][0] - DEMONSTRATED[0]) < 0.05
     assert shares[3][0] < 0.05
     remaining = DEMONSTRATED[1:] / DEMONSTRATED[1:].sum()
@@ -200,7 +209,9 @@ def test_ccdp_redraws_drop_repeats_and_keep_the_remaining_shares():
 
 @pytest.mark.parametrize("w_z", [1.0, 3.0])
 @pytest.mark.parametrize("z_reference", ["eps_a", "eps_z_null"])
-def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_preference_order(z_reference, w_z):
+def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_preference_order(
+    z_reference, w_z
+):
     """With exact noise estimates, what is left is the sampler's own error: eq. (4) is the score of a product
     only at zero noise. The shares are printed (`pytest -s -k exact_mixtures`): the exact answer after mode 0
     failed is 0 / 0.50 / 0.33 / 0.17; only the paper's form at w_z = 1 gives it (eps_z_null over-weights the
@@ -212,21 +223,33 @@ def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_p
 
     dp, one, two = shares([]), shares([0]), shares([0, 1])
     rounded = [[round(x, 2) for x in shares.tolist()] for shares in (dp, one, two)]
-    report = f"{z_reference} w_z={w_z}: no failure {rounded[0]}, after mode 0 {rounded[1]}, after modes 0 and 1 {rounded[2]}"
+    report = (
+        f"{z_reference} w_z={w_z}: no failure {rounded[0]}, after mode 0 {rounded[1]}, "
+        f"after modes 0 and 1 {rounded[2]}"
+    )
     print(report)
     assert (dp - DEMONSTRATED).abs().max() < 0.05, report
     assert one[0] < 0.02 and one[1] > one[2] > one[3], report
     assert two[0] + two[1] < 0.2 and two[2] > two[3], report
 
 
-@pytest.mark.parametrize("mode, head", [("ccdp", {}), ("dp", {}), ("ccdp", {"recovery_head": "classifier"}),
-                                        ("ccdp", {"recovery_head": "set_denoiser"})])
+@pytest.mark.parametrize(
+    "mode, head",
+    [
+        ("ccdp", {}),
+        ("dp", {}),
+        ("ccdp", {"recovery_head": "classifier"}),
+        ("ccdp", {"recovery_head": "set_denoiser"}),
+    ],
+)
 def test_network_calls_per_step_do_not_grow_with_failures(mode, head):
     policy = make_policy(recovery_mode=mode, w_h=0.5, history_length=2, **head)
     policy.model.recovery_trained.fill_(True)
     calls = {"base": 0, "recovery": 0}
     policy.model.base.register_forward_hook(lambda *_: calls.__setitem__("base", calls["base"] + 1))
-    policy.model.recovery.register_forward_hook(lambda *_: calls.__setitem__("recovery", calls["recovery"] + 1))
+    policy.model.recovery.register_forward_hook(
+        lambda *_: calls.__setitem__("recovery", calls["recovery"] + 1)
+    )
     obs = {"observation.state": torch.zeros(2, 2)}
     steps = policy.config.num_inference_steps
     counts = {}
@@ -259,7 +282,9 @@ def test_failure_flag_replans_only_the_failed_row_and_reset_forgets():
     torch.testing.assert_close(action[[0, 2]], plan_before[[0, 2], 3])
     assert not torch.equal(policy._memory.plan[1], plan_before[1])
     # The failed row restarted its windows at the current frame, as at an episode start.
-    torch.testing.assert_close(policy._memory.frames[1], obs["observation.state"][1].expand_as(policy._memory.frames[1]))
+    torch.testing.assert_close(
+        policy._memory.frames[1], obs["observation.state"][1].expand_as(policy._memory.frames[1])
+    )
     assert len(first) == 3
     policy.reset()
     policy.select_action(obs)
@@ -270,19 +295,29 @@ def test_failure_feature_of_a_flagged_failure_is_the_state_before_it():
     policy = make_policy(failure_feature="final_state", failure_state_dims=[1])
     before = torch.tensor([[0.1, 0.7], [0.2, -0.4]])
     policy.select_action({"observation.state": before})
-    policy.select_action({"observation.state": torch.zeros(2, 2), "observation.failure": torch.tensor([[1.0], [1.0]])})
+    policy.select_action(
+        {"observation.state": torch.zeros(2, 2), "observation.failure": torch.tensor([[1.0], [1.0]])}
+    )
     z, mask = policy._failures.padded()
     assert mask.all() and z[:, 0, 0].tolist() == pytest.approx([0.7, -0.4])
 
 
-def test_demonstrated_end_z_is_where_the_followed_demonstration_ended_not_where_the_attempt_stopped(monkeypatch):
+def test_demonstrated_end_z_is_where_the_followed_demonstration_ended_not_where_the_attempt_stopped(
+    monkeypatch,
+):
     """A pick that slips mid-lift stops far from where any pick is demonstrated to end; with
-    `failure_state_at="demonstrated_end"` its z is the end of the demonstration whose chunk it was executing."""
-    policy = make_policy(failure_feature="final_state", failure_state_dims=[1], n_action_steps=2,
-                         failure_state_at="demonstrated_end")
+    `failure_state_at="demonstrated_end"` its z is the end of the demonstration whose chunk it was
+    executing."""
+    policy = make_policy(
+        failure_feature="final_state",
+        failure_state_dims=[1],
+        n_action_steps=2,
+        failure_state_at="demonstrated_end",
+    )
     towards = torch.stack([torch.full((HORIZON, ACTION_DIM), -1.0), torch.full((HORIZON, ACTION_DIM), 1.0)])
     policy.model.outcomes.fill(towards, torch.tensor([[-0.8], [0.6]]), torch.tensor([0, 0]))
-    planned = iter([towards[:1] * 0.9, towards[1:] * 0.9, towards[:1] * 0.9])  # the last one after the failure
+    # the last one after the failure
+    planned = iter([towards[:1] * 0.9, towards[1:] * 0.9, towards[:1] * 0.9])
     monkeypatch.setattr(policy, "_sample", lambda rows, noise: next(planned))
     obs = {"observation.state": torch.tensor([[0.0, 0.3]])}
     for _ in range(3):  # plans the first chunk, executes it, then re-plans towards the second demonstration
@@ -293,10 +328,14 @@ def test_demonstrated_end_z_is_where_the_followed_demonstration_ended_not_where_
 
 
 @pytest.mark.parametrize("feature", ["primitive", "action"])
-def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_from_the_first(monkeypatch, feature):
+def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_from_the_first(
+    monkeypatch, feature
+):
     """An attempt whose first chunk heads to option 0 and whose re-planned chunk reaches option 1 failed at
     option 1: `primitive` z names option 1, while `action` z stays the chunk that chose the option."""
-    policy = make_policy(failure_feature=feature, primitive_key="primitive", num_primitives=2, n_action_steps=2)
+    policy = make_policy(
+        failure_feature=feature, primitive_key="primitive", num_primitives=2, n_action_steps=2
+    )
     towards = torch.stack([torch.full((HORIZON, ACTION_DIM), -1.0), torch.full((HORIZON, ACTION_DIM), 1.0)])
     policy.model.outcomes.fill(towards, torch.zeros(2, 1), torch.tensor([0, 1]))
     planned = iter([towards[:1] * 0.9, towards[1:] * 0.9])
@@ -306,7 +345,11 @@ def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_
         policy.select_action(obs)
     policy.report_failure()
     z, mask = policy._failures.padded()
-    expected = policy.model.feature.one_hot(torch.tensor([1])) if feature == "primitive" else towards[0].flatten()[None] * 0.9
+    expected = (
+        policy.model.feature.one_hot(torch.tensor([1]))
+        if feature == "primitive"
+        else towards[0].flatten()[None] * 0.9
+    )
     assert mask.all()
     torch.testing.assert_close(z[:, 0], expected)
 

@@ -1,10 +1,11 @@
 """A failure reaches ccdp inside lerobot-record's loop through `--policy.failure_signal_file`.
 
-The policy and processors are made exactly as `lerobot-record --policy.path=... --policy.failure_signal_file=...`
-makes them (config with the CLI override, make_policy on the new recording dataset's metadata,
-make_pre_post_processors), and LeRobot's own `record_loop` drives a simulated 2-D robot with the methods the
-loop calls (get_observation, send_action, robot_type). The robot's "detector" creates the file mid-episode,
-as a robot owner's script or key handler would.
+The policy and processors are made exactly as
+`lerobot-record --policy.path=... --policy.failure_signal_file=...` makes them (config with the CLI override,
+make_policy on the new recording dataset's metadata, make_pre_post_processors), and LeRobot's own
+`record_loop` drives a simulated 2-D robot with the methods the loop calls (get_observation, send_action,
+robot_type). The robot's "detector" creates the file mid-episode, as a robot owner's script or key handler
+would.
 """
 
 import logging
@@ -65,23 +66,38 @@ def _record_setup(action_checkpoint: Path, tmp_path: Path, *overrides: str):
     config = PreTrainedConfig.from_pretrained(action_checkpoint, cli_overrides=list(overrides))
     config.pretrained_path = action_checkpoint
     features = {**hw_to_dataset_features(MOTORS, ACTION), **hw_to_dataset_features(MOTORS, OBS_STR)}
-    dataset = LeRobotDataset.create(f"{REACHING_REPO_ID}_eval", fps=FPS, features=features,
-                                    root=tmp_path / "recording", use_videos=False)
+    dataset = LeRobotDataset.create(
+        f"{REACHING_REPO_ID}_eval", fps=FPS, features=features, root=tmp_path / "recording", use_videos=False
+    )
     policy = make_policy(config, ds_meta=dataset.meta)
     pre, post = make_pre_post_processors(
-        policy_cfg=config, pretrained_path=config.pretrained_path, dataset_stats=dataset.meta.stats,
-        preprocessor_overrides={"device_processor": {"device": config.device},
-                                "rename_observations_processor": {"rename_map": {}}},
+        policy_cfg=config,
+        pretrained_path=config.pretrained_path,
+        dataset_stats=dataset.meta.stats,
+        preprocessor_overrides={
+            "device_processor": {"device": config.device},
+            "rename_observations_processor": {"rename_map": {}},
+        },
     )
     return policy, pre, post, dataset
 
 
 def _episode(robot: SimReacher, events: dict, policy, pre, post, dataset) -> None:
     teleop_action, robot_action, robot_observation = make_default_processors()
-    record_loop(robot=robot, events=events, fps=FPS, teleop_action_processor=teleop_action,
-                robot_action_processor=robot_action, robot_observation_processor=robot_observation,
-                dataset=dataset, policy=policy, preprocessor=pre, postprocessor=post,
-                control_time_s=10_000, single_task="reach")  # the robot ends the episode, not the clock
+    record_loop(
+        robot=robot,
+        events=events,
+        fps=FPS,
+        teleop_action_processor=teleop_action,
+        robot_action_processor=robot_action,
+        robot_observation_processor=robot_observation,
+        dataset=dataset,
+        policy=policy,
+        preprocessor=pre,
+        postprocessor=post,
+        control_time_s=10_000,  # the robot ends the episode, not the clock
+        single_task="reach",
+    )
 
 
 def test_a_failure_signal_file_reaches_ccdp_inside_lerobot_record(action_checkpoint, tmp_path):

@@ -53,8 +53,8 @@ def test_failure_buffer_stays_bounded_when_reporting_outside_the_acting_mode(act
 
 
 def test_switching_modes_between_steps_keeps_acting():
-    """A rollout started under inference_mode can go on under no_grad (and back) without a reset, and a failure
-    reported inside the loop's own mode is remembered too."""
+    """A rollout started under inference_mode can go on under no_grad (and back) without a reset, and a
+    failure reported inside the loop's own mode is remembered too."""
     policy = make_policy(n_action_steps=2)
     obs = {"observation.state": torch.zeros(1, 2)}
     for mode in ["inference_mode", "no_grad", "inference_mode", "grad"]:

@@ -1,4 +1,5 @@
-"""The UNet's small CPU batches run on ATen's convolution per call, leaving the process-wide oneDNN switch alone."""
+"""The UNet's small CPU batches run on ATen's convolution per call, leaving the process-wide oneDNN switch
+alone."""
 
 import copy
 import threading
@@ -14,7 +15,11 @@ from lerobot_ccdp.policy.denoisers import BaseDenoiser
 CONFIG = CCDPConfig(
     input_features={"observation.state": PolicyFeature(FeatureType.STATE, (2,))},
     output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))},
-    device="cpu", failure_feature="action", horizon=16, down_dims=(32, 64, 128), diffusion_step_embed_dim=32,
+    device="cpu",
+    failure_feature="action",
+    horizon=16,
+    down_dims=(32, 64, 128),
+    diffusion_step_embed_dim=32,
 )
 
 
@@ -27,9 +32,14 @@ def denoiser() -> BaseDenoiser:
 def inputs(denoiser: BaseDenoiser, rows: int) -> tuple[torch.Tensor, ...]:
     generator = torch.Generator().manual_seed(rows)
     keep = torch.ones(rows, 1)
-    return (torch.randn(rows, 16, 2, generator=generator), torch.full((rows,), 3),
-            torch.randn(rows, denoiser.state_cond_dim, generator=generator), keep,
-            torch.randn(rows, denoiser.history_cond_dim, generator=generator), keep)
+    return (
+        torch.randn(rows, 16, 2, generator=generator),
+        torch.full((rows,), 3),
+        torch.randn(rows, denoiser.state_cond_dim, generator=generator),
+        keep,
+        torch.randn(rows, denoiser.history_cond_dim, generator=generator),
+        keep,
+    )
 
 
 def test_small_batches_leave_the_onednn_switch_on_for_other_threads(denoiser):
@@ -63,7 +73,9 @@ def test_same_results_as_the_stock_unet(denoiser, rows):
     """Bit for bit what the stock UNet gives with oneDNN off (ATen's kernel) at 2-4 rows, and with it on
     otherwise; close to oneDNN's at every size."""
     stock = copy.deepcopy(denoiser)
-    stock.unet = DiffusionConditionalUnet1d(CONFIG, global_cond_dim=denoiser.state_cond_dim + denoiser.history_cond_dim + 2)
+    stock.unet = DiffusionConditionalUnet1d(
+        CONFIG, global_cond_dim=denoiser.state_cond_dim + denoiser.history_cond_dim + 2
+    )
     stock.unet.load_state_dict(denoiser.unet.state_dict())
     args = inputs(denoiser, rows)
     with torch.no_grad():

@@ -50,7 +50,13 @@ def test_trained_policy_reaches_the_demonstrated_goals(trained_checkpoint):
     obs = pre({"observation.state": torch.zeros(1024, 2)})
     chunk = post(policy.predict_action_chunk(obs)).reshape(1024, -1, 2)
     end = chunk[:, -1]  # 0.8 s into the reach
-    distance_to_ray = torch.stack([torch.linalg.norm(end - (end @ g)[:, None] * g, dim=-1) for g in torch.from_numpy(GOALS)]).min(0).values
+    distance_to_ray = (
+        torch.stack(
+            [torch.linalg.norm(end - (end @ g)[:, None] * g, dim=-1) for g in torch.from_numpy(GOALS)]
+        )
+        .min(0)
+        .values
+    )
     # 1024 samples: 0.77 (batch 32, 1000 steps); 128 samples varied 0.69-0.89 over sampling seeds.
     assert (distance_to_ray < 0.15).float().mean() > 0.7
 
@@ -74,7 +80,14 @@ def test_lerobot_train_resume(trained_run, tmp_path):
     config.write_text(json.dumps(cfg))
     run_cli("lerobot-train", f"--config_path={config}", "--resume=true", "--steps=530", "--save_freq=30")
     # Resumed at step 500 (a run from scratch would also have saved 000030 ... 000480).
-    assert sorted(p.name for p in (run / "checkpoints").iterdir() if p.name != "last") == ["000500", "000510", "000530"]
+    assert sorted(p.name for p in (run / "checkpoints").iterdir() if p.name != "last") == [
+        "000500",
+        "000510",
+        "000530",
+    ]
     state = json.loads((run / "checkpoints" / "000530" / "training_state" / "training_step.json").read_text())
     assert state["step"] == 530
-    assert REACHING_REPO_ID in (run / "checkpoints" / "000530" / "pretrained_model" / "train_config.json").read_text()
+    assert (
+        REACHING_REPO_ID
+        in (run / "checkpoints" / "000530" / "pretrained_model" / "train_config.json").read_text()
+    )

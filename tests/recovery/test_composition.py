@@ -12,7 +12,8 @@ import torch
 
 from lerobot_ccdp.recovery.composition import CompositionWeights, compose_eps
 
-SIGMA = 1.0  # noise level of the step: high enough that every mode has weight at x (the mixture weights matter)
+# noise level of the step: high enough that every mode has weight at x (the mixture weights matter)
+SIGMA = 1.0
 SHAPE = (4, 2)  # one action chunk: horizon x action_dim
 
 
@@ -25,7 +26,9 @@ def mixture(weights: list[float], means: torch.Tensor, spread: float = 0.1):
     def log_p(x: torch.Tensor) -> torch.Tensor:
         squared = ((x.unsqueeze(-3) - means) ** 2).sum(dim=(-1, -2))  # (..., K)
         dim = math.prod(SHAPE)
-        return torch.logsumexp(log_w - squared / (2 * variance), dim=-1) - dim / 2 * math.log(2 * math.pi * variance)
+        return torch.logsumexp(log_w - squared / (2 * variance), dim=-1) - dim / 2 * math.log(
+            2 * math.pi * variance
+        )
 
     return log_p
 
@@ -59,9 +62,12 @@ def test_composed_eps_is_the_eps_of_the_product_of_densities(z_reference, w_s, w
     failed = [[0, 1, 2], [1], [], [3, 0], [2]]  # rows remember different failures
     n = max(len(f) for f in failed)
     mask = torch.tensor([[i < len(f) for i in range(n)] for f in failed])
-    eps_z = torch.stack([
-        torch.stack([eps_of(P_Z[f[i] if i < len(f) else 0], x[r]) for i in range(n)]) for r, f in enumerate(failed)
-    ])
+    eps_z = torch.stack(
+        [
+            torch.stack([eps_of(P_Z[f[i] if i < len(f) else 0], x[r]) for i in range(n)])
+            for r, f in enumerate(failed)
+        ]
+    )
     p_ref = P_A if z_reference == "eps_a" else P_Z_NULL
 
     def log_product(a: torch.Tensor) -> torch.Tensor:  # the log of eq. (2), row by row
@@ -72,8 +78,13 @@ def test_composed_eps_is_the_eps_of_the_product_of_densities(z_reference, w_s, w
         return torch.stack(rows)
 
     eps = compose_eps(
-        CompositionWeights(w_s, w_h, w_z, z_reference), eps_of(P_A, x), eps_of(P_S, x), eps_of(P_H, x),
-        eps_z, mask, eps_of(P_Z_NULL, x),
+        CompositionWeights(w_s, w_h, w_z, z_reference),
+        eps_of(P_A, x),
+        eps_of(P_S, x),
+        eps_of(P_H, x),
+        eps_z,
+        mask,
+        eps_of(P_Z_NULL, x),
     )
     torch.testing.assert_close(eps, eps_of(log_product, x))
 
@@ -83,16 +94,22 @@ def test_unconditional_term_may_be_skipped_only_when_its_weight_vanishes():
     weights = CompositionWeights(1.0, 0.0, 1.0)
     assert not weights.uses_unconditional(torch.zeros(4))
     torch.testing.assert_close(compose_eps(weights, None, eps_of(P_S, x)), eps_of(P_S, x))
-    assert weights.uses_unconditional(torch.tensor([0, 1, 0, 0]))  # eq. (4): eps_a's weight is 1 - w_s - w_z N
+    # eq. (4): eps_a's weight is 1 - w_s - w_z N
+    assert weights.uses_unconditional(torch.tensor([0, 1, 0, 0]))
 
 
 def test_failure_terms_against_the_null_estimate_need_it_and_not_eps_a():
     x = torch.randn(3, *SHAPE, dtype=torch.float64)
-    eps_z, mask = torch.stack([eps_of(P_Z[0], x), eps_of(P_Z[1], x)], dim=1), torch.tensor([[1, 1], [1, 0], [0, 0]]).bool()
+    eps_z, mask = (
+        torch.stack([eps_of(P_Z[0], x), eps_of(P_Z[1], x)], dim=1),
+        torch.tensor([[1, 1], [1, 0], [0, 0]]).bool(),
+    )
     weights = CompositionWeights(1.0, 0.0, 0.7, "eps_z_null")
     assert not weights.uses_unconditional(mask.sum(dim=1))
     with_a = compose_eps(weights, eps_of(P_A, x), eps_of(P_S, x), None, eps_z, mask, eps_of(P_Z_NULL, x))
-    torch.testing.assert_close(compose_eps(weights, None, eps_of(P_S, x), None, eps_z, mask, eps_of(P_Z_NULL, x)), with_a)
+    torch.testing.assert_close(
+        compose_eps(weights, None, eps_of(P_S, x), None, eps_z, mask, eps_of(P_Z_NULL, x)), with_a
+    )
     with pytest.raises(ValueError, match="eps_z_null"):
         compose_eps(weights, None, eps_of(P_S, x), None, eps_z, mask)
 
@@ -102,12 +119,16 @@ def test_a_weighted_term_that_was_not_evaluated_is_an_error():
         compose_eps(CompositionWeights(1.0, 0.5, 0.0), torch.zeros(1, *SHAPE), torch.zeros(1, *SHAPE))
 
 
-@pytest.mark.parametrize("weights,failures,terms", [
-    (CompositionWeights(1.0, 0.0, 1.0, "eps_a"), [0, 0], ["s"]),  # eps_a's coefficient 1 - w_s is 0
-    (CompositionWeights(1.0, 0.0, 1.0, "eps_a"), [0, 2], ["a", "s"]),  # -2 w_z for the row with failures
-    (CompositionWeights(1.0, 0.0, 3.0, "eps_z_null"), [4, 1], ["s"]),  # failures measured against eps_z_null
-    (CompositionWeights(1.0, 0.5, 1.0, "eps_z_null"), [0, 0], ["a", "s", "h"]),
-    (CompositionWeights(0.0, 0.0, 0.0), [0], ["a"]),
-])
+@pytest.mark.parametrize(
+    "weights,failures,terms",
+    [
+        (CompositionWeights(1.0, 0.0, 1.0, "eps_a"), [0, 0], ["s"]),  # eps_a's coefficient 1 - w_s is 0
+        (CompositionWeights(1.0, 0.0, 1.0, "eps_a"), [0, 2], ["a", "s"]),  # -2 w_z for the row with failures
+        # failures measured against eps_z_null
+        (CompositionWeights(1.0, 0.0, 3.0, "eps_z_null"), [4, 1], ["s"]),
+        (CompositionWeights(1.0, 0.5, 1.0, "eps_z_null"), [0, 0], ["a", "s", "h"]),
+        (CompositionWeights(0.0, 0.0, 0.0), [0], ["a"]),
+    ],
+)
 def test_only_the_base_terms_eq4_weighs_are_evaluated(weights, failures, terms):
     assert weights.base_terms(torch.tensor(failures)) == terms

@@ -1,4 +1,5 @@
-"""Where demonstrated options end without labels: at gripper releases or at pauses, never across an episode."""
+"""Where demonstrated options end without labels: at gripper releases or at pauses, never across an
+episode."""
 
 import importlib.util
 from pathlib import Path
@@ -54,8 +55,16 @@ def test_release_is_a_return_to_the_side_the_gripper_started_on():
 def test_pauses_end_where_every_action_dim_held_still_long_enough():
     # The position holds at frames 2, 5 and 11, but the gripper changes there: no frame is still.
     assert ends_of("pauses") == [7, 12]
-    held = np.stack([POSITION, np.zeros_like(POSITION)], axis=1)  # the same path with the gripper never moving
-    assert np.flatnonzero(segment_ends("pauses", EPISODES, held, pause_steps=1)).tolist() == [2, 5, 7, 9, 11, 12]
+    # the same path with the gripper never moving
+    held = np.stack([POSITION, np.zeros_like(POSITION)], axis=1)
+    assert np.flatnonzero(segment_ends("pauses", EPISODES, held, pause_steps=1)).tolist() == [
+        2,
+        5,
+        7,
+        9,
+        11,
+        12,
+    ]
     assert np.flatnonzero(segment_ends("pauses", EPISODES, held, pause_steps=2)).tolist() == [7, 12]
 
 
@@ -86,28 +95,51 @@ def test_unknown_rules_and_impossible_settings_are_refused_with_the_fix():
 
 
 def test_the_policy_gives_each_demonstrated_chunk_the_state_where_its_gripper_let_go(tmp_path):
-    """`--policy.failure_segments=drops` reaches the outcome table a checkpoint keeps: a frame's final state is the
-    normalised state where its option's release ends, not at its episode's end."""
-    features = {"observation.state": {"dtype": "float32", "shape": (2,), "names": None},
-                "action": {"dtype": "float32", "shape": (2,), "names": None}}
-    dataset = LeRobotDataset.create("local/releases", fps=10, features=features, root=tmp_path / "d", use_videos=False)
+    """`--policy.failure_segments=drops` reaches the outcome table a checkpoint keeps: a frame's final state
+    is the normalised state where its option's release ends, not at its episode's end."""
+    features = {
+        "observation.state": {"dtype": "float32", "shape": (2,), "names": None},
+        "action": {"dtype": "float32", "shape": (2,), "names": None},
+    }
+    dataset = LeRobotDataset.create(
+        "local/releases", fps=10, features=features, root=tmp_path / "d", use_videos=False
+    )
     for episode in (0, 1):
         frames = EPISODES == episode
         for state, action in zip(ACTIONS[frames], ACTIONS[frames], strict=True):
-            dataset.add_frame({"observation.state": state.astype(np.float32), "action": action.astype(np.float32),
-                               "task": "pick and place"})
+            dataset.add_frame(
+                {
+                    "observation.state": state.astype(np.float32),
+                    "action": action.astype(np.float32),
+                    "task": "pick and place",
+                }
+            )
         dataset.save_episode()
     dataset.finalize()
     meta = LeRobotDatasetMetadata("local/releases", root=tmp_path / "d")
     policy_features = dataset_to_policy_features(meta.features)
-    config = CCDPConfig(input_features={"observation.state": policy_features["observation.state"]},
-                        output_features={"action": policy_features["action"]}, device="cpu", horizon=8,
-                        n_action_steps=4, down_dims=(32, 64), failure_feature="final_state", failure_state_dims=[0],
-                        failure_segments="drops")
+    config = CCDPConfig(
+        input_features={"observation.state": policy_features["observation.state"]},
+        output_features={"action": policy_features["action"]},
+        device="cpu",
+        horizon=8,
+        n_action_steps=4,
+        down_dims=(32, 64),
+        failure_feature="final_state",
+        failure_state_dims=[0],
+        failure_segments="drops",
+    )
     policy = CCDPPolicy(config, dataset_meta=meta, dataset_stats=meta.stats)
     low, high = POSITION.min(), POSITION.max()
-    expected = 2 * (segment_final_states(POSITION[:, None], segment_ends("drops", EPISODES, ACTIONS)) - low) / (high - low) - 1
-    torch.testing.assert_close(policy.model.outcomes.final_states, torch.tensor(expected, dtype=torch.float32))
+    expected = (
+        2
+        * (segment_final_states(POSITION[:, None], segment_ends("drops", EPISODES, ACTIONS)) - low)
+        / (high - low)
+        - 1
+    )
+    torch.testing.assert_close(
+        policy.model.outcomes.final_states, torch.tensor(expected, dtype=torch.float32)
+    )
 
 
 def test_bench_segments_scores_the_frames_whose_label_free_end_misses_their_labelled_one():
@@ -115,9 +147,14 @@ def test_bench_segments_scores_the_frames_whose_label_free_end_misses_their_labe
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     labels = np.array([0, 0, 0, 0, 0, 1, 1, 1] + [2] * 5)  # labelled ends 4, 7, 12; releases end 4, 7, 10, 12
-    columns = {"episode_index": EPISODES, "observation.state": np.stack([POSITION, np.zeros(13)], axis=1),
-               "action": ACTIONS, "primitive": labels}
+    columns = {
+        "episode_index": EPISODES,
+        "observation.state": np.stack([POSITION, np.zeros(13)], axis=1),
+        "action": ACTIONS,
+        "primitive": labels,
+    }
     share, per_episode = bench.agreement(columns, "releases", tolerance=0.02)
-    assert (share, per_episode) == (pytest.approx(10 / 13), 2.0)  # frames 8-10 end at 1, their label's end at 2
+    # frames 8-10 end at 1, their label's end at 2
+    assert (share, per_episode) == (pytest.approx(10 / 13), 2.0)
     # Without labels, frames 0-4 end with their episode at 5, where their labelled option ends at 3.
     assert bench.agreement(columns, "labels", tolerance=0.02) == (pytest.approx(8 / 13), 1.0)

@@ -1,12 +1,14 @@
-"""With exact networks, recovery keeps the demonstrated proportions over the options left, and avoids the failed ones.
+"""With exact networks, recovery keeps the demonstrated proportions over the options left, and avoids the
+failed ones.
 
-The demonstrations are four constant chunks c_k with preferences p = (0.4, 0.3, 0.2, 0.1), labelled by their option
-(`primitive` z). Noised, they are a Gaussian mixture, so every network the sampler calls can be written exactly: the
-base's noise estimate, the failure-set denoiser's (the mixture restricted to the options outside F) and the failure-set
-classifier's logit of "repeats a failure in F". Put in place of the learnt networks of a `ccdp` policy, they leave only
-the sampler to test: `select_action` and `report_failure` under torch.inference_mode(), DDPM's 10 reverse steps and the
-composition of the configured head. After option 0 fails the exact answer is (0, 0.5, 0.333, 0.167); after 0 and 1
-fail, (0, 0, 0.667, 0.333). 4000 rows put one standard error of a share near 0.008.
+The demonstrations are four constant chunks c_k with preferences p = (0.4, 0.3, 0.2, 0.1), labelled by their
+option (`primitive` z). Noised, they are a Gaussian mixture, so every network the sampler calls can be written
+exactly: the base's noise estimate, the failure-set denoiser's (the mixture restricted to the options outside
+F) and the failure-set classifier's logit of "repeats a failure in F". Put in place of the learnt networks of
+a `ccdp` policy, they leave only the sampler to test: `select_action` and `report_failure` under
+torch.inference_mode(), DDPM's 10 reverse steps and the composition of the configured head. After option 0
+fails the exact answer is (0, 0.5, 0.333, 0.167); after 0 and 1 fail, (0, 0, 0.667, 0.333). 4000 rows put one
+standard error of a share near 0.008.
 """
 
 import pytest
@@ -22,7 +24,8 @@ TOLERANCE = 0.03  # issue 50: sampled shares within 0.03 of the exact mixture
 
 
 class ExactMixture(nn.Module):
-    """Exact noise estimate and failure probability of the noised demonstrations at (noisy chunk, timestep)."""
+    """Exact noise estimate and failure probability of the noised demonstrations at (noisy chunk,
+    timestep)."""
 
     def __init__(self, alphas_cumprod: Tensor, horizon: int):
         super().__init__()
@@ -66,8 +69,14 @@ class ExactClassifier(ExactMixture):
 
 def planned_shares(head: str, failed: list[int]) -> Tensor:
     torch.manual_seed(0)
-    policy = make_policy(failure_feature="primitive", num_primitives=4, recovery_head=head, history_length=0,
-                         horizon=16, n_action_steps=8)
+    policy = make_policy(
+        failure_feature="primitive",
+        num_primitives=4,
+        recovery_head=head,
+        history_length=0,
+        horizon=16,
+        n_action_steps=8,
+    )
     alphas, horizon = policy.model.noise_scheduler.alphas_cumprod, policy.config.horizon
     policy.model.base = ExactBase(alphas, horizon)
     policy.model.recovery = (ExactSetDenoiser if head == "set_denoiser" else ExactClassifier)(alphas, horizon)

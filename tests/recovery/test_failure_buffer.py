@@ -34,9 +34,16 @@ def test_clear_one_row_keeps_the_others():
 
 
 def test_distinct_failures_drop_a_repeat_of_an_earlier_failure_of_the_same_row():
-    z = torch.tensor([[[0.0, 0.0], [1.0, 0.0], [0.05, 0.0], [0.0, 0.0]],   # the third is near the first: a repeat
-                      [[0.0, 0.0], [0.0, 0.0], [3.0, 3.0], [9.0, 9.0]]])  # the second repeats the first; slot 4 unused
+    z = torch.tensor(
+        [
+            [[0.0, 0.0], [1.0, 0.0], [0.05, 0.0], [0.0, 0.0]],  # the third is near the first: a repeat
+            [[0.0, 0.0], [0.0, 0.0], [3.0, 3.0], [9.0, 9.0]],  # the second repeats the first; slot 4 unused
+        ]
+    )
     mask = torch.tensor([[True, True, True, True], [True, True, True, False]])
     distinct = distinct_failures(z, mask, delta_z=0.01)
     assert distinct.tolist() == [[True, True, False, False], [True, False, True, False]]
-    assert distinct_failures(z, mask, delta_z=0.0).tolist() == [[True, True, True, False], [True, False, True, False]]
+    assert distinct_failures(z, mask, delta_z=0.0).tolist() == [
+        [True, True, True, False],
+        [True, False, True, False],
+    ]

@@ -1,4 +1,5 @@
-"""Eq. (5) pair filter and pair picking: property tests on random pairs against a brute-force reading of the rule."""
+"""Eq. (5) pair filter and pair picking: property tests on random pairs against a brute-force reading of the
+rule."""
 
 import torch
 from hypothesis import given, settings

@@ -1,4 +1,5 @@
-"""lerobot-ccdp-synthesize: recipe checks, z identical to the policy's, LeRobot loading and training, atomicity."""
+"""lerobot-ccdp-synthesize: recipe checks, z identical to the policy's, LeRobot loading and training,
+atomicity."""
 
 from pathlib import Path
 
@@ -36,8 +37,15 @@ FEATURE_SETTINGS = {
     "action": {"failure_feature": "action", "failure_action_steps": [7, 15], "failure_action_dims": [1]},
 }
 # Small and loose enough that an untrained base (near-random chunks) still yields pairs quickly.
-SMALL = {"n_states": 16, "chunks_per_state": 6, "batch_states": 8, "pairs_per_failure": 2, "demo_frames": 200,
-         "delta_x": 0.05, "delta_z": 0.1}
+SMALL = {
+    "n_states": 16,
+    "chunks_per_state": 6,
+    "batch_states": 8,
+    "pairs_per_failure": 2,
+    "demo_frames": 200,
+    "delta_x": 0.05,
+    "delta_z": 0.1,
+}
 
 
 @pytest.fixture(scope="module", params=list(FEATURE_SETTINGS))
@@ -46,8 +54,15 @@ def synthesised(request, reaching_root, tmp_path_factory) -> tuple[Path, Path, R
     tmp = tmp_path_factory.mktemp(f"synth_{request.param}")
     checkpoint = untrained_checkpoint(reaching_root, tmp / "base", **settings)
     recipe = RecoveryRecipe.from_dict({**settings, **SMALL})
-    out = synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/recovery",
-                                      tmp / "recovery", progress=False)
+    out = synthesize_recovery_dataset(
+        recipe,
+        REACHING_REPO_ID,
+        reaching_root,
+        checkpoint,
+        "local/recovery",
+        tmp / "recovery",
+        progress=False,
+    )
     return checkpoint, out, recipe
 
 
@@ -56,18 +71,38 @@ def test_recovery_dataset_loads_with_its_stats_and_recipe_record(synthesised, re
     dataset = LeRobotDataset("local/recovery", root=root)
     item = dataset[0]
     assert item[ACTION].shape == (16, 2) and item[FAILURE_ACTION].shape == (16, 2)
-    assert item[FAILURE_FEATURE_KEY].numel() == CCDPPolicy.from_pretrained(checkpoint).config.failure_feature_dim
+    assert (
+        item[FAILURE_FEATURE_KEY].numel() == CCDPPolicy.from_pretrained(checkpoint).config.failure_feature_dim
+    )
     sources = torch.as_tensor(dataset.hf_dataset[PAIR_SOURCE]).flatten()
-    assert (sources == 0).any() and (sources == 1).any(), "recoveries both synthesised and drawn from the demos"
+    assert (sources == 0).any() and (sources == 1).any(), (
+        "recoveries both synthesised and drawn from the demos"
+    )
     demo_stats = LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root).stats
     for key in (ACTION, OBS_STATE):  # lerobot-train normalises with these: they must be the base's
-        torch.testing.assert_close(torch.as_tensor(dataset.meta.stats[key]["min"]), torch.as_tensor(demo_stats[key]["min"]))
-        torch.testing.assert_close(torch.as_tensor(dataset.meta.stats[key]["max"]), torch.as_tensor(demo_stats[key]["max"]))
+        torch.testing.assert_close(
+            torch.as_tensor(dataset.meta.stats[key]["min"]), torch.as_tensor(demo_stats[key]["min"])
+        )
+        torch.testing.assert_close(
+            torch.as_tensor(dataset.meta.stats[key]["max"]), torch.as_tensor(demo_stats[key]["max"])
+        )
     record = yaml.safe_load((root / RECIPE_COPY).read_text())
-    assert record["recovery"] == {**record["recovery"], **recipe.failure_settings(), "delta_z": recipe.delta_z}
-    assert record["source"] == {"repo_id": REACHING_REPO_ID, "root": str(reaching_root), "policy_path": str(checkpoint)}
+    assert record["recovery"] == {
+        **record["recovery"],
+        **recipe.failure_settings(),
+        "delta_z": recipe.delta_z,
+    }
+    assert record["source"] == {
+        "repo_id": REACHING_REPO_ID,
+        "root": str(reaching_root),
+        "policy_path": str(checkpoint),
+    }
     result = record["result"]
-    assert result["rows"] == dataset.num_frames == result["recoveries_synthesised"] + result["recoveries_from_demos"]
+    assert (
+        result["rows"]
+        == dataset.num_frames
+        == result["recoveries_synthesised"] + result["recoveries_from_demos"]
+    )
     assert result["pool_synthesised"] == 16 * 6 and result["pool_demo"] == 200
     assert dataset.num_frames <= 2 * (16 * 6 + 200), "at most pairs_per_failure recoveries per pool sample"
 
@@ -85,15 +120,27 @@ def test_every_row_satisfies_eq5(synthesised):
     assert (distance > synthesised[2].delta_z - 1e-4).all()
 
 
-# Real lerobot-train runs for a z of several dims and for one of one dim (a scalar column in LeRobot's batches).
+# Real lerobot-train runs for a z of several dims and for one of one dim (a scalar column in LeRobot's
+# batches).
 @pytest.mark.parametrize("synthesised", ["primitive", "final_state_1d"], indirect=True)
 def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tmp_path):
     checkpoint, root, _ = synthesised
     out = tmp_path / "recovery_run"
-    run_cli("lerobot-train", f"--policy.path={checkpoint}", "--policy.training_stage=recovery",
-            "--dataset.repo_id=local/recovery", f"--dataset.root={root}", f"--output_dir={out}", "--steps=20",
-            "--batch_size=16", "--save_freq=20", "--policy.push_to_hub=false", "--num_workers=0",
-            "--wandb.enable=false", "--log_freq=10")
+    run_cli(
+        "lerobot-train",
+        f"--policy.path={checkpoint}",
+        "--policy.training_stage=recovery",
+        "--dataset.repo_id=local/recovery",
+        f"--dataset.root={root}",
+        f"--output_dir={out}",
+        "--steps=20",
+        "--batch_size=16",
+        "--save_freq=20",
+        "--policy.push_to_hub=false",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--log_freq=10",
+    )
     trained = out / "checkpoints" / "last" / "pretrained_model"
     before, after = load_file(checkpoint / "model.safetensors"), load_file(trained / "model.safetensors")
     assert bool(after["model.recovery_trained"]) and not bool(before["model.recovery_trained"])
@@ -104,7 +151,10 @@ def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tm
             torch.testing.assert_close(after[key], value, msg=f"{key}: the outcome table must travel along")
     assert any(not torch.equal(after[k], before[k]) for k in before if k.startswith("model.recovery."))
     policy = CCDPPolicy.from_pretrained(trained)
-    assert policy.config.training_stage == "recovery" and policy.config.input_features == CCDPPolicy.from_pretrained(checkpoint).config.input_features
+    assert (
+        policy.config.training_stage == "recovery"
+        and policy.config.input_features == CCDPPolicy.from_pretrained(checkpoint).config.input_features
+    )
 
 
 def test_interrupted_synthesis_leaves_nothing(reaching_root, tmp_path, monkeypatch):
@@ -121,26 +171,36 @@ def test_interrupted_synthesis_leaves_nothing(reaching_root, tmp_path, monkeypat
 
     monkeypatch.setattr(synthesize.LeRobotDataset, "add_frame", interrupt_midway)
     with pytest.raises(KeyboardInterrupt):
-        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/recovery",
-                                    tmp_path / "recovery", progress=False)
+        synthesize_recovery_dataset(
+            recipe,
+            REACHING_REPO_ID,
+            reaching_root,
+            checkpoint,
+            "local/recovery",
+            tmp_path / "recovery",
+            progress=False,
+        )
     assert calls["n"] == 50
     assert sorted(p.name for p in tmp_path.iterdir()) == ["base"], "no dataset and no staging folder left"
 
 
 def test_outcome_radius_keeps_only_sampled_chunks_near_a_demonstration(reaching_root, tmp_path):
-    """Sampled chunks borrow the outcome of their nearest demonstrated chunk; with outcome_radius those farther
-    than the radius from every demonstrated chunk leave the pool, while demonstrated chunks all stay."""
+    """Sampled chunks borrow the outcome of their nearest demonstrated chunk; with outcome_radius those
+    farther than the radius from every demonstrated chunk leave the pool, while demonstrated chunks all
+    stay."""
     settings = FEATURE_SETTINGS["primitive"]
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
     policy = CCDPPolicy.from_pretrained(checkpoint)
 
     def synthesised_gaps(radius: float, name: str) -> tuple[Tensor, dict]:
         recipe = RecoveryRecipe.from_dict({**settings, **SMALL, "outcome_radius": radius})
-        root = synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r",
-                                           tmp_path / name, progress=False)
+        root = synthesize_recovery_dataset(
+            recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / name, progress=False
+        )
         rows = LeRobotDataset("local/r", root=root).hf_dataset.with_format("torch")[:]
-        chunks = normalize_batch(policy.config, LeRobotDatasetMetadata("local/r", root=root).stats,
-                                 {ACTION: rows[ACTION]})[ACTION][rows[PAIR_SOURCE].flatten() == 0]
+        chunks = normalize_batch(
+            policy.config, LeRobotDatasetMetadata("local/r", root=root).stats, {ACTION: rows[ACTION]}
+        )[ACTION][rows[PAIR_SOURCE].flatten() == 0]
         result = yaml.safe_load((root / RECIPE_COPY).read_text())["result"]
         return policy.model.outcomes.rms_distance(chunks), result
 
@@ -157,8 +217,9 @@ def test_refuses_an_outcome_radius_that_drops_every_sampled_chunk(reaching_root,
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
     recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "outcome_radius": 1e-6})
     with pytest.raises(ValueError, match="Raise outcome_radius"):
-        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r",
-                                    progress=False)
+        synthesize_recovery_dataset(
+            recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r", progress=False
+        )
     assert not (tmp_path / "r").exists()
 
 
@@ -166,35 +227,42 @@ def test_refuses_a_recipe_that_defines_z_differently(reaching_root, tmp_path):
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
     recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["final_state"], **SMALL})
     with pytest.raises(ValueError, match="--policy.failure_feature=final_state"):
-        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r",
-                                    progress=False)
+        synthesize_recovery_dataset(
+            recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r", progress=False
+        )
     assert not (tmp_path / "r").exists()
 
 
 def test_refuses_a_demo_dataset_without_the_named_feature(reaching_root, tmp_path):
     settings = {"failure_feature": "primitive", "num_primitives": 4, "primitive_key": "option"}
-    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **{**settings, "primitive_key": "primitive"})
+    checkpoint = untrained_checkpoint(
+        reaching_root, tmp_path / "base", **{**settings, "primitive_key": "primitive"}
+    )
     policy = CCDPPolicy.from_pretrained(checkpoint)
     policy.config.primitive_key = "option"  # a checkpoint whose recipe names a column the demos lack
     policy.save_pretrained(checkpoint)
     recipe = RecoveryRecipe.from_dict({**settings, **SMALL})
     with pytest.raises(ValueError, match=r"lacks column\(s\) \['option'\]"):
-        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r",
-                                    progress=False)
+        synthesize_recovery_dataset(
+            recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r", progress=False
+        )
     assert not (tmp_path / "r").exists()
 
 
-@pytest.mark.parametrize(("change", "message"), [
-    ({"w_s": 1.5}, r"w_s must be in \(0, 1\]"),
-    ({"failure_feature": "colour"}, "failure_feature must be one of"),
-    ({"n_states": 0, "demo_frames": 0}, "the pool is empty"),
-    ({"pairs_per_failure": 0}, "pairs_per_failure"),
-    ({"delta_x": -1.0}, "delta_x"),
-    ({"outcome_radius": -0.1}, "outcome_radius"),
-    ({"sigmaa": 0.1}, "unknown field"),
-    ({"sigma": "0.02"}, r"recovery.sigma must be float, got '0.02'"),
-    ({"chunks_per_state": 2.5}, "recovery.chunks_per_state must be int, got 2.5"),
-])
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"w_s": 1.5}, r"w_s must be in \(0, 1\]"),
+        ({"failure_feature": "colour"}, "failure_feature must be one of"),
+        ({"n_states": 0, "demo_frames": 0}, "the pool is empty"),
+        ({"pairs_per_failure": 0}, "pairs_per_failure"),
+        ({"delta_x": -1.0}, "delta_x"),
+        ({"outcome_radius": -0.1}, "outcome_radius"),
+        ({"sigmaa": 0.1}, "unknown field"),
+        ({"sigma": "0.02"}, r"recovery.sigma must be float, got '0.02'"),
+        ({"chunks_per_state": 2.5}, "recovery.chunks_per_state must be int, got 2.5"),
+    ],
+)
 def test_recipe_validation(change, message):
     with pytest.raises(ValueError, match=message):
         RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **change})
@@ -206,67 +274,115 @@ def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
     missing_checkpoint = tmp_path / "no_such_checkpoint"
     (tmp_path / "out").mkdir()
     with pytest.raises(FileExistsError, match="out.*already exists"):
-        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, missing_checkpoint, "local/r",
-                                    tmp_path / "out", progress=False)
+        synthesize_recovery_dataset(
+            recipe,
+            REACHING_REPO_ID,
+            reaching_root,
+            missing_checkpoint,
+            "local/r",
+            tmp_path / "out",
+            progress=False,
+        )
     with pytest.raises(ValueError, match="only replaces a dataset that lerobot_ccdp wrote"):
-        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, missing_checkpoint, "local/r",
-                                    tmp_path / "out", overwrite=True, progress=False)
+        synthesize_recovery_dataset(
+            recipe,
+            REACHING_REPO_ID,
+            reaching_root,
+            missing_checkpoint,
+            "local/r",
+            tmp_path / "out",
+            overwrite=True,
+            progress=False,
+        )
     with pytest.raises(FileNotFoundError, match=f"No LeRobot dataset at --dataset.root={tmp_path / 'demos'}"):
-        synthesize_recovery_dataset(recipe, REACHING_REPO_ID, tmp_path / "demos", missing_checkpoint, "local/r",
-                                    tmp_path / "new", progress=False)
+        synthesize_recovery_dataset(
+            recipe,
+            REACHING_REPO_ID,
+            tmp_path / "demos",
+            missing_checkpoint,
+            "local/r",
+            tmp_path / "new",
+            progress=False,
+        )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
 def test_every_task_recipe_has_a_valid_recovery_section():
     recipes = sorted(Path(__file__).parents[2].joinpath("datasets_recipes").glob("*.yaml"))
-    assert len(recipes) == len(TASKS) + 10  # every task, four also with cameras, five without labels, the 2-D task
+    # every task, four also with cameras, five without labels, the 2-D task
+    assert len(recipes) == len(TASKS) + 10
     for path in recipes:
         RecoveryRecipe.load(path)
 
 
-def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_through_lerobot_train(reaching_root,
-                                                                                                  tmp_path):
-    """With `recovery_head=set_denoiser` every row is one chunk of its own, sampled (or demonstrated) where an option
-    starts (here one per episode: its first state), perturbed by eq. 6, with its own z; lerobot-train's recovery stage then trains eps_{s,F} from the
-    copied base while the base stays frozen."""
+def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_through_lerobot_train(
+    reaching_root, tmp_path
+):
+    """With `recovery_head=set_denoiser` every row is one chunk of its own, sampled (or demonstrated) where an
+    option starts (here one per episode: its first state), perturbed by eq. 6, with its own z; lerobot-train's
+    recovery stage then trains eps_{s,F} from the copied base while the base stays frozen."""
     settings = {**FEATURE_SETTINGS["primitive"], "recovery_head": "set_denoiser", "history_length": 0}
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
     recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "sigma": 0.0})
-    root = synthesize_recovery_dataset(recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/recovery",
-                                       tmp_path / "recovery", progress=False)
+    root = synthesize_recovery_dataset(
+        recipe,
+        REACHING_REPO_ID,
+        reaching_root,
+        checkpoint,
+        "local/recovery",
+        tmp_path / "recovery",
+        progress=False,
+    )
     demos = LeRobotDataset(REACHING_REPO_ID, root=reaching_root).hf_dataset.with_format("torch")[:]
     starts = demos[OBS_STATE][demos["frame_index"].flatten() == 0]
     rows = LeRobotDataset("local/recovery", root=root)
-    assert rows.num_frames == 16 * 6 + len(starts)  # every sampled chunk, and each episode's first demonstrated chunk
+    # every sampled chunk, and each episode's first demonstrated chunk
+    assert rows.num_frames == 16 * 6 + len(starts)
     states = rows.hf_dataset.with_format("torch")[:][OBS_STATE]
-    assert torch.cdist(states, starts).min(dim=1).values.max() < 1e-4  # sigma 0: exactly the episodes' first states
+    # sigma 0: exactly the episodes' first states
+    assert torch.cdist(states, starts).min(dim=1).values.max() < 1e-4
     policy, normalized = normalized_rows(checkpoint, root, chunk_column=ACTION)
-    torch.testing.assert_close(normalized[FAILURE_FEATURE_KEY], policy.model.feature.from_chunk(normalized[ACTION],
-                                                                                          policy.model.outcomes))
+    torch.testing.assert_close(
+        normalized[FAILURE_FEATURE_KEY],
+        policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes),
+    )
     out = tmp_path / "set_run"
-    run_cli("lerobot-train", f"--policy.path={checkpoint}", "--policy.training_stage=recovery",
-            "--dataset.repo_id=local/recovery", f"--dataset.root={root}", f"--output_dir={out}", "--steps=10",
-            "--batch_size=16", "--save_freq=10", "--policy.push_to_hub=false", "--num_workers=0",
-            "--wandb.enable=false", "--log_freq=5")
+    run_cli(
+        "lerobot-train",
+        f"--policy.path={checkpoint}",
+        "--policy.training_stage=recovery",
+        "--dataset.repo_id=local/recovery",
+        f"--dataset.root={root}",
+        f"--output_dir={out}",
+        "--steps=10",
+        "--batch_size=16",
+        "--save_freq=10",
+        "--policy.push_to_hub=false",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        "--log_freq=5",
+    )
     before = load_file(checkpoint / "model.safetensors")
     after = load_file(out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors")
     assert bool(after["model.recovery_trained"])
     assert all(torch.equal(after[k], v) for k, v in before.items() if k.startswith("model.base."))
-    unet = "model.recovery.unet.mid_modules.0.conv1.block.0.weight"  # the head started as a copy of the base ...
-    assert not torch.equal(after[unet], after[unet.replace("model.recovery.", "model.base.")])  # ... and trained away from it
+    # the head started as a copy of the base ...
+    unet = "model.recovery.unet.mid_modules.0.conv1.block.0.weight"
+    # ... and trained away from it
+    assert not torch.equal(after[unet], after[unet.replace("model.recovery.", "model.base.")])
 
 
 def test_set_denoiser_rows_start_at_every_demonstrated_option_not_only_at_episode_starts():
-    """Packing and the Bartender decide twice per episode: after a failed second decision the env restores the robot
-    where that option began, so the set denoiser's rows are drawn there too. Options end where `failure_segments`
-    says (labels here, gripper drops without labels)."""
+    """Packing and the Bartender decide twice per episode: after a failed second decision the env restores the
+    robot where that option began, so the set denoiser's rows are drawn there too. Options end where
+    `failure_segments` says (labels here, gripper drops without labels)."""
     episodes = np.array([0, 0, 0, 0, 0, 1, 1, 1])
     labels = np.array([3, 3, 1, 1, 1, 2, 2, 2])
     labelled = CCDPConfig(failure_feature="primitive", num_primitives=4)
     assert synthesize.option_starts(labelled, episodes, np.zeros((8, 2)), labels).tolist() == [0, 2, 5]
     assert synthesize.option_starts(labelled, episodes, np.zeros((8, 2)), None).tolist() == [0, 5]
-    # Episode 0 closes the gripper, opens it at frame 3 (the drop's option ends there, with its opening command) and
-    # starts a second option at frame 4; episode 1 drops its object at its last frame.
+    # Episode 0 closes the gripper, opens it at frame 3 (the drop's option ends there, with its opening
+    # command) and starts a second option at frame 4; episode 1 drops its object at its last frame.
     gripper = np.array([-1, 1, 1, -1, 1, -1, 1, -1.0])
     actions = np.stack([np.arange(8.0), gripper], axis=1)  # the arm never holds still
     dropped = CCDPConfig(failure_feature="final_state", failure_segments="drops")
