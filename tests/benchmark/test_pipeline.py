@@ -81,30 +81,20 @@ def settings(tmp_path_factory) -> tuple[Path, Path]:
     return configs, recipes
 
 
+def _pipeline_command(
+    configs: Path, recipes: Path, out: Path, *extra: str, methods: list[str] = METHODS
+) -> list[str]:
+    """The pipeline as a user runs it, on the shrunk settings and the module's task and seeds."""
+    return [
+        *(sys.executable, "-m", "lerobot_ccdp.benchmark.pipeline", "--tasks", TASK, "--methods", *methods),
+        *("--out", str(out), "--configs", str(configs), "--recipes", str(recipes)),
+        *("--eval-seed", str(EVAL_SEED), *extra),
+    ]
+
+
 def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str, methods: list[str] = METHODS) -> str:
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "lerobot_ccdp.benchmark.pipeline",
-            "--tasks",
-            TASK,
-            "--methods",
-            *methods,
-            "--out",
-            str(out),
-            "--configs",
-            str(configs),
-            "--recipes",
-            str(recipes),
-            "--eval-seed",
-            str(EVAL_SEED),
-            *extra,
-        ],
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-    )
+    command = _pipeline_command(configs, recipes, out, *extra, methods=methods)
+    result = subprocess.run(command, capture_output=True, text=True, cwd=REPO)
     if result.returncode != 0:
         pytest.fail(
             f"pipeline failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
@@ -369,22 +359,7 @@ def test_a_second_pipeline_on_the_same_folder_is_refused(settings, tmp_path):
 def test_a_killed_pipeline_leaves_no_stage_running_and_a_rerun_resumes(settings, tmp_path):
     configs, recipes = settings
     out = tmp_path / "out"
-    command = [
-        sys.executable,
-        "-m",
-        "lerobot_ccdp.benchmark.pipeline",
-        "--tasks",
-        TASK,
-        "--methods",
-        "dp",
-        "--out",
-        str(out),
-        "--configs",
-        str(configs),
-        "--recipes",
-        str(recipes),
-        "--no-chart",
-    ]
+    command = _pipeline_command(configs, recipes, out, "--no-chart", methods=["dp"])
     pipeline = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, text=True)
     for line in pipeline.stdout:  # wait until the base stage's lerobot-train is running
         if "train_base: lerobot-train" in line:

@@ -122,10 +122,8 @@ def test_every_row_satisfies_eq5(synthesised):
 
 # Real lerobot-train runs for a z of several dims and for one of one dim (a scalar column in LeRobot's
 # batches).
-@pytest.mark.parametrize("synthesised", ["primitive", "final_state_1d"], indirect=True)
-def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tmp_path):
-    checkpoint, root, _ = synthesised
-    out = tmp_path / "recovery_run"
+def _train_recovery_stage(checkpoint: Path, root: Path, out: Path, steps: int) -> None:
+    """lerobot-train's recovery stage from `checkpoint` on the rows at `root`, as a user runs it."""
     run_cli(
         "lerobot-train",
         f"--policy.path={checkpoint}",
@@ -133,14 +131,21 @@ def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tm
         "--dataset.repo_id=local/recovery",
         f"--dataset.root={root}",
         f"--output_dir={out}",
-        "--steps=20",
+        f"--steps={steps}",
         "--batch_size=16",
-        "--save_freq=20",
+        f"--save_freq={steps}",
         "--policy.push_to_hub=false",
         "--num_workers=0",
         "--wandb.enable=false",
-        "--log_freq=10",
+        f"--log_freq={steps // 2}",
     )
+
+
+@pytest.mark.parametrize("synthesised", ["primitive", "final_state_1d"], indirect=True)
+def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tmp_path):
+    checkpoint, root, _ = synthesised
+    out = tmp_path / "recovery_run"
+    _train_recovery_stage(checkpoint, root, out, steps=20)
     trained = out / "checkpoints" / "last" / "pretrained_model"
     before, after = load_file(checkpoint / "model.safetensors"), load_file(trained / "model.safetensors")
     assert bool(after["model.recovery_trained"]) and not bool(before["model.recovery_trained"])
@@ -347,21 +352,7 @@ def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_thr
         policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes),
     )
     out = tmp_path / "set_run"
-    run_cli(
-        "lerobot-train",
-        f"--policy.path={checkpoint}",
-        "--policy.training_stage=recovery",
-        "--dataset.repo_id=local/recovery",
-        f"--dataset.root={root}",
-        f"--output_dir={out}",
-        "--steps=10",
-        "--batch_size=16",
-        "--save_freq=10",
-        "--policy.push_to_hub=false",
-        "--num_workers=0",
-        "--wandb.enable=false",
-        "--log_freq=5",
-    )
+    _train_recovery_stage(checkpoint, root, out, steps=10)
     before = load_file(checkpoint / "model.safetensors")
     after = load_file(out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors")
     assert bool(after["model.recovery_trained"])
