@@ -229,6 +229,16 @@ def option_starts(
     return np.flatnonzero(np.r_[True, ends[:-1]])
 
 
+def set_denoiser_frames(demos: Demos) -> Tensor:
+    """The demo frames the set denoiser's states are drawn among: half at option starts, half along every
+    demonstrated frame (the starts repeated to match the frames' count). F decides the option at its start;
+    but a pick and place spans several plans, each composed with F, so the head must also have seen the states
+    along an attempt. With starts only, packing's attempts after a failure stalled mid-way (CCDP 0.45 against
+    DP* 0.71 on the development seeds); with both, 0.70 (docs/benchmarks.md)."""
+    frames = torch.arange(len(demos.chunks))
+    return torch.cat([demos.starts.repeat(max(1, len(frames) // len(demos.starts))), frames])
+
+
 def synthesised_samples(
     policy: CCDPPolicy,
     recipe: RecoveryRecipe,
@@ -313,11 +323,11 @@ def recovery_pairs(
     return torch.cat(failures), torch.cat(recoveries)
 
 
-def attempt_start_rows(pool: Samples) -> tuple[Tensor, Tensor]:
+def own_outcome_rows(pool: Samples) -> tuple[Tensor, Tensor]:
     """For `recovery_head=set_denoiser`: every pool sample is a row of its own (its z is its own outcome),
-    with no pairing. Drawn where attempts start, at w_s = 1 they are the base's own plans there, which the set
-    denoiser learns to restrict to the options outside a failure set; the same (failure, recovery) indices as
-    `recovery_pairs`."""
+    with no pairing. Drawn at option starts and along the demonstrations (`set_denoiser_frames`), at w_s = 1
+    they are the base's own plans there, which the set denoiser learns to restrict to the options outside a
+    failure set; the same (failure, recovery) indices as `recovery_pairs`."""
     rows = torch.arange(len(pool))
     return rows, rows
 
@@ -360,9 +370,9 @@ def synthesize_recovery_dataset(
     torch.manual_seed(recipe.seed)
     sampling_started = time.perf_counter()
     images = camera_encoder(policy, stats, meta) if config.image_features else None
-    # The set denoiser learns from the chunks where attempts start (`attempt_start_rows`); eq. (4)'s eps_z
-    # from pairs.
-    among = demos.starts if config.recovery_head == "set_denoiser" else None
+    # The set denoiser learns from the chunks along its attempts (`set_denoiser_frames`, `own_outcome_rows`);
+    # eq. (4)'s eps_z from pairs.
+    among = set_denoiser_frames(demos) if config.recovery_head == "set_denoiser" else None
     parts = (
         [synthesised_samples(policy, recipe, demos, generator, progress, images, among)]
         if recipe.n_states
@@ -379,7 +389,7 @@ def synthesize_recovery_dataset(
             "or train the base checkpoint longer."
         )
     failure, recovery = (
-        attempt_start_rows(pool) if among is not None else recovery_pairs(pool, recipe, generator)
+        own_outcome_rows(pool) if among is not None else recovery_pairs(pool, recipe, generator)
     )
     if len(failure) == 0:
         raise ValueError(
