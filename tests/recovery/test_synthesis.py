@@ -54,15 +54,7 @@ def synthesised(request, reaching_root, tmp_path_factory) -> tuple[Path, Path, R
     tmp = tmp_path_factory.mktemp(f"synth_{request.param}")
     checkpoint = untrained_checkpoint(reaching_root, tmp / "base", **settings)
     recipe = RecoveryRecipe.from_dict({**settings, **SMALL})
-    out = synthesize_recovery_dataset(
-        recipe,
-        REACHING_REPO_ID,
-        reaching_root,
-        checkpoint,
-        "local/recovery",
-        tmp / "recovery",
-        progress=False,
-    )
+    out = _synthesize_reaching(recipe, reaching_root, checkpoint, tmp / "recovery")
     return checkpoint, out, recipe
 
 
@@ -122,6 +114,13 @@ def test_every_row_satisfies_eq5(synthesised):
 
 # Real lerobot-train runs for a z of several dims and for one of one dim (a scalar column in LeRobot's
 # batches).
+def _synthesize_reaching(recipe: RecoveryRecipe, reaching_root: Path, checkpoint: Path, out: Path) -> Path:
+    """The recovery dataset of `recipe` from the 2-D demos and `checkpoint`, as `local/recovery` at `out`."""
+    return synthesize_recovery_dataset(
+        recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/recovery", out, progress=False
+    )
+
+
 def _train_recovery_stage(checkpoint: Path, root: Path, out: Path, steps: int) -> None:
     """lerobot-train's recovery stage from `checkpoint` on the rows at `root`, as a user runs it."""
     run_cli(
@@ -176,15 +175,7 @@ def test_interrupted_synthesis_leaves_nothing(reaching_root, tmp_path, monkeypat
 
     monkeypatch.setattr(synthesize.LeRobotDataset, "add_frame", interrupt_midway)
     with pytest.raises(KeyboardInterrupt):
-        synthesize_recovery_dataset(
-            recipe,
-            REACHING_REPO_ID,
-            reaching_root,
-            checkpoint,
-            "local/recovery",
-            tmp_path / "recovery",
-            progress=False,
-        )
+        _synthesize_reaching(recipe, reaching_root, checkpoint, tmp_path / "recovery")
     assert calls["n"] == 50
     assert sorted(p.name for p in tmp_path.iterdir()) == ["base"], "no dataset and no staging folder left"
 
@@ -330,15 +321,7 @@ def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_thr
     settings = {**FEATURE_SETTINGS["primitive"], "recovery_head": "set_denoiser", "history_length": 0}
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
     recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "sigma": 0.0})
-    root = synthesize_recovery_dataset(
-        recipe,
-        REACHING_REPO_ID,
-        reaching_root,
-        checkpoint,
-        "local/recovery",
-        tmp_path / "recovery",
-        progress=False,
-    )
+    root = _synthesize_reaching(recipe, reaching_root, checkpoint, tmp_path / "recovery")
     demos = LeRobotDataset(REACHING_REPO_ID, root=reaching_root).hf_dataset.with_format("torch")[:]
     starts = demos[OBS_STATE][demos["frame_index"].flatten() == 0]
     rows = LeRobotDataset("local/recovery", root=root)
