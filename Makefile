@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export HF_HUB_OFFLINE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: install lint test test-slow train-local clean quickstart benchmark benchmark-lite benchmark-pixels benchmark-label-free
+.PHONY: install lint test test-slow train-local clean quickstart benchmark benchmark-lite benchmark-pixels benchmark-label-free results
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -66,3 +66,13 @@ benchmark-label-free: install
 		--out outputs/label_free_packing --publish docs/benchmark_label_free_packing_report.md
 	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks Bartender-v0 \
 		--out outputs/label_free_bartender --publish docs/benchmark_label_free_bartender_report.md
+
+# docs/results.md and the README's results table, from the per-episode run files the benchmarks publish beside
+# their reports (lerobot_ccdp/benchmark/results.py).
+results: install
+	$(PY) -m lerobot_ccdp.benchmark.results --readme README.md \
+		--run "With option labels (make benchmark)" docs/benchmark_report.json \
+		--run "Without labels: door, box, buttons (make benchmark-label-free)" docs/benchmark_label_free_report.json \
+		--run "Without labels: packing" docs/benchmark_label_free_packing_report.json \
+		--run "Without labels: the Bartender" docs/benchmark_label_free_bartender_report.json \
+		--run "The geometric versions (make benchmark-lite)" docs/benchmark_lite_report.json

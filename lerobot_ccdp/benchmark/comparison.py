@@ -104,9 +104,16 @@ class MethodMetrics:
 
 
 Results = dict[str, dict[str, MethodMetrics]]  # task -> method -> metrics
+Labels = dict[str, dict[str, str]]  # task -> method -> the name its figures carry, where not METHOD_LABELS'
 
 
-def markdown_table(results: Results) -> str:
+def label_of(task: str, method: str, labels: Labels | None) -> str:
+    """The name `method`'s figures on `task` carry: its own label in `labels` (a hybrid's), else
+    METHOD_LABELS."""
+    return (labels or {}).get(task, {}).get(method, METHOD_LABELS[method])
+
+
+def markdown_table(results: Results, labels: Labels | None = None) -> str:
     """One row per task and method, each metric as `value [95% interval]`."""
     lines = [
         "| task | method | episodes | " + " | ".join(METRIC_LABELS.values()) + " |",
@@ -115,7 +122,7 @@ def markdown_table(results: Results) -> str:
     for task, methods in results.items():
         for method, metrics in methods.items():
             cells = " | ".join(str(getattr(metrics, name)) for name in METRIC_LABELS)
-            lines.append(f"| {task} | {METHOD_LABELS[method]} | {metrics.success.n} | {cells} |")
+            lines.append(f"| {task} | {label_of(task, method, labels)} | {metrics.success.n} | {cells} |")
     return "\n".join(lines)
 
 
@@ -123,14 +130,14 @@ LOST_HEADER = "lost: with a repeat / without any failure / after distinct failur
 SOLVED_HEADER = "solved before any failure; solved / episodes with a failure"
 
 
-def lost_table(episodes: dict[str, dict[str, Episodes]]) -> str:
+def lost_table(episodes: dict[str, dict[str, Episodes]], labels: Labels | None = None) -> str:
     """Per task and method, how many episodes were lost and why (`LostEpisodes`), and how many were solved
     before any failure, where recovery plays no part (`solved_before_any_failure`)."""
     lines = [f"| task | method | {LOST_HEADER} | {SOLVED_HEADER} |", "|---|---|---|---|"]
     for task, methods in episodes.items():
         for method, runs in methods.items():
             lines.append(
-                f"| {task} | {METHOD_LABELS[method]} | {LostEpisodes.of(runs)} | "
+                f"| {task} | {label_of(task, method, labels)} | {LostEpisodes.of(runs)} | "
                 f"{solved_before_any_failure(runs)} |"
             )
     return "\n".join(lines)

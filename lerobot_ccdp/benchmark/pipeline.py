@@ -37,6 +37,7 @@ import gymnasium as gym
 import torch
 
 from lerobot_ccdp.benchmark.comparison import (
+    METHOD_LABELS,
     Episodes,
     MethodMetrics,
     Results,
@@ -44,6 +45,7 @@ from lerobot_ccdp.benchmark.comparison import (
     lost_table,
     markdown_table,
 )
+from lerobot_ccdp.benchmark.results import ccdp_label, save_run
 from lerobot_ccdp.benchmark.run_lock import PipelineRunning, die_with_parent, exclusive
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.benchmark.targets import target_checks
@@ -82,6 +84,8 @@ OBS_VARIANTS = {"state": "", "pixels_agent_pos": "_pixels"}
 LABEL_FREE = "_label_free"  # the settings folders of the variant without option labels
 BIN = Path(sys.executable).parent
 CHECKPOINT = Path("checkpoints/last/pretrained_model")
+# Per-episode outcomes of every method, with the command and commit (`lerobot_ccdp.benchmark.results`).
+RUN_FILE = "episodes.json"
 # lerobot-train's periodic log line: seconds per step spent updating and waiting for data.
 STEP_TIMES = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
 # A tqdm bar's state: description, percentage, count and timing, without the bar itself.
@@ -314,6 +318,14 @@ class TaskRun:
         episodes["oracle"] = self._oracle()
         return episodes
 
+    def labels(self, methods: list[str]) -> dict[str, str]:
+        """The name each method's figures carry: CCDP evaluated with redraws is the hybrid's
+        (`results.ccdp_label`), from the checkpoint's settings as CCDP's flags changed them."""
+        config = self.files.out / "recovery" / CHECKPOINT / "config.json"
+        settings = json.loads(config.read_text()) if config.is_file() else {}
+        ccdp = ccdp_label({**settings, **self.files.method_settings("ccdp")})
+        return {m: ccdp if m == "ccdp" else METHOD_LABELS[m] for m in methods}
+
     def _train(
         self, stage: str, config: Path, out: Path, repo_id: str, root: Path, *extra: str, upstream: str
     ) -> tuple[Path, str]:
@@ -498,7 +510,8 @@ def method_forms(runs: list[TaskRun]) -> str:
                 f"w_z {ccdp['w_z']:g}"
             )
             synthesis = (
-                f"chunks sampled where attempts start: sigma {recipe.sigma:g}, w_s {recipe.w_s:g}, "
+                f"chunks sampled half at option starts, half along the demos: sigma {recipe.sigma:g}, "
+                f"w_s {recipe.w_s:g}, "
                 f"{recipe.n_states} x {recipe.chunks_per_state}"
             )
         else:
@@ -548,10 +561,11 @@ def write_report(
     results: Results = {
         task: {m: MethodMetrics.of(e) for m, e in methods.items()} for task, methods in episodes.items()
     }
+    labels = {r.files.task: r.labels(list(episodes.get(r.files.task, {}))) for r in runs}
     parts = [
         "# CCDP vs DP vs DP* (paper Fig. 5)",
         f"Command: `{command}`  \nMachine: {machine()}",
-        markdown_table(results),
+        markdown_table(results, labels),
         "## What ran",
         "Seeds: episode i of every method and of the oracle uses seed `first + i`, and every method draws "
         "episode i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). "
@@ -567,7 +581,7 @@ def write_report(
         "only. Before an episode's first failure DP, DP* and CCDP sample the same base policy from the same "
         "noise, so their episodes solved without a failure match up to floating-point differences of batched "
         "network calls, and recovery shows among the episodes with one.",
-        lost_table(episodes),
+        lost_table(episodes, labels),
         "## Time per stage (s)",
         time_breakdown(runs),
     ]
@@ -580,12 +594,15 @@ def write_report(
         task: {m: metrics.as_dict() for m, metrics in methods.items()} for task, methods in results.items()
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    save_run(out / RUN_FILE, episodes, labels, command, runs[0].eval_seed if runs else 0)
     return report
 
 
 def publish_report(report: str, out: Path, target: Path) -> None:
-    """Copy the report (and its chart, renamed after it) to `target`, so the docs show a run's own output."""
+    """Copy the report (and its chart and per-episode run file, renamed after it) to `target`, so the docs
+    show a run's own output and `lerobot_ccdp.benchmark.results` can tabulate it."""
     target.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(out / RUN_FILE, target.with_suffix(".json"))
     chart = out / "comparison.png"
     if chart.exists():
         shutil.copyfile(chart, target.with_suffix(".png"))

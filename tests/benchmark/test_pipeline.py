@@ -17,6 +17,7 @@ from lerobot.utils.constants import OBS_IMAGES
 from PIL import Image
 
 from lerobot_ccdp.benchmark.comparison import Episodes
+from lerobot_ccdp.benchmark.paired import paired_difference, success_rate
 from lerobot_ccdp.benchmark.pipeline import (
     CHECKPOINT,
     COMMON_NOISE,
@@ -27,6 +28,7 @@ from lerobot_ccdp.benchmark.pipeline import (
     task_slug,
     z_description,
 )
+from lerobot_ccdp.benchmark.results import README_BEGIN, README_END, Run
 from lerobot_ccdp.benchmark.run_lock import exclusive
 from lerobot_ccdp.benchmark.stage_stamps import stamp
 from lerobot_ccdp.datasets.camera_windows import video_backend
@@ -194,6 +196,37 @@ def test_report_table_chart_and_timings(pipeline_run):
         *(f"eval_{m}" for m in METHODS),
         *(f"videos_{m}" for m in METHODS),  # both test methods are watched
     }
+
+
+def test_results_tabulate_the_published_run_file(pipeline_run, tmp_path):
+    out, _ = pipeline_run
+    run = Run.load(out / "docs" / "benchmark.json")  # published beside the report
+    assert run.first_seed == EVAL_SEED and run.labels[TASK]["ccdp"] == "CCDP"
+    evaluated = {m: Episodes.from_eval_info(out / SLUG / "eval" / m / "eval_info.json") for m in METHODS}
+    for method, episodes in evaluated.items():
+        assert (run.episodes[TASK][method].success == episodes.success).all()
+        assert (run.episodes[TASK][method].failures == episodes.failures).all()
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# Title\n\n{README_BEGIN}\nold table\n{README_END}\n\nmore\n")
+    results = tmp_path / "results.md"
+    command = [
+        sys.executable,
+        "-m",
+        "lerobot_ccdp.benchmark.results",
+        "--run",
+        "Lite door",
+        str(out / "docs" / "benchmark.json"),
+    ]
+    subprocess.run([*command, "--out", str(results), "--readme", str(readme)], check=True, cwd=REPO)
+    text = results.read_text()
+    gap = paired_difference(evaluated["ccdp"], evaluated["dp"], success_rate)
+    header = next(line for line in text.splitlines() if line.startswith("| task |"))
+    row = next(line for line in text.splitlines() if line.startswith("| DoorOpening-lite |"))
+    assert header == "| task | DP | CCDP | CCDP - DP |"  # only the methods that ran
+    assert row.split(" | ")[1].startswith(f"{evaluated['dp'].success.mean():.2f} / ")
+    assert row.split(" | ")[3] == f"{gap} |" and "## Lite door" in text
+    assert "python -m lerobot_ccdp.benchmark.results --run" in text  # the command that wrote it
+    assert row in readme.read_text() and "old table" not in readme.read_text()
 
 
 def test_watch_shows_both_methods_on_the_same_rendered_episode(pipeline_run, tmp_path):

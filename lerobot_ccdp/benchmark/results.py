@@ -1,0 +1,250 @@
+"""`python -m lerobot_ccdp.benchmark.results`: docs/results.md (and the README's results table) written from
+the runs' own per-episode outcomes, so every published figure comes from a command at a named commit.
+
+The pipeline saves each run's episodes as JSON (`save_run`; `--publish` copies it beside the published report,
+e.g. `docs/benchmark_report.json`). This command reads those files and writes one table per run: per task,
+each method's success rate and repeats per attempt after a failure, and CCDP's paired differences of success
+against DP, DP* and DP* at CCDP's cost (`lerobot_ccdp.benchmark.paired`: episode i of both resampled
+together).
+A column carries a method's name only if that method alone produced it: CCDP with redraws through DP*'s
+outcome lookup is "CCDP + k redraws (DP*'s lookup)", and one table never mixes the two.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import shlex
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lerobot_ccdp.benchmark.comparison import METHOD_LABELS
+from lerobot_ccdp.benchmark.episodes import Episodes
+from lerobot_ccdp.benchmark.paired import (
+    cluster_bootstrap,
+    paired_difference,
+    repeats_per_opportunity,
+    success_rate,
+)
+
+FORMAT = "lerobot_ccdp.results/1"
+BASELINES = ("dp", "dp_star", "dp_star_matched")
+README_BEGIN = "<!-- results:begin (written by python -m lerobot_ccdp.benchmark.results; do not edit) -->"
+README_END = "<!-- results:end -->"
+
+
+def ccdp_label(settings: dict[str, Any]) -> str:
+    """The name CCDP's figures carry: the method itself, or the hybrid when plans were redrawn through DP*'s
+    outcome lookup (`ccdp_redraws`)."""
+    redraws = int(settings.get("ccdp_redraws", 0) or 0)
+    return f"CCDP + {redraws} redraws (DP*'s lookup)" if redraws else METHOD_LABELS["ccdp"]
+
+
+def commit() -> str:
+    """The checked-out commit, marked when the tree has uncommitted changes ("unknown" outside git)."""
+    try:
+        rev = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return f"{rev} + uncommitted changes" if dirty else rev
+
+
+def _to_json(values: np.ndarray) -> list[Any]:
+    return [None if isinstance(v, float) and math.isnan(v) else v for v in values.tolist()]
+
+
+def save_run(
+    path: Path,
+    episodes: dict[str, dict[str, Episodes]],
+    labels: dict[str, dict[str, str]],
+    command: str,
+    first_seed: int,
+) -> None:
+    """Write a run's per-episode outcomes, the command and commit that made them, and each method's label."""
+    run = {
+        "format": FORMAT,
+        "command": command,
+        "commit": commit(),
+        "first_seed": first_seed,
+        "tasks": {
+            task: {
+                method: {
+                    "label": labels[task][method],
+                    "episodes": {k: _to_json(v) for k, v in vars(e).items()},
+                }
+                for method, e in methods.items()
+            }
+            for task, methods in episodes.items()
+        },
+    }
+    path.write_text(json.dumps(run, indent=1) + "\n")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One saved run: where it came from, and per task and method its label and episodes."""
+
+    source: Path
+    command: str
+    commit: str
+    first_seed: int
+    labels: dict[str, dict[str, str]]
+    episodes: dict[str, dict[str, Episodes]]
+
+    @classmethod
+    def load(cls, path: Path) -> Run:
+        data = json.loads(path.read_text())
+        if data.get("format") != FORMAT:
+            raise ValueError(
+                f"{path} is not a run saved by the pipeline ({FORMAT}); rerun the pipeline with --publish "
+                "to write one beside its report."
+            )
+        labels, episodes = {}, {}
+        for task, methods in data["tasks"].items():
+            labels[task] = {m: v["label"] for m, v in methods.items()}
+            episodes[task] = {
+                m: Episodes(
+                    **{
+                        k: np.array([np.nan if x is None else x for x in xs], dtype=_DTYPES[k])
+                        for k, xs in v["episodes"].items()
+                    }
+                )
+                for m, v in methods.items()
+            }
+        return cls(path, data["command"], data["commit"], data["first_seed"], labels, episodes)
+
+    def ccdp_column(self) -> str:
+        """The label of the CCDP column, the same on every task (a table never mixes CCDP and a hybrid)."""
+        found = {labels["ccdp"] for labels in self.labels.values() if "ccdp" in labels}
+        if len(found) > 1:
+            raise ValueError(
+                f"{self.source} mixes {sorted(found)} in one run: a hybrid gets its own column, so publish "
+                "each form as a run of its own."
+            )
+        return found.pop() if found else METHOD_LABELS["ccdp"]
+
+
+_DTYPES = {
+    "success": bool,
+    "attempts": int,
+    "repeated_failures": int,
+    "preference_matched": bool,
+    "attempts_after_failure": float,
+    "failures": float,
+}
+
+
+def _cell(e: Episodes) -> str:
+    repeats = cluster_bootstrap(e, repeats_per_opportunity).value
+    return f"{e.success.mean():.2f} / " + ("n/a" if np.isnan(repeats) else f"{repeats:.2f}")
+
+
+def table(run: Run) -> str:
+    """Per task: each method's success / repeats per attempt after a failure, and CCDP's paired differences
+    of success against each baseline it ran with."""
+    name = run.ccdp_column()
+    methods = [m for m in (*BASELINES, "ccdp") if any(m in ms for ms in run.episodes.values())]
+    refs = [m for m in BASELINES if m in methods] if "ccdp" in methods else []
+    header = [METHOD_LABELS[m] if m != "ccdp" else name for m in methods]
+    header += [f"{name} - {METHOD_LABELS[r]}" for r in refs]
+    lines = ["| task | " + " | ".join(header) + " |", "|---|" + "---|" * len(header)]
+    for task, ms in run.episodes.items():
+        cells = [_cell(ms[m]) if m in ms else "-" for m in methods]
+        for r in refs:
+            both = "ccdp" in ms and r in ms
+            cells.append(str(paired_difference(ms["ccdp"], ms[r], success_rate)) if both else "-")
+        lines.append(f"| {task.removesuffix('-v0')} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def section(title: str, run: Run) -> str:
+    n = {len(e) for ms in run.episodes.values() for e in ms.values()}
+    seeds = f"{run.first_seed}-{run.first_seed + max(n) - 1}" if n else "none"
+    return "\n\n".join(
+        [
+            f"## {title}",
+            f"Seeds {seeds}, the same for every method. Made at commit `{run.commit}` by `{run.command}`; "
+            f"per-episode outcomes: [{run.source.name}]({run.source.name}).",
+            table(run),
+        ]
+    )
+
+
+def write_results(runs: list[tuple[str, Run]], out: Path, command: str, readme: Path | None = None) -> str:
+    """docs/results.md from `runs` (title, run), and, with `readme`, the first run's table between the
+    README's results markers."""
+    text = "\n\n".join(
+        [
+            "# Results",
+            f"<!-- Written by `{command}` at commit {commit()}; rerun it rather than editing. -->",
+            "Each cell: success rate / repeats per attempt after a failure. Differences are paired by seed, "
+            "with 95% bootstrap intervals; an interval that spans 0 is a tie. How the figures are computed: "
+            "[evaluation.md](evaluation.md); what was tried on the way: [benchmarks.md](benchmarks.md).",
+            *(section(title, run) for title, run in runs),
+        ]
+    )
+    readme_text = with_block(readme, table(runs[0][1])) if readme is not None and runs else None
+    out.write_text(text + "\n")  # only once every table and the README's block are known to be writable
+    if readme_text is not None:
+        readme.write_text(readme_text)
+    return text
+
+
+def with_block(path: Path, body: str) -> str:
+    """`path`'s text with `body` between its results markers, refusing a file without them."""
+    text = path.read_text()
+    pattern = re.compile(re.escape(README_BEGIN) + r".*?" + re.escape(README_END), re.S)
+    if not pattern.search(text):
+        raise ValueError(f"{path} has no results block: add the lines\n{README_BEGIN}\n{README_END}")
+    return pattern.sub(lambda _: f"{README_BEGIN}\n{body}\n{README_END}", text)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--run",
+        nargs=2,
+        action="append",
+        metavar=("TITLE", "JSON"),
+        required=True,
+        help="a section's title and the run file the pipeline published (e.g. docs/benchmark_report.json)",
+    )
+    parser.add_argument("--out", type=Path, default=Path("docs/results.md"))
+    parser.add_argument(
+        "--readme", type=Path, default=None, help="also put the first run's table in this file"
+    )
+    args = parser.parse_args(argv)
+    missing = [path for _, path in args.run if not Path(path).is_file()]
+    if missing:
+        sys.exit(
+            f"No run file {missing}: the pipeline writes one beside its report with --publish "
+            "(make benchmark)."
+        )
+    try:
+        runs = [(title, Run.load(Path(path))) for title, path in args.run]
+        command = "python -m lerobot_ccdp.benchmark.results " + shlex.join(
+            argv if argv is not None else sys.argv[1:]
+        )
+        write_results(runs, args.out, command, args.readme)
+    except (OSError, ValueError) as error:
+        sys.exit(str(error))
+    print(f"Wrote {args.out}" + (f" and the table in {args.readme}" if args.readme else ""))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,96 @@
+"""docs/results.md from saved runs: round trip, the hybrid's own name, refusals."""
+
+import numpy as np
+import pytest
+
+from lerobot_ccdp.benchmark.episodes import Episodes
+from lerobot_ccdp.benchmark.paired import paired_difference, success_rate
+from lerobot_ccdp.benchmark.results import README_BEGIN, README_END, Run, ccdp_label, main, save_run, table
+
+
+def _episodes(success: list[bool], failures: list[float]) -> Episodes:
+    n = len(success)
+    return Episodes(
+        success=np.array(success),
+        attempts=np.array([2] * n),
+        repeated_failures=np.array([0] * n),
+        preference_matched=np.array(success),
+        attempts_after_failure=np.array([1.0] * n),
+        failures=np.array(failures, dtype=float),
+    )
+
+
+def _saved(path, ccdp_labels: dict[str, str]) -> Run:
+    episodes, labels = {}, {}
+    for i, (task, label) in enumerate(ccdp_labels.items()):
+        episodes[task] = {
+            "dp": _episodes([True, False, False, True], [1, 2, 2, 0]),
+            "ccdp": _episodes([True, True, False, True], [1, 1, np.nan if i else 2, 0]),
+        }
+        labels[task] = {"dp": "DP", "ccdp": label}
+    save_run(path, episodes, labels, "python -m lerobot_ccdp.benchmark.pipeline --tasks x", 3000)
+    return Run.load(path)
+
+
+def test_a_saved_run_loads_back_with_its_missing_values(tmp_path):
+    run = _saved(tmp_path / "run.json", {"DoorOpening-v0": "CCDP", "ButtonSearch-v0": "CCDP"})
+    assert run.first_seed == 3000 and run.command.endswith("--tasks x")
+    door = run.episodes["DoorOpening-v0"]["ccdp"]
+    assert door.success.dtype == bool and list(door.failures) == [1, 1, 2, 0]
+    assert np.isnan(run.episodes["ButtonSearch-v0"]["ccdp"].failures[2])  # NaN survives JSON as null
+
+
+def test_the_table_names_the_hybrid_and_pairs_episodes_by_seed(tmp_path):
+    label = ccdp_label({"ccdp_redraws": 16, "w_z": 1.0})
+    assert label == "CCDP + 16 redraws (DP*'s lookup)" and ccdp_label({"ccdp_redraws": 0}) == "CCDP"
+    run = _saved(tmp_path / "run.json", {"ObjectPacking-v0": label})
+    lines = table(run).splitlines()
+    assert lines[0] == f"| task | DP | {label} | {label} - DP |"
+    gap = paired_difference(
+        run.episodes["ObjectPacking-v0"]["ccdp"], run.episodes["ObjectPacking-v0"]["dp"], success_rate
+    )
+    assert lines[2] == f"| ObjectPacking | 0.50 / 0.00 | 0.75 / 0.00 | {gap} |"
+
+
+def test_one_table_never_mixes_ccdp_and_a_hybrid(tmp_path):
+    run = _saved(
+        tmp_path / "run.json", {"DoorOpening-v0": "CCDP", "Bartender-v0": ccdp_label({"ccdp_redraws": 3})}
+    )
+    with pytest.raises(ValueError, match="hybrid gets its own column"):
+        table(run)
+
+
+def test_the_command_refuses_a_readme_without_the_markers_and_other_files(tmp_path):
+    _saved(tmp_path / "run.json", {"DoorOpening-v0": "CCDP"})
+    readme = tmp_path / "README.md"
+    readme.write_text("# no markers\n")
+    with pytest.raises(SystemExit, match="no results block"):
+        main(
+            [
+                "--run",
+                "Door",
+                str(tmp_path / "run.json"),
+                "--out",
+                str(tmp_path / "r.md"),
+                "--readme",
+                str(readme),
+            ]
+        )
+    assert not (tmp_path / "r.md").exists()  # nothing written when the README cannot take the table
+    (tmp_path / "other.json").write_text('{"task": {}}')
+    with pytest.raises(SystemExit, match="not a run saved by the pipeline"):
+        main(["--run", "Door", str(tmp_path / "other.json"), "--out", str(tmp_path / "r.md")])
+    readme.write_text(f"intro\n{README_BEGIN}\n{README_END}\nend\n")
+    main(
+        [
+            "--run",
+            "Door",
+            str(tmp_path / "run.json"),
+            "--out",
+            str(tmp_path / "r.md"),
+            "--readme",
+            str(readme),
+        ]
+    )
+    assert readme.read_text().startswith(f"intro\n{README_BEGIN}\n| task | DP | CCDP | CCDP - DP |")
+    assert readme.read_text().endswith(f"{README_END}\nend\n")
