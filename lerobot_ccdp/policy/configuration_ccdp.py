@@ -73,8 +73,8 @@ class CCDPConfig(PreTrainedConfig):
             rejected).
         recovery_head: The recovery model: "unet" (eps_z(z), one term per failure, on a synthesised recovery
             dataset), "set_denoiser" (eps_{s,F}: one term for the whole failure set, trained on the base's own
-            samples where attempts start) or "classifier" (a noisy-chunk classifier of "repeats a failure",
-            trained on the demonstrations, whose gradient guides eps_s).
+            samples at option starts and along the demonstrations) or "classifier" (a noisy-chunk classifier
+            of "repeats a failure", trained on the demonstrations, whose gradient guides eps_s).
         training_stage: What lerobot-train trains: "base" (the diffusion UNet on demonstrations) or "recovery"
             (the recovery head, from a base checkpoint given by --policy.path).
         failure_feature: What z describes: "final_state" (where the option ends), "primitive" (a one-hot label

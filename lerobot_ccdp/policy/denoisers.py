@@ -123,8 +123,8 @@ class FailureSetDenoiser(nn.Module):
     A copy of the base UNet whose global condition is the base's own with the state kept and the history
     dropped, followed by an embedding of F (a max over an MLP of each z_i, so neither F's order nor a repeated
     failure changes it). `start_from` copies the base with the set's condition weights zeroed, so training
-    starts from eps_s exactly. Trained on chunks the base samples where attempts start, with F drawn
-    independently of each row and the rows whose own outcome lies in F left out
+    starts from eps_s exactly. Trained on chunks the base samples at option starts and along the demos, with F
+    drawn independently of each row and the rows whose own outcome lies in F left out
     (`CCDPModel._set_denoiser_loss`): p(a | s, F) is then proportional to p_s(a | s) 1[z(a) outside F], the
     base's own proportions over the options left, learnt by one network that sampling calls once per step.
     """

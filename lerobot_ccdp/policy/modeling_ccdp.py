@@ -454,13 +454,13 @@ class CCDPModel(nn.Module):
         return F.binary_cross_entropy_with_logits(logits, repeats.to(logits.dtype)), {}
 
     def _set_denoiser_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """eps_{s,F} on the rows of a set-denoiser dataset: chunks the base samples where attempts start, with
-        their state (lerobot-ccdp-synthesize). Each row gets a failure set F of 1..FAILURE_SET_TRAIN_SIZE z
-        drawn from other rows (so F is independent of the row's own chunk); rows whose own z lies within
-        delta_z of a failure in F are left out. The rows kept are p_s(a | s) q(F) 1[z(a) outside F], whose
-        conditional given (s, F) is p_s restricted to the options outside F in the base's proportions: DP*'s
-        rejection, distilled. The first step copies the base into the head
-        (`FailureSetDenoiser.start_from`)."""
+        """eps_{s,F} on the rows of a set-denoiser dataset: chunks the base samples at option starts and along
+        the demonstrations, with their state (lerobot-ccdp-synthesize, `synthesize.set_denoiser_frames`). Each
+        row gets a failure set F of 1..FAILURE_SET_TRAIN_SIZE z drawn from other rows (so F is independent of
+        the row's own chunk); rows whose own z lies within delta_z of a failure in F are left out. The rows
+        kept are p_s(a | s) q(F) 1[z(a) outside F], whose conditional given (s, F) is p_s restricted to the
+        options outside F in the base's proportions: DP*'s rejection, distilled. The first step copies the
+        base into the head (`FailureSetDenoiser.start_from`)."""
         cfg = self.config
         state, chunk = self.frames(batch), batch[ACTION]
         if state.ndim != 2 or chunk.ndim != 3 or chunk.shape[1] != cfg.horizon:
