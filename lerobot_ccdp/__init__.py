@@ -3,6 +3,7 @@
 from lerobot_ccdp.compat.cli_errors import install_error_surfacing
 from lerobot_ccdp.compat.eval_metrics import install_episode_metrics
 from lerobot_ccdp.compat.failure_passthrough import install_failure_passthrough
+from lerobot_ccdp.compat.frame_columns import install_frame_columns
 from lerobot_ccdp.compat.headless import choose_headless_gl
 from lerobot_ccdp.envs import CCDPEnvConfig  # noqa: F401  (registers the `ccdp` env type and the gym ids)
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
@@ -12,5 +13,6 @@ choose_headless_gl()
 install_error_surfacing()
 install_failure_passthrough()
 install_episode_metrics(import_eval=False)
+install_frame_columns()
 
 __all__ = ["CCDPConfig"]
