@@ -311,7 +311,7 @@ def test_every_task_recipe_has_a_valid_recovery_section():
         RecoveryRecipe.load(path)
 
 
-def test_set_denoiser_rows_are_chunks_sampled_where_attempts_start_and_train_through_lerobot_train(
+def test_set_denoiser_rows_are_chunks_sampled_at_demonstrated_states_and_train_through_lerobot_train(
     reaching_root, tmp_path
 ):
     """With `recovery_head=set_denoiser` every row is one chunk of its own, sampled (or demonstrated) at a
