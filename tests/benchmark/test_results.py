@@ -62,35 +62,16 @@ def test_one_table_never_mixes_ccdp_and_a_hybrid(tmp_path):
 
 def test_the_command_refuses_a_readme_without_the_markers_and_other_files(tmp_path):
     _saved(tmp_path / "run.json", {"DoorOpening-v0": "CCDP"})
-    readme = tmp_path / "README.md"
+    readme, results = tmp_path / "README.md", tmp_path / "r.md"
+    command = ["--run", "Door", str(tmp_path / "run.json"), "--out", str(results), "--readme", str(readme)]
     readme.write_text("# no markers\n")
     with pytest.raises(SystemExit, match="no results block"):
-        main(
-            [
-                "--run",
-                "Door",
-                str(tmp_path / "run.json"),
-                "--out",
-                str(tmp_path / "r.md"),
-                "--readme",
-                str(readme),
-            ]
-        )
-    assert not (tmp_path / "r.md").exists()  # nothing written when the README cannot take the table
+        main(command)
+    assert not results.exists()  # nothing written when the README cannot take the table
     (tmp_path / "other.json").write_text('{"task": {}}')
     with pytest.raises(SystemExit, match="not a run saved by the pipeline"):
-        main(["--run", "Door", str(tmp_path / "other.json"), "--out", str(tmp_path / "r.md")])
+        main(["--run", "Door", str(tmp_path / "other.json"), "--out", str(results)])
     readme.write_text(f"intro\n{README_BEGIN}\n{README_END}\nend\n")
-    main(
-        [
-            "--run",
-            "Door",
-            str(tmp_path / "run.json"),
-            "--out",
-            str(tmp_path / "r.md"),
-            "--readme",
-            str(readme),
-        ]
-    )
+    main(command)
     assert readme.read_text().startswith(f"intro\n{README_BEGIN}\n| task | DP | CCDP | CCDP - DP |")
     assert readme.read_text().endswith(f"{README_END}\nend\n")
