@@ -20,9 +20,10 @@ on the development members 100-103 (`--members 100 101 102 103`).
 
 With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifier, unless
 --no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its
-rows (SET_RECIPE: chunks the base samples at the episodes' first states), lerobot-train trains the failure-set
-denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one sample per plan) is measured beside
-DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1 round) on the same base and seeds.
+rows (SET_RECIPE: chunks the base samples at demonstrated states, half of them the episodes' first),
+lerobot-train trains the failure-set denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one
+sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1
+round) on the same base and seeds.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ BASELINES = {
     "DP*": Method("dp_star", {"dp_star_candidates": 32, "dp_star_rounds": 4}),
 }
 MATCHED = {"DP* at CCDP's cost": Method("dp_star", MATCHED_DP_STAR)}
-# The failure-set denoiser's rows (RecoveryRecipe fields besides z): 512 first states x 16 base samples at
+# The failure-set denoiser's rows (RecoveryRecipe fields besides z): 512 states x 16 base samples at
 # w_s = 1.
 SET_RECIPE = {"n_states": 512, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0, "demo_frames": 4096}
 
