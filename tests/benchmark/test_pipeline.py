@@ -23,6 +23,7 @@ from lerobot_ccdp.benchmark.pipeline import (
     COMMON_NOISE,
     VIDEO_METHODS,
     TaskFiles,
+    TaskRun,
     latest_progress,
     main,
     task_slug,
@@ -318,6 +319,16 @@ def test_method_settings_name_known_methods(tmp_path):
     )
     with pytest.raises(ValueError, match=r"unknown method\(s\) \['DP'\]"):
         files.method_flags("dp_star")
+
+
+def test_ccdp_with_redraws_carries_the_hybrids_name(tmp_path):
+    """A result carries a method's name only if that method alone produced it: CCDP evaluated with redraws
+    through DP*'s lookup is reported (tables, lost episodes, the published run file) as the hybrid."""
+    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG)
+    run = TaskRun(TaskFiles.locate(TASK, configs, recipes, tmp_path / "out"))
+    assert run.labels(["dp", "ccdp"]) == {"dp": "DP", "ccdp": "CCDP"}
+    (configs / SLUG / "methods.json").write_text(json.dumps({"ccdp": {"ccdp_redraws": 3}}))
+    assert run.labels(["ccdp", "dp_star"])["ccdp"] == "CCDP + 3 redraws (DP*'s lookup)"
 
 
 def test_the_compute_matched_baseline_is_dp_star_with_few_candidates(tmp_path):
