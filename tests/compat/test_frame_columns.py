@@ -1,4 +1,6 @@
-"""Training windows read from column tensors equal LeRobot's own reads, key by key, dtype and all."""
+"""Training items and windows read from column tensors equal LeRobot's own reads, key by key and dtype."""
+
+import logging
 
 import pytest
 import torch
@@ -6,14 +8,15 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 import lerobot_ccdp  # noqa: F401  (installs the plugin's adaptations, as lerobot-train's plugin import does)
 from lerobot_ccdp.benchmark.reaching2d import record_reaching_dataset
+from lerobot_ccdp.compat import frame_columns
 
 from fixtures.reaching import REACHING_REPO_ID
 
 WINDOWS = {"action": [i / 10 for i in range(-1, 16)], "observation.state": [-0.1, 0.0]}
 
 
-def _dataset(root, episodes: list[int] | None = None) -> LeRobotDataset:
-    return LeRobotDataset(REACHING_REPO_ID, root=root, delta_timestamps=WINDOWS, episodes=episodes)
+def _dataset(root, episodes: list[int] | None = None, windows: dict | None = WINDOWS) -> LeRobotDataset:
+    return LeRobotDataset(REACHING_REPO_ID, root=root, delta_timestamps=windows, episodes=episodes)
 
 
 def _same(a: dict, b: dict) -> None:
@@ -25,20 +28,41 @@ def _same(a: dict, b: dict) -> None:
             assert value == b[key], key
 
 
-@pytest.mark.parametrize("episodes", [None, [2, 5, 9]], ids=["all", "a subset"])
-def test_windows_equal_lerobots_reads_at_every_frame_and_padded_episode_edge(reaching_root, episodes):
-    query = LeRobotDataset._query_hf_dataset
-    assert query._ccdp_wrapped  # installed on plugin import
-    ds = _dataset(reaching_root, episodes)
+@pytest.mark.parametrize(
+    "episodes, windows",
+    [(None, WINDOWS), ([2, 5, 9], WINDOWS), (None, None)],
+    ids=["all", "a subset", "no windows"],
+)
+def test_items_equal_lerobots_at_every_frame_and_padded_episode_edge(reaching_root, episodes, windows):
+    own = LeRobotDataset.__getitem__.__wrapped__
+    assert LeRobotDataset.__getitem__._ccdp_wrapped and LeRobotDataset._query_hf_dataset._ccdp_wrapped
+    ds = _dataset(reaching_root, episodes, windows)
     if episodes:  # frames are numbered in the whole dataset and read from the subset's rows
         assert ds._absolute_to_relative_idx is not None
     for idx in range(min(len(ds), 400)):  # every frame of the first episodes, their padded edges among them
-        indices, _ = ds._get_query_indices(
-            ds.hf_dataset[idx]["index"].item(), ds.hf_dataset[idx]["episode_index"].item()
-        )
-        _same(query(ds, indices), query.__wrapped__(ds, indices))
-    item = ds[5]
-    assert item["action"].shape == (17, 2) and item["action"].dtype == torch.float32
+        _same(ds[idx], own(ds, idx))
+    assert getattr(ds, frame_columns._CACHE).items  # whole items came from the columns
+    if windows:
+        assert ds[5]["action"].shape == (17, 2) and ds[5]["action"].dtype == torch.float32
+    item = ds[7]
+    item["action"] += 1  # an item's tensors are its own, not views of the held columns
+    _same(ds[7], own(ds, 7))
+
+
+def test_a_lerobot_that_assembles_items_otherwise_keeps_its_own_path(reaching_root, monkeypatch, caplog):
+    ds = _dataset(reaching_root)
+    calls = []
+
+    def other_item(dataset, idx):
+        calls.append(idx)
+        return {**LeRobotDataset.__getitem__.__wrapped__(dataset, idx), "extra": torch.zeros(1)}
+
+    monkeypatch.setattr(frame_columns, "_item", other_item)
+    with caplog.at_level(logging.WARNING):
+        first = ds[3]
+    assert "extra" not in first and "assembles dataset items differently" in caplog.text
+    _same(ds[4], LeRobotDataset.__getitem__.__wrapped__(ds, 4))
+    assert calls == [3]  # compared once, then LeRobot's own path
 
 
 def test_a_replaced_hf_dataset_is_read_again(reaching_root, tmp_path):
@@ -49,8 +73,4 @@ def test_a_replaced_hf_dataset_is_read_again(reaching_root, tmp_path):
     ds.hf_dataset = _dataset(other).hf_dataset  # what reloading after recording does
     after = ds[3]
     assert not torch.equal(before, after["action"])
-    indices, _ = ds._get_query_indices(3, ds.hf_dataset[3]["episode_index"].item())
-    _same(
-        LeRobotDataset._query_hf_dataset(ds, indices),
-        LeRobotDataset._query_hf_dataset.__wrapped__(ds, indices),
-    )
+    _same(after, LeRobotDataset.__getitem__.__wrapped__(ds, 3))
