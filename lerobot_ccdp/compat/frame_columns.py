@@ -43,6 +43,12 @@ class _Held:
         self.items: bool | None = None  # None: not yet compared with LeRobot's own first item
         self.tasks: list[str] | None = None  # meta.tasks' names by task_index
 
+    def __reduce__(self) -> tuple:
+        """A dataset sent to a DataLoader worker (pickled under `spawn`) arrives without its columns and reads
+        them again there: the weak reference to the `hf_dataset` cannot be pickled, and the copy's
+        `hf_dataset` is another object anyway."""
+        return (type(None), ())
+
 
 def _held(dataset: Any) -> _Held:
     """What is held for this dataset's current `hf_dataset`, read again when it changed."""
@@ -105,7 +111,7 @@ def _fast_items(dataset: Any) -> bool:
 def _item(dataset: Any, idx: int) -> dict:
     """LeRobot 0.4.4's item assembly without videos or image transforms, from the column tensors."""
     held = _held(dataset)
-    item = {key: column[idx].clone() for key, column in held.columns.items()}
+    item = {key: held.columns[key][idx].clone() for key in dataset.hf_dataset.column_names}
     if dataset.delta_indices is not None:
         frame, episode = item["index"].item(), item["episode_index"].item()
         query_indices, padding = dataset._get_query_indices(frame, episode)
@@ -156,8 +162,11 @@ def _wrap_query(original: Any) -> Any:
 def _wrap_getitem(original: Any) -> Any:
     @functools.wraps(original)
     def getitem(self: Any, idx: Any) -> dict:
-        self._ensure_hf_dataset_loaded()
-        if not isinstance(idx, int) or not _fast_items(self):
+        load = getattr(self, "_ensure_hf_dataset_loaded", None)
+        if load is None or not isinstance(idx, int):
+            return original(self, idx)
+        load()
+        if not _fast_items(self):
             return original(self, idx)
         held = _held(self)
         if held.items is None:  # the first item both ways: this LeRobot must assemble items as copied here

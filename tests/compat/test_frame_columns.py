@@ -1,6 +1,7 @@
 """Training items and windows read from column tensors equal LeRobot's own reads, key by key and dtype."""
 
 import logging
+import pickle
 
 import pytest
 import torch
@@ -74,3 +75,13 @@ def test_a_replaced_hf_dataset_is_read_again(reaching_root, tmp_path):
     after = ds[3]
     assert not torch.equal(before, after["action"])
     _same(after, LeRobotDataset.__getitem__.__wrapped__(ds, 3))
+
+
+def test_a_dataset_sent_to_a_worker_reads_its_columns_again(reaching_root):
+    """DataLoader workers started with `spawn` (macOS, Windows) receive the dataset pickled."""
+    ds = _dataset(reaching_root)
+    first = ds[3]
+    copy = pickle.loads(pickle.dumps(ds))
+    assert getattr(copy, frame_columns._CACHE) is None
+    _same(copy[3], first)
+    assert getattr(copy, frame_columns._CACHE).items
