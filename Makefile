@@ -56,23 +56,14 @@ benchmark-pixels: install
 		--out outputs/benchmark_pixels --publish docs/benchmark_pixels_report.md
 
 # The same comparison without labels (z = where an option ends, `final_state`), from each task's
-# configs/<task>_label_free/ and datasets_recipes/<task>_label_free.yaml: the Panda tasks whose episodes hold one
-# decision, then packing, whose options end once the gripper has let go, then the Bartender, whose options end
-# where the arm holds still to pour.
+# configs/<task>_label_free/ and datasets_recipes/<task>_label_free.yaml.
 benchmark-label-free: install
-	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks DoorOpening-v0 ObjectManipulation-v0 ButtonSearch-v0 \
-		--out outputs/label_free --publish docs/benchmark_label_free_report.md
-	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks ObjectPacking-v0 \
-		--out outputs/label_free_packing --publish docs/benchmark_label_free_packing_report.md
-	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks Bartender-v0 \
-		--out outputs/label_free_bartender --publish docs/benchmark_label_free_bartender_report.md
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks all --out outputs/label_free \
+		--publish docs/benchmark_label_free_report.md
 
 # docs/results.md and the README's results table, from the per-episode run files the benchmarks publish beside
 # their reports (lerobot_ccdp/benchmark/results.py).
 results: install
 	$(PY) -m lerobot_ccdp.benchmark.results --readme README.md \
 		--run "With option labels (make benchmark)" docs/benchmark_report.json \
-		--run "Without labels: door, box, buttons (make benchmark-label-free)" docs/benchmark_label_free_report.json \
-		--run "Without labels: packing" docs/benchmark_label_free_packing_report.json \
-		--run "Without labels: the Bartender" docs/benchmark_label_free_bartender_report.json \
-		--run "The geometric versions (make benchmark-lite)" docs/benchmark_lite_report.json
+		--run "Without labels (make benchmark-label-free)" docs/benchmark_label_free_report.json
