@@ -58,8 +58,9 @@ from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 
 METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp")
 # The recovery_mode each method evaluates with. "dp_star_matched" is the compute-matched baseline: DP* with
-# the candidates that fit in CCDP's measured per-plan cost (MATCHED_DP_STAR unless methods.json names its
-# own), so that CCDP - matched DP* shows what composition buys over rejection at equal compute.
+# its own settings (how it reads z) but the candidates that fit in CCDP's measured per-plan cost
+# (MATCHED_DP_STAR unless methods.json names its own), so that CCDP - matched DP* shows what composition buys
+# over rejection at equal compute.
 RECOVERY_MODE = {"dp": "dp", "dp_star": "dp_star", "dp_star_matched": "dp_star", "ccdp": "ccdp"}
 MATCHED_DP_STAR = {"dp_star_candidates": 2, "dp_star_rounds": 1}
 # Every method's evaluation runs with `--env.render_mode=null`, so its wall time measures the method alone (on
@@ -180,7 +181,9 @@ class TaskFiles:
         unknown = sorted(set(settings) - set(METHODS))
         if unknown:
             raise ValueError(f"{path} names unknown method(s) {unknown}; its keys are among {list(METHODS)}")
-        return settings.get(method, MATCHED_DP_STAR if method == "dp_star_matched" else {})
+        if method == "dp_star_matched" and method not in settings:
+            return {**settings.get("dp_star", {}), **MATCHED_DP_STAR}
+        return settings.get(method, {})
 
     def method_flags(self, method: str, overrides: dict[str, Any] | None = None) -> list[str]:
         """`method_settings`, with `overrides` on top (a setting being tuned), as lerobot-eval's `--policy.*`

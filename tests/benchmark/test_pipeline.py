@@ -333,16 +333,25 @@ def test_ccdp_with_redraws_carries_the_hybrids_name(tmp_path):
 
 def test_the_compute_matched_baseline_is_dp_star_with_few_candidates(tmp_path):
     """`dp_star_matched` evaluates recovery_mode=dp_star with 2 candidates and 1 round unless methods.json
-    names its own, beside (not instead of) DP*'s tuned settings."""
+    names its own, beside (not instead of) DP*'s tuned settings, and reads a failure's z as DP* does."""
     configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG)
-    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 32}}))
+    dp_star = {"dp_star_candidates": 32, "failure_state_at": "demonstrated_end", "delta_z": 0.05}
+    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": dp_star}))
     files = TaskFiles.locate(TASK, configs, recipes, tmp_path)
     command = files.eval_command(
         Path("ck"), "dp_star_matched", 1000, tmp_path, files.method_flags("dp_star_matched")
     )
     assert "--policy.recovery_mode=dp_star" in command
     assert {"--policy.dp_star_candidates=2", "--policy.dp_star_rounds=1"} <= set(command)
+    assert {"--policy.failure_state_at=demonstrated_end", "--policy.delta_z=0.05"} <= set(command)
+    assert "--policy.dp_star_candidates=32" not in command
     assert "--policy.dp_star_candidates=32" in files.method_flags("dp_star")
+    own = {"dp_star_candidates": 4, "dp_star_rounds": 1}
+    (configs / SLUG / "methods.json").write_text(json.dumps({"dp_star": dp_star, "dp_star_matched": own}))
+    assert files.method_flags("dp_star_matched") == [
+        "--policy.dp_star_candidates=4",
+        "--policy.dp_star_rounds=1",
+    ]
 
 
 def test_every_timed_evaluation_is_unrendered_and_videos_are_a_run_of_their_own(settings, tmp_path):
