@@ -15,8 +15,9 @@ combination runs on the same checkpoint and seeds). Prints the table, writes `pr
 and a Fig. 2-style panel grid `preferences.png` under --out (CCDP with the first weight and redraw count).
 Members run side by side each with its own --out are tabulated together with
 `--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs
-did not change are skipped (stamps, as in the pipeline). Members 0-11 are the test family; settings are chosen
-on the development members 100-103 (`--members 100 101 102 103`).
+did not change are skipped (stamps, as in the pipeline). Settings are chosen on the development members
+100-103 (`--members 100 101 102 103`); members 0-11 were the classifier forms' test family (spent), 12-23 the
+set denoiser's (docs/benchmarks.md).
 
 With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifier, unless
 --no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its
@@ -48,7 +49,8 @@ from lerobot_ccdp.benchmark.reaching_preferences import Method, measure
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
 
-TARGETS = {"failed_share": 0.03, "preference_error": 0.08}  # issue 17, on the family's mean
+# Issue 50 on the family's mean, after one and after two failures (issue 17 asked 0.03 and 0.08).
+TARGETS = {"failed_share": 0.01, "preference_error": 0.05}
 
 BIN = Path(sys.executable).parent
 CHECKPOINT = Path("checkpoints/last/pretrained_model")
@@ -258,11 +260,12 @@ def table(results: dict[int, dict]) -> str:
 
 def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
     """Markdown: per method and failure count, the family's mean failed share and preference error with a 95%
-    bootstrap interval over members and the verdict against issue 17's targets, and the preference error minus
+    bootstrap interval over members and the verdict against TARGETS, and the preference error minus
     `reference`'s, paired member by member (the same checkpoint and start states)."""
     names = [n for n in next(iter(results.values()))["methods"] if n != "DP"]
     lines = [
-        "| method | failures | failed share (target <= 0.03) | preference error (target <= 0.08) | "
+        f"| method | failures | failed share (target <= {TARGETS['failed_share']}) | "
+        f"preference error (target <= {TARGETS['preference_error']}) | "
         f"preference error minus {reference}'s |",
         "|---|---|---|---|---|",
     ]
@@ -440,7 +443,9 @@ def main() -> None:
         f"{args.base_steps} steps, heads {args.head_steps} steps (classifier {args.classifier}, set denoiser "
         f"{args.set_denoiser}), guidance weights {args.w_z}, redraws {args.redraws}.\n\n{text}\n"
     )
-    shown = ccdp_name(args.w_z[0], args.redraws[0]) if args.classifier else "CCDP set denoiser"
+    shown = ccdp_name(args.w_z[0], args.redraws[0])
+    if shown not in next(iter(chosen.values()))["methods"]:  # members measured with --no-classifier
+        shown = "CCDP set denoiser"
     panel_grid(chosen, args.out / "preferences.png", shown)
 
 
