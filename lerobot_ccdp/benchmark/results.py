@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from lerobot_ccdp.benchmark.comparison import METHOD_LABELS
-from lerobot_ccdp.benchmark.episodes import Episodes
+from lerobot_ccdp.benchmark.episodes import Episodes, Estimate
 from lerobot_ccdp.benchmark.paired import (
     cluster_bootstrap,
     paired_difference,
@@ -172,6 +172,47 @@ def table(run: Run) -> str:
     return "\n".join(lines)
 
 
+NON_INFERIORITY_MARGIN = 0.05  # issue 50: CCDP - DP*'s lower bound >= -0.05
+REPEATS_TARGET, REPEATS_CEILING = 0.05, 0.10  # issue 50: repeats after a failure <= 0.05, upper bound <= 0.10
+
+
+def _judged(met: bool, estimate: Estimate) -> str:
+    return f"{'met' if met else 'missed'}, {estimate}"
+
+
+def claims_table(run: Run) -> str:
+    """Per task, CCDP's claims judged as issue 50 words them (`met` or `missed`, with the interval): success
+    non-inferior to DP*, few repeats after a failure, success above DP, and above DP* at CCDP's cost where
+    full DP* beats DP ("-" where it does not, so there is nothing for composition to add). Empty when the run
+    lacks CCDP or a baseline."""
+    name = run.ccdp_column()
+    needed = ("ccdp", *BASELINES)
+    if not run.episodes or not all(m in ms for ms in run.episodes.values() for m in needed):
+        return ""
+    lines = [
+        f"| task | {name} - DP* >= -{NON_INFERIORITY_MARGIN:.2f} | repeats after a failure "
+        f"<= {REPEATS_TARGET:.2f} (upper bound <= {REPEATS_CEILING:.2f}) | {name} > DP | "
+        f"{name} > DP* at CCDP's cost, where DP* > DP |",
+        "|---|---|---|---|---|",
+    ]
+    for task, ms in run.episodes.items():
+        ccdp = ms["ccdp"]
+        to_dp_star = paired_difference(ccdp, ms["dp_star"], success_rate)
+        repeats = cluster_bootstrap(ccdp, repeats_per_opportunity)
+        to_dp = paired_difference(ccdp, ms["dp"], success_rate)
+        cells = [
+            _judged(to_dp_star.low >= -NON_INFERIORITY_MARGIN, to_dp_star),
+            _judged(repeats.value <= REPEATS_TARGET and repeats.high <= REPEATS_CEILING, repeats),
+            _judged(to_dp.low > 0, to_dp),
+            "-",
+        ]
+        if paired_difference(ms["dp_star"], ms["dp"], success_rate).low > 0:
+            to_matched = paired_difference(ccdp, ms["dp_star_matched"], success_rate)
+            cells[3] = _judged(to_matched.low > 0, to_matched)
+        lines.append(f"| {task.removesuffix('-v0')} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def section(title: str, run: Run) -> str:
     n = {len(e) for ms in run.episodes.values() for e in ms.values()}
     seeds = f"{run.first_seed}-{run.first_seed + max(n) - 1}" if n else "none"
@@ -181,6 +222,11 @@ def section(title: str, run: Run) -> str:
             f"Seeds {seeds}, the same for every method. Made at commit `{run.commit}` by `{run.command}`; "
             f"per-episode outcomes: [{run.source.name}]({run.source.name}).",
             table(run),
+            *(
+                [f"Issue 50's claims, each `met` or `missed` as the issue defines it:\n\n{claims}"]
+                if (claims := claims_table(run))
+                else []
+            ),
         ]
     )
 

@@ -5,7 +5,16 @@ import pytest
 
 from lerobot_ccdp.benchmark.episodes import Episodes
 from lerobot_ccdp.benchmark.paired import paired_difference, success_rate
-from lerobot_ccdp.benchmark.results import README_BEGIN, README_END, Run, ccdp_label, main, save_run, table
+from lerobot_ccdp.benchmark.results import (
+    README_BEGIN,
+    README_END,
+    Run,
+    ccdp_label,
+    claims_table,
+    main,
+    save_run,
+    table,
+)
 
 
 def _episodes(success: list[bool], failures: list[float]) -> Episodes:
@@ -75,3 +84,35 @@ def test_the_command_refuses_a_readme_without_the_markers_and_other_files(tmp_pa
     main(command)
     assert readme.read_text().startswith(f"intro\n{README_BEGIN}\n| task | DP | CCDP | CCDP - DP |")
     assert readme.read_text().endswith(f"{README_END}\nend\n")
+
+
+def test_the_claims_are_judged_as_issue_50_defines_them(tmp_path):
+    half, every = [True, False] * 20, [True] * 40
+    repeats = _episodes(every, [1.0] * 40)
+    repeats.repeated_failures[:] = 1  # one repeat per attempt after a failure
+    episodes = {
+        "DoorOpening-v0": {  # CCDP as DP*, above DP and above DP* at CCDP's cost
+            "dp": _episodes(half, [1.0] * 40),
+            "dp_star": _episodes(every, [1.0] * 40),
+            "dp_star_matched": _episodes(half, [1.0] * 40),
+            "ccdp": _episodes(every, [1.0] * 40),
+        },
+        "Bartender-v0": {  # CCDP as DP, repeating; DP* no better than DP: nothing to add over matched
+            "dp": _episodes(half, [1.0] * 40),
+            "dp_star": _episodes(half, [1.0] * 40),
+            "dp_star_matched": _episodes(half, [1.0] * 40),
+            "ccdp": repeats,
+        },
+    }
+    episodes["Bartender-v0"]["ccdp"].success[:] = half
+    labels = {task: dict.fromkeys(methods, "CCDP") for task, methods in episodes.items()}
+    save_run(tmp_path / "run.json", episodes, labels, "python -m lerobot_ccdp.benchmark.pipeline", 3000)
+    lines = claims_table(Run.load(tmp_path / "run.json")).splitlines()
+    assert lines[0].startswith("| task | CCDP - DP* >= -0.05 | repeats after a failure <= 0.05 (upper bound")
+    door, bartender = (line.split(" | ")[1:] for line in lines[2:])
+    assert [cell.split(",")[0] for cell in door] == ["met"] * 4
+    assert [cell.split(",")[0] for cell in bartender[:3]] == ["met", "missed", "missed"]
+    assert bartender[3] == "- |"
+    without = {task: {m: e for m, e in ms.items() if m != "dp_star_matched"} for task, ms in episodes.items()}
+    save_run(tmp_path / "two.json", without, labels, "python -m lerobot_ccdp.benchmark.pipeline", 3000)
+    assert claims_table(Run.load(tmp_path / "two.json")) == ""  # a run without every baseline has no claims
