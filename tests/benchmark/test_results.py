@@ -1,4 +1,6 @@
-"""docs/results.md from saved runs: round trip, the hybrid's own name, refusals."""
+"""docs/results.md from saved runs: round trip, the hybrid's name, the claims, refusals, what is published."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,3 +118,29 @@ def test_the_claims_are_judged_as_issue_50_defines_them(tmp_path):
     without = {task: {m: e for m, e in ms.items() if m != "dp_star_matched"} for task, ms in episodes.items()}
     save_run(tmp_path / "two.json", without, labels, "python -m lerobot_ccdp.benchmark.pipeline", 3000)
     assert claims_table(Run.load(tmp_path / "two.json")) == ""  # a run without every baseline has no claims
+
+
+def test_the_published_tables_are_what_make_results_writes(tmp_path):
+    """docs/results.md and the README's block equal `make results` on the committed run files."""
+    docs = Path(__file__).parents[2] / "docs"
+    readme = tmp_path / "README.md"
+    readme.write_text((docs.parent / "README.md").read_text())
+    main(
+        [
+            "--readme",
+            str(readme),
+            "--run",
+            "With option labels (make benchmark)",
+            str(docs / "benchmark_report.json"),
+            "--run",
+            "Without labels (make benchmark-label-free)",
+            str(docs / "benchmark_label_free_report.json"),
+            "--out",
+            str(tmp_path / "results.md"),
+        ]
+    )
+    written, published = ((p / "results.md").read_text().splitlines() for p in (tmp_path, docs))
+    assert [line for line in written if not line.startswith("<!-- Written")] == [
+        line for line in published if not line.startswith("<!-- Written")
+    ]
+    assert readme.read_text() == (docs.parent / "README.md").read_text()
