@@ -70,6 +70,7 @@ def measured(tmp_path_factory) -> dict[int, dict]:
     return results
 
 
+@pytest.mark.slow  # about 2 min; the default suite's 2-D claim is test_set_denoiser_claim.py
 def test_classifier_guidance_avoids_failed_goals_where_dp_repeats_them(measured):
     scores = {
         (seed, method, count): (round(m["failed_share"], 3), round(m["preference_error"], 3))
