@@ -4,6 +4,8 @@
         --method dp_star --grid dp_star_candidates=16,32 dp_star_rounds=1,4 [--seed 1000] [--write]
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/benchmark \
         --tasks ButtonSearch-v0 --method ccdp --grid ccdp_redraws=0,3 [--write]
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/label_free \
+        --label-free --tasks Bartender-v0 --method ccdp --grid w_z=1,2
 
 Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy
 fields on each task's recovery checkpoint of a `make benchmark` run (or
@@ -201,6 +203,11 @@ def main(argv: list[str] | None = None) -> None:
         metavar="NAME",
         help=f"evaluate only these heads ({OWN!r} is the run's own; default: every head)",
     )
+    parser.add_argument(
+        "--label-free",
+        action="store_true",
+        help="the tasks' <task>_label_free settings and folders, of a make benchmark-label-free run",
+    )
     parser.add_argument("--seed", type=int, default=1000, help="first development seed")
     parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
     parser.add_argument(
@@ -224,7 +231,10 @@ def main(argv: list[str] | None = None) -> None:
     rows_of = table_rows(parse_grid(args.grid), checkpoints, args.heads)
     heads = list(dict.fromkeys(name for name, _ in rows_of))
     files = {
-        t: TaskFiles.locate(t, REPO / "configs", REPO / "datasets_recipes", args.out) for t in args.tasks
+        t: TaskFiles.locate(
+            t, REPO / "configs", REPO / "datasets_recipes", args.out, label_free=args.label_free
+        )
+        for t in args.tasks
     }
     paths = {t: {name: checkpoint_path(f, checkpoints, name) for name in heads} for t, f in files.items()}
     missing = [str(path) for by_name in paths.values() for path in by_name.values() if not path.is_dir()]
