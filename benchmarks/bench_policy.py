@@ -2,7 +2,7 @@
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
         [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|classifier|set_denoiser]
-        [--plan-batch 1] [--horizon 16]
+        [--plan-batch 1] [--horizon 16] [--w-z 1] [--w-z-steps K]
         [--out outputs/bench_policy.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
@@ -139,7 +139,13 @@ def interleaved_medians(calls: dict[str, callable], repeats: int, warmup: int) -
 
 def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Namespace) -> dict:
     torch.manual_seed(0)
-    make = functools.partial(make_ccdp, recovery_head=args.recovery_head, horizon=args.horizon)
+    make = functools.partial(
+        make_ccdp,
+        recovery_head=args.recovery_head,
+        horizon=args.horizon,
+        w_z=args.w_z,
+        w_z_steps=args.w_z_steps,
+    )
     rows = args.plan_batch
     obs = {STATE: torch.randn(rows, 2), ENV: torch.randn(rows, env_dim)}
 
@@ -432,6 +438,10 @@ def main(argv: list[str] | None = None) -> dict:
         "--plan-batch", type=int, default=1, help="rows planned per call (lerobot-eval: its batch)"
     )
     parser.add_argument("--horizon", type=int, default=16, help="chunk length (the Panda tasks: 32)")
+    parser.add_argument("--w-z", type=float, default=1.0, help="CCDP's failure weight")
+    parser.add_argument(
+        "--w-z-steps", type=int, default=None, help="set denoiser: steps that use --w-z (default: all)"
+    )
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--recovery-head", choices=RECOVERY_HEADS, default="unet", help="recovery head")
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")

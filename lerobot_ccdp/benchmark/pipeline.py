@@ -512,6 +512,8 @@ def method_forms(runs: list[TaskRun]) -> str:
                 f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by the failure-set denoiser eps_(s,F), "
                 f"w_z {ccdp['w_z']:g}"
             )
+            if ccdp.get("w_z_steps") is not None:
+                form += f" on the first {ccdp['w_z_steps']} steps, 1 after"
             synthesis = (
                 f"chunks sampled half at option starts, half along the demos: sigma {recipe.sigma:g}, "
                 f"w_s {recipe.w_s:g}, "

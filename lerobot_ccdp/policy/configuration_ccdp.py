@@ -34,6 +34,7 @@ POSITIVE_FIELDS = (
     "n_action_steps",
     "num_train_timesteps",
     "num_inference_steps",
+    "w_z_steps",
     "kernel_size",
     "diffusion_step_embed_dim",
     "spatial_softmax_num_keypoints",
@@ -64,6 +65,9 @@ class CCDPConfig(PreTrainedConfig):
         w_h: Weight of the history term eps_h - eps_a in eq. (4); needs `history_length` > 0.
         w_z: Weight of the failure terms of eq. (4), or of the failure-set term for the set denoiser and the
             classifier's guidance.
+        w_z_steps: Set denoiser: apply `w_z` only at the first (noisiest) `w_z_steps` reverse steps, where a
+            sample picks its option, and w_z = 1 (eps_{s,F} alone, one UNet call) at the rest, where it
+            refines the option picked. None: `w_z` at every step. Each guided step costs a base call.
         z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
             "eps_z_null" (the recovery head with z dropped, trained on the same rows). `unet` head only.
         history_length: States and actions before the observation window that form the history condition
@@ -154,6 +158,7 @@ class CCDPConfig(PreTrainedConfig):
     w_s: float = 1.0
     w_h: float = 0.0
     w_z: float = 1.0
+    w_z_steps: int | None = None
     z_reference: ZReference = "eps_z_null"
     history_length: int = 0
     recovery_mode: RecoveryMode = "ccdp"
@@ -227,6 +232,12 @@ class CCDPConfig(PreTrainedConfig):
         if bad_steps:
             raise ValueError(
                 f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon})."
+            )
+        if self.w_z_steps is not None and self.recovery_head != "set_denoiser":
+            raise ValueError(
+                f"`w_z_steps` ({self.w_z_steps}) schedules the set denoiser's failure weight; the "
+                f"{self.recovery_head!r} head weighs every step alike. Remove --policy.w_z_steps or use "
+                "--policy.recovery_head=set_denoiser."
             )
         if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
             raise ValueError(

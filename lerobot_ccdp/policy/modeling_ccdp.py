@@ -355,7 +355,9 @@ class CCDPModel(nn.Module):
             prediction_type=config.prediction_type,
         )
         self.feature = FailureFeature(config)
-        self.weights = CompositionWeights(config.w_s, config.w_h, config.w_z, config.z_reference)
+        self.weights = CompositionWeights(
+            config.w_s, config.w_h, config.w_z, config.z_reference, config.w_z_steps
+        )
         if dataset_stats is not None and config.training_stage == "base":
             refuse_non_finite_stats(config, dataset_stats)
             self.constant_inputs.fill(config, dataset_stats)
@@ -554,12 +556,13 @@ class CCDPModel(nn.Module):
         denoiser, by its single failure-set term (`compose_with_failure_set`). The reverse steps' noise comes
         from `generators` (one per row, `noise_streams`) when given, else from torch's global generator."""
         weights = weights or self.weights
+        self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
+        timesteps = [int(t) for t in self.noise_scheduler.timesteps]
         if z.shape[1] and self.config.recovery_head == "set_denoiser":
-            estimate = self._failure_set_estimate(weights, state, history, z, z_mask)
+            estimate = self._failure_set_estimate(weights, state, history, z, z_mask, timesteps)
         else:
             estimate = self._composed_estimate(weights, state, history, z, z_mask)
-        self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
-        for t in self.noise_scheduler.timesteps:
+        for t in timesteps:
             eps = estimate(sample, int(t))
             sample = self.noise_scheduler.step(eps, t, sample, generator=generators).prev_sample
         return sample
@@ -615,17 +618,27 @@ class CCDPModel(nn.Module):
         return estimate
 
     def _failure_set_estimate(
-        self, weights: CompositionWeights, state: Tensor, history: Tensor, z: Tensor, z_mask: Tensor
+        self,
+        weights: CompositionWeights,
+        state: Tensor,
+        history: Tensor,
+        z: Tensor,
+        z_mask: Tensor,
+        timesteps: list[int],
     ):
         """`compose_with_failure_set` for the rows with failures (eps_{s,F} in one recovery call, plus the
-        base terms whose coefficient is not zero: none at w_s = w_z = 1, w_h = 0) and the base composition for
-        the other rows as a function of (noisy sample, timestep)."""
+        base terms whose coefficient is not zero at that step's weights: none at w_s = w_z = 1, w_h = 0) and
+        the base composition for the other rows as a function of (noisy sample, timestep)."""
         failed = z_mask.any(dim=1)
         no_failures = z[:, :0], z_mask[:, :0]
         plain_rest = self._composed_estimate(
             weights, state[~failed], history[~failed], no_failures[0][~failed], no_failures[1][~failed]
         )
-        base = self._base_estimates(weights.failure_set_base_terms(), state[failed], history[failed])
+        step_weights = {t: weights.at_step(index) for index, t in enumerate(timesteps)}
+        base = {
+            w: self._base_estimates(w.failure_set_base_terms(), state[failed], history[failed])
+            for w in set(step_weights.values())
+        }
         z_failed, mask_failed, state_failed = z[failed], z_mask[failed], state[failed]
 
         def estimate(sample: Tensor, t: int) -> Tensor:
@@ -634,10 +647,10 @@ class CCDPModel(nn.Module):
                 eps[~failed] = plain_rest(sample[~failed], t)
             noisy = sample[failed]
             step = torch.full((noisy.shape[0],), t, dtype=torch.long, device=sample.device)
-            estimates = base(noisy, t) | {
+            estimates = base[step_weights[t]](noisy, t) | {
                 "sF": self.recovery(noisy, step, state_failed, z_failed, mask_failed)
             }
-            eps[failed] = compose_with_failure_set(weights, estimates)
+            eps[failed] = compose_with_failure_set(step_weights[t], estimates)
             return eps
 
         return estimate

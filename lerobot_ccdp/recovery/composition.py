@@ -1,6 +1,6 @@
 """Equation (4) of the paper: the composed noise estimate of one denoising step."""
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -15,13 +15,25 @@ class CompositionWeights:
 
     `z_reference` names what each failure term is measured against: "eps_a" (the paper's eq. 4) or
     "eps_z_null" (the recovery head's own z-dropped estimate, so that the term compares two estimates learnt
-    from the same recovery data; see `compose_eps`).
+    from the same recovery data; see `compose_eps`). `w_z_steps` limits w_z to the first reverse steps
+    (`at_step`).
     """
 
     w_s: float
     w_h: float
     w_z: float
     z_reference: str = "eps_a"
+    w_z_steps: int | None = None
+
+    def at_step(self, index: int) -> "CompositionWeights":
+        """The weights of reverse step `index` (0 is the noisiest): w_z up to `w_z_steps`, then w_z = 1.
+
+        A sample picks its option in the noisy steps and refines it in the late ones, so guidance beyond
+        eps_{s,F} (w_z > 1) is needed only early; later steps use eps_{s,F} alone, in one network call.
+        """
+        if self.w_z_steps is None or index < self.w_z_steps:
+            return self
+        return replace(self, w_z=1.0, w_z_steps=None)
 
     def uses_unconditional(self, n_failures: Tensor) -> bool:
         """Whether eps_a carries weight for any row: its coefficient is 1 - w_s - w_h - w_z * N_row, without

@@ -77,8 +77,39 @@ def test_a_plan_after_failures_calls_only_the_set_denoiser_once_per_step():
     assert base_rows == [1] * steps  # the row without failures: eps_s only
 
 
+def test_w_z_steps_guides_only_the_first_steps_then_uses_the_set_denoiser_alone():
+    """w_z = 2 on the first 3 of 10 reverse steps: there eps_s + 2 (eps_{s,F} - eps_s), a base call for the
+    failed rows; afterwards eps_{s,F} alone. The plan equals the one sampled step by step by hand."""
+    policy = make_policy(**SETTINGS, w_z=2.0, w_z_steps=3)
+    policy.model.recovery_trained.fill_(True)
+    model = policy.model
+    state, history = torch.zeros(2, 2), torch.zeros(2, 0)
+    z, z_mask = torch.eye(3)[torch.tensor([[0], [1]])], torch.ones(2, 1, dtype=torch.bool)
+    base_rows = count_calls(model.base)
+    start = torch.randn(2, 16, 2)
+    torch.manual_seed(1)
+    with torch.inference_mode():
+        plan = model.denoise(start.clone(), state, history, z, z_mask)
+    steps = policy.config.num_inference_steps
+    assert base_rows == [2] * 3  # the failed rows' eps_s, at the guided steps only
+
+    torch.manual_seed(1)
+    sample, ones, no_history = start.clone(), torch.ones(2, 1), torch.zeros(2, 1)
+    with torch.inference_mode():
+        for index, t in enumerate(model.noise_scheduler.timesteps[:steps]):
+            step = torch.full((2,), int(t))
+            eps = model.recovery(sample, step, state, z, z_mask)
+            if index < 3:
+                eps_s = model.base(sample, step, state, ones, history, no_history)
+                eps = eps_s + 2.0 * (eps - eps_s)
+            sample = model.noise_scheduler.step(eps, t, sample).prev_sample
+    torch.testing.assert_close(plan, sample)
+
+
 def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
     import pytest
 
     with pytest.raises(ValueError, match="n_obs_steps=1"):
         make_policy(**SETTINGS, n_obs_steps=2, n_action_steps=8)
+    with pytest.raises(ValueError, match="--policy.recovery_head=set_denoiser"):
+        make_policy(**{**SETTINGS, "recovery_head": "unet"}, w_z_steps=3)
