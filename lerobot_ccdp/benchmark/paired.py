@@ -77,6 +77,13 @@ def paired_difference(
     return _bootstrap(len(a), lambda idx: statistic(a, idx) - statistic(b, idx), n_resamples, seed)
 
 
+def preference_difference(a: Episodes, b: Episodes) -> Estimate:
+    """Preference adherence of `a` minus `b` on the episodes both solved, paired: a method that solves more
+    episodes is not scored on the ones only it solved, so the comparison is of preference, not success."""
+    both = a.success & b.success
+    return paired_difference(a.subset(both), b.subset(both), preference_rate)
+
+
 def attempts_ratio(a: Episodes, b: Episodes, n_resamples: int = N_RESAMPLES, seed: int = 0) -> Estimate:
     """Mean attempts of `a` over those of `b`, on the episodes both solved, with a paired-bootstrap
     interval."""

@@ -30,7 +30,7 @@ from lerobot_ccdp.benchmark.episodes import Episodes, Estimate
 from lerobot_ccdp.benchmark.paired import (
     cluster_bootstrap,
     paired_difference,
-    preference_rate,
+    preference_difference,
     repeats_per_opportunity,
     success_rate,
 )
@@ -214,8 +214,7 @@ def claims_table(run: Run) -> str:
             to_matched = paired_difference(ccdp, ms["dp_star_matched"], success_rate)
             cells[3] = _judged(to_matched.low > 0, to_matched)
         if has_preference(task):
-            both = ccdp.success & ms["dp_star"].success
-            preference = paired_difference(ccdp.subset(both), ms["dp_star"].subset(both), preference_rate)
+            preference = preference_difference(ccdp, ms["dp_star"])
             cells[4] = _judged(preference.low >= -NON_INFERIORITY_MARGIN, preference)
         lines.append(f"| {task.removesuffix('-v0')} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -13,7 +13,7 @@ from lerobot_ccdp.benchmark.paired import (
     attempts_ratio,
     cluster_bootstrap,
     paired_difference,
-    preference_rate,
+    preference_difference,
     repeats_per_attempt,
     success_rate,
     verdict,
@@ -64,8 +64,7 @@ def target_checks(episodes: dict[str, dict[str, Episodes]]) -> str:
                     verdict(diff, low_bound=low, strict=strict),
                 )
         if has_preference(task) and "dp_star" in methods:
-            both = ccdp.success & methods["dp_star"].success  # compare preference, not success
-            diff = paired_difference(ccdp.subset(both), methods["dp_star"].subset(both), preference_rate)
+            diff = preference_difference(ccdp, methods["dp_star"])
             row(
                 task,
                 "preference >= DP* (episodes both solved)",
