@@ -563,7 +563,7 @@ class CCDPModel(nn.Module):
         else:
             estimate = self._composed_estimate(weights, state, history, z, z_mask)
         for t in timesteps:
-            eps = estimate(sample, int(t))
+            eps = estimate(sample, t)
             sample = self.noise_scheduler.step(eps, t, sample, generator=generators).prev_sample
         return sample
 
