@@ -24,7 +24,9 @@ With --set-denoiser the base is trained with `--policy.recovery_head=set_denoise
 rows (SET_RECIPE: chunks the base samples at demonstrated states, half of them the episodes' first),
 lerobot-train trains the failure-set denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one
 sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1
-round) on the same base and seeds.
+round) on the same base and seeds; each --w-z other than 1 adds the set denoiser at that failure weight on the
+first --w-z-steps reverse steps (0: every step). --set-states sets the rows' states (SET_RECIPE's 512), and
+--no-baselines leaves out DP and DP* (most of a member's measurement time) for a sweep of head settings.
 """
 
 from __future__ import annotations
@@ -67,9 +69,14 @@ SET_RECIPE = {"n_states": 512, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0
 def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobotDataset) -> dict[str, Method]:
     """The methods measured on `head` ("classifier" or "set_denoiser"); DP and DP* on the first head only (the
     heads share the base)."""
-    baselines = BASELINES if first else {}
+    baselines = BASELINES if first and sampling.baselines else {}
     if head == "set_denoiser":  # one sample per plan
-        return {**baselines, **MATCHED, "CCDP set denoiser": Method("ccdp", {"w_z": 1.0})}
+        forms = {
+            set_denoiser_name(w, k): Method("ccdp", {"w_z": w, "w_z_steps": k or None})
+            for w in sampling.w_z
+            for k in (sampling.w_z_steps if w != 1.0 else [0])
+        }
+        return {**baselines, **MATCHED, **forms}
     ccdp = {
         ccdp_name(w, n): Method("ccdp", {"w_z": w, "ccdp_redraws": n})
         for w in sampling.w_z
@@ -78,6 +85,14 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     # The reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start
     # chunks.
     return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
+
+
+def set_denoiser_name(w_z: float, steps: int) -> str:
+    """The table's name of the set denoiser at weight `w_z` on the first `steps` reverse steps (0: every
+    step), 1 after; "CCDP set denoiser" at w_z = 1, the form of the round on members 12-23."""
+    if w_z == 1.0:
+        return "CCDP set denoiser"
+    return f"CCDP set denoiser w_z={w_z:g}" + (f" first {steps} steps" if steps else "")
 
 
 def ccdp_name(w_z: float, redraws: int) -> str:
@@ -128,6 +143,7 @@ def prepare_member(
     episodes: int,
     classifier: bool,
     set_denoiser: bool,
+    set_states: int,
 ) -> dict[str, Path]:
     """Record member `seed`, train its base and, from it, the classifier head (with `classifier`) and the
     failure-set denoiser (with `set_denoiser`); return the heads' checkpoints by head name."""
@@ -181,22 +197,22 @@ def prepare_member(
             book,
         )[0]
     if set_denoiser:
-        heads["set_denoiser"] = train_set_denoiser(root, task, base, base_stamp, head_steps, book)
+        heads["set_denoiser"] = train_set_denoiser(root, task, base, base_stamp, head_steps, set_states, book)
     return heads
 
 
 def train_set_denoiser(
-    root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int, book: StampBook
+    root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int, states: int, book: StampBook
 ) -> Path:
-    """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE), then lerobot-train it on
-    them."""
+    """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE at `states` states), then
+    lerobot-train it on them."""
     z = (
         {"failure_feature": "primitive", "num_primitives": len(task.goals)}
         if task.labelled
         else {"failure_feature": "final_state"}
     )
     recipe, rows, repo = root / "set_recipe.yaml", root / "set_rows", f"local/set_rows_{root.name}"
-    recipe.write_text(yaml.safe_dump({"recovery": {**z, **SET_RECIPE}}))
+    recipe.write_text(yaml.safe_dump({"recovery": {**z, **SET_RECIPE, "n_states": states}}))
     command = [
         "lerobot-ccdp-synthesize",
         f"--config_path={recipe}",
@@ -207,7 +223,7 @@ def train_set_denoiser(
         f"--output.root={rows}",
         "--overwrite=true",
     ]
-    rows_stamp = stamp(command, base_stamp)
+    rows_stamp = stamp([*command, recipe.read_text()], base_stamp)  # the recipe's content, not its path
     if not (rows / "meta" / "info.json").exists() or not book.matches("set_rows", rows_stamp):
         print(f"  set_rows: lerobot-ccdp-synthesize into {rows}", flush=True)
         subprocess.run([str(BIN / command[0]), *command[1:]], check=True, capture_output=True)
@@ -263,6 +279,7 @@ def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
     bootstrap interval over members and the verdict against TARGETS, and the preference error minus
     `reference`'s, paired member by member (the same checkpoint and start states)."""
     names = [n for n in next(iter(results.values()))["methods"] if n != "DP"]
+    paired = reference in names  # not with --no-baselines
     lines = [
         f"| method | failures | failed share (target <= {TARGETS['failed_share']}) | "
         f"preference error (target <= {TARGETS['preference_error']}) | "
@@ -275,17 +292,20 @@ def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
             for metric, target in TARGETS.items():
                 estimate = bootstrap_mean([r["methods"][name][count][metric] for r in results.values()])
                 cells.append(f"{_three(estimate)} {verdict(estimate, high_bound=target)}")
-            difference = bootstrap_mean(
-                [
-                    r["methods"][name][count]["preference_error"]
-                    - r["methods"][reference][count]["preference_error"]
-                    for r in results.values()
-                ]
-            )
-            judged = {"met": "lower", "missed": "higher"}.get(
-                verdict(difference, high_bound=0.0), "not distinguishable"
-            )
-            cells.append("" if name == reference else f"{_three(difference)} {judged}")
+            if not paired or name == reference:
+                cells.append("")
+            else:
+                difference = bootstrap_mean(
+                    [
+                        r["methods"][name][count]["preference_error"]
+                        - r["methods"][reference][count]["preference_error"]
+                        for r in results.values()
+                    ]
+                )
+                judged = {"met": "lower", "missed": "higher"}.get(
+                    verdict(difference, high_bound=0.0), "not distinguishable"
+                )
+                cells.append(f"{_three(difference)} {judged}")
             lines.append(f"| {name} | {count} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -315,6 +335,8 @@ def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
         ("DP*", "2", "DP* after 2"),
         (ccdp, "2", f"{ccdp} after 2"),
     ]
+    measured = next(iter(results.values()))["methods"]
+    columns = [column for column in columns if column[0] in measured]  # no DP and DP* with --no-baselines
     fig, axes = plt.subplots(
         len(results), len(columns), figsize=(2.2 * len(columns), 2.2 * len(results)), squeeze=False
     )
@@ -354,11 +376,25 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--rows", type=int, default=512)
     parser.add_argument(
+        "--set-states",
+        type=int,
+        default=SET_RECIPE["n_states"],
+        help="set denoiser: demonstrated states its rows are synthesised at (each with 16 base samples)",
+    )
+    parser.add_argument(
         "--w-z",
         type=float,
         nargs="+",
         default=[1.0],
-        help="classifier guidance weights to measure (sampling settings: no retraining)",
+        help="classifier guidance weights, or the set denoiser's failure weights, to measure (sampling "
+        "settings: no retraining)",
+    )
+    parser.add_argument(
+        "--w-z-steps",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="set denoiser: the first reverse steps that use each --w-z other than 1, then 1 (0: every step)",
     )
     parser.add_argument(
         "--no-classifier",
@@ -377,6 +413,14 @@ def main() -> None:
         nargs="+",
         default=[0],
         help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)",
+    )
+    parser.add_argument(
+        "--no-baselines",
+        dest="baselines",
+        action="store_false",
+        help="measure no DP and DP* (32 candidates, 4 rounds): they do not depend on the head, so a sweep of "
+        "head settings need not repeat them, and a later run without this flag adds them on the same "
+        "checkpoints",
     )
     parser.add_argument("--report-only", action="store_true", help="tabulate the members already measured")
     parser.add_argument(
@@ -420,6 +464,7 @@ def main() -> None:
             args.episodes,
             args.classifier,
             args.set_denoiser,
+            args.set_states,
         )
         root, repo = member_dataset(seed, args.out)
         demos = LeRobotDataset(repo, root=root)
@@ -445,7 +490,7 @@ def main() -> None:
     )
     shown = ccdp_name(args.w_z[0], args.redraws[0])
     if shown not in next(iter(chosen.values()))["methods"]:  # members measured with --no-classifier
-        shown = "CCDP set denoiser"
+        shown = set_denoiser_name(args.w_z[0], args.w_z_steps[0])
     panel_grid(chosen, args.out / "preferences.png", shown)
 
 
