@@ -446,8 +446,15 @@ def main() -> None:
     if args.report_only:
         for folder in args.merge:
             results.update(measured_members(folder))
-        results_path.write_text(json.dumps(results))
         args.members = [seed for seed in args.members if seed in results]
+        measured = {seed: sorted(results[seed]["methods"]) for seed in args.members}
+        if len({tuple(names) for names in measured.values()}) > 1:
+            sys.exit(
+                f"The members were measured with different methods ({measured}): tabulate together only "
+                "members run with the same --w-z, --w-z-steps, --redraws and --no-baselines, or rerun the "
+                "rest with them."
+            )
+        results_path.write_text(json.dumps(results))
     for seed in [] if args.report_only else args.members:
         started = time.perf_counter()
         task = ReachingTask.family_member(seed)
