@@ -25,8 +25,9 @@ rows (SET_RECIPE: chunks the base samples at demonstrated states, half of them t
 lerobot-train trains the failure-set denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one
 sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1
 round) on the same base and seeds; each --w-z other than 1 adds the set denoiser at that failure weight on the
-first --w-z-steps reverse steps (0: every step). --set-states sets the rows' states (SET_RECIPE's 512), and
---no-baselines leaves out DP and DP* (most of a member's measurement time) for a sweep of head settings.
+first --w-z-steps reverse steps (negative: the last; 0: every step). --set-states sets the rows' states
+(SET_RECIPE's 512), and --no-baselines leaves out DP and DP* (most of a member's measurement time) for a sweep
+of head settings.
 """
 
 from __future__ import annotations
@@ -88,11 +89,13 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
 
 
 def set_denoiser_name(w_z: float, steps: int) -> str:
-    """The table's name of the set denoiser at weight `w_z` on the first `steps` reverse steps (0: every
-    step), 1 after; "CCDP set denoiser" at w_z = 1, the form of the round on members 12-23."""
+    """The table's name of the set denoiser at weight `w_z` on the first `steps` reverse steps (negative: the
+    last; 0: every step), 1 elsewhere; "CCDP set denoiser" at w_z = 1, the form of the round on members
+    12-23."""
     if w_z == 1.0:
         return "CCDP set denoiser"
-    return f"CCDP set denoiser w_z={w_z:g}" + (f" first {steps} steps" if steps else "")
+    where = f" first {steps} steps" if steps > 0 else f" last {-steps} steps" if steps else ""
+    return f"CCDP set denoiser w_z={w_z:g}{where}"
 
 
 def ccdp_name(w_z: float, redraws: int) -> str:
@@ -394,7 +397,8 @@ def main() -> None:
         type=int,
         nargs="+",
         default=[0],
-        help="set denoiser: the first reverse steps that use each --w-z other than 1, then 1 (0: every step)",
+        help="set denoiser: the first (negative: the last) reverse steps that use each --w-z other than 1, "
+        "1 elsewhere (0: every step)",
     )
     parser.add_argument(
         "--no-classifier",

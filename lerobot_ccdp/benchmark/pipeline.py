@@ -513,7 +513,8 @@ def method_forms(runs: list[TaskRun]) -> str:
                 f"w_z {ccdp['w_z']:g}"
             )
             if ccdp.get("w_z_steps") is not None:
-                form += f" on the first {ccdp['w_z_steps']} steps, 1 after"
+                guided = ccdp["w_z_steps"]
+                form += f" on the {'first' if guided > 0 else 'last'} {abs(guided)} steps, 1 elsewhere"
             synthesis = (
                 f"chunks sampled half at option starts, half along the demos: sigma {recipe.sigma:g}, "
                 f"w_s {recipe.w_s:g}, "

@@ -34,7 +34,6 @@ POSITIVE_FIELDS = (
     "n_action_steps",
     "num_train_timesteps",
     "num_inference_steps",
-    "w_z_steps",
     "kernel_size",
     "diffusion_step_embed_dim",
     "spatial_softmax_num_keypoints",
@@ -66,8 +65,9 @@ class CCDPConfig(PreTrainedConfig):
         w_z: Weight of the failure terms of eq. (4), or of the failure-set term for the set denoiser and the
             classifier's guidance.
         w_z_steps: Set denoiser: apply `w_z` only at the first (noisiest) `w_z_steps` reverse steps, where a
-            sample picks its option, and w_z = 1 (eps_{s,F} alone, one UNet call) at the rest, where it
-            refines the option picked. None: `w_z` at every step. Each guided step costs a base call.
+            sample picks its option, or, when negative, at the last |w_z_steps| (the least noisy), where it
+            refines the option picked, and w_z = 1 (eps_{s,F} alone, one UNet call) at the rest. None: `w_z`
+            at every step. Each guided step costs a base call.
         z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
             "eps_z_null" (the recovery head with z dropped, trained on the same rows). `unet` head only.
         history_length: States and actions before the observation window that form the history condition
@@ -292,6 +292,13 @@ class CCDPConfig(PreTrainedConfig):
             raise ValueError(
                 f"`num_inference_steps` ({self.num_inference_steps}) cannot exceed `num_train_timesteps` "
                 f"({self.num_train_timesteps}): the reverse diffusion visits training timesteps."
+            )
+        steps = self.num_inference_steps or self.num_train_timesteps
+        if self.w_z_steps is not None and not 0 < abs(self.w_z_steps) <= steps:
+            raise ValueError(
+                f"`w_z_steps` ({self.w_z_steps}) counts the first (positive) or last (negative) of the "
+                f"{steps} reverse steps that use `w_z`: use 1 to {steps}, -1 to -{steps}, or leave it unset "
+                "for every step."
             )
 
     def _check_vision(self) -> None:

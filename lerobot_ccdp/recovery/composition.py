@@ -16,7 +16,7 @@ class CompositionWeights:
     `z_reference` names what each failure term is measured against: "eps_a" (the paper's eq. 4) or
     "eps_z_null" (the recovery head's own z-dropped estimate, so that the term compares two estimates learnt
     from the same recovery data; see `compose_eps`). `w_z_steps` limits w_z to the first reverse steps
-    (`at_step`).
+    or, negative, to the last ones (`at_step`).
     """
 
     w_s: float
@@ -25,13 +25,18 @@ class CompositionWeights:
     z_reference: str = "eps_a"
     w_z_steps: int | None = None
 
-    def at_step(self, index: int) -> "CompositionWeights":
-        """The weights of reverse step `index` (0 is the noisiest): w_z up to `w_z_steps`, then w_z = 1.
+    def at_step(self, index: int, total: int) -> "CompositionWeights":
+        """The weights of reverse step `index` of `total` (0 is the noisiest): w_z on the first `w_z_steps`
+        (or, negative, the last |w_z_steps|), w_z = 1 elsewhere: eps_{s,F} alone, in one network call.
 
-        A sample picks its option in the noisy steps and refines it in the late ones, so guidance beyond
-        eps_{s,F} (w_z > 1) is needed only early; later steps use eps_{s,F} alone, in one network call.
+        A sample picks its option in the noisy steps, where guidance beyond eps_{s,F} (w_z > 1) also shifts
+        the proportions of the options left (it favours those far from F); in the last steps it acts mostly on
+        the samples still between an option left and a failed one (docs/benchmarks.md, 2-D family).
         """
-        if self.w_z_steps is None or index < self.w_z_steps:
+        if self.w_z_steps is None:
+            return self
+        guided = index < self.w_z_steps if self.w_z_steps > 0 else index >= total + self.w_z_steps
+        if guided:
             return self
         return replace(self, w_z=1.0, w_z_steps=None)
 

@@ -2,6 +2,7 @@
 outside their drawn failure set, costs one network call per reverse step for a row with failures, and refuses
 the settings it cannot serve."""
 
+import pytest
 import torch
 
 from lerobot_ccdp.recovery.failure_buffer import draw_failure_sets
@@ -77,10 +78,14 @@ def test_a_plan_after_failures_calls_only_the_set_denoiser_once_per_step():
     assert base_rows == [1] * steps  # the row without failures: eps_s only
 
 
-def test_w_z_steps_guides_only_the_first_steps_then_uses_the_set_denoiser_alone():
-    """w_z = 2 on the first 3 of 10 reverse steps: there eps_s + 2 (eps_{s,F} - eps_s), a base call for the
-    failed rows; afterwards eps_{s,F} alone. The plan equals the one sampled step by step by hand."""
-    policy = make_policy(**SETTINGS, w_z=2.0, w_z_steps=3)
+@pytest.mark.parametrize("w_z_steps, guided", [(3, {0, 1, 2}), (-2, {8, 9})])
+def test_w_z_steps_guides_only_the_first_or_last_steps_and_uses_the_set_denoiser_alone_elsewhere(
+    w_z_steps: int, guided: set[int]
+):
+    """w_z = 2 on the first 3 (or the last 2) of 10 reverse steps: there eps_s + 2 (eps_{s,F} - eps_s), a base
+    call for the failed rows; elsewhere eps_{s,F} alone. The plan equals the one sampled step by step by
+    hand."""
+    policy = make_policy(**SETTINGS, w_z=2.0, w_z_steps=w_z_steps)
     policy.model.recovery_trained.fill_(True)
     model = policy.model
     state, history = torch.zeros(2, 2), torch.zeros(2, 0)
@@ -91,7 +96,7 @@ def test_w_z_steps_guides_only_the_first_steps_then_uses_the_set_denoiser_alone(
     with torch.inference_mode():
         plan = model.denoise(start.clone(), state, history, z, z_mask)
     steps = policy.config.num_inference_steps
-    assert base_rows == [2] * 3  # the failed rows' eps_s, at the guided steps only
+    assert base_rows == [2] * len(guided)  # the failed rows' eps_s, at the guided steps only
 
     torch.manual_seed(1)
     sample, ones, no_history = start.clone(), torch.ones(2, 1), torch.zeros(2, 1)
@@ -99,7 +104,7 @@ def test_w_z_steps_guides_only_the_first_steps_then_uses_the_set_denoiser_alone(
         for index, t in enumerate(model.noise_scheduler.timesteps[:steps]):
             step = torch.full((2,), int(t))
             eps = model.recovery(sample, step, state, z, z_mask)
-            if index < 3:
+            if index in guided:
                 eps_s = model.base(sample, step, state, ones, history, no_history)
                 eps = eps_s + 2.0 * (eps - eps_s)
             sample = model.noise_scheduler.step(eps, t, sample).prev_sample
@@ -107,9 +112,10 @@ def test_w_z_steps_guides_only_the_first_steps_then_uses_the_set_denoiser_alone(
 
 
 def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
-    import pytest
-
     with pytest.raises(ValueError, match="n_obs_steps=1"):
         make_policy(**SETTINGS, n_obs_steps=2, n_action_steps=8)
     with pytest.raises(ValueError, match="--policy.recovery_head=set_denoiser"):
         make_policy(**{**SETTINGS, "recovery_head": "unet"}, w_z_steps=3)
+    for steps in (0, 11, -11):
+        with pytest.raises(ValueError, match="w_z_steps"):
+            make_policy(**SETTINGS, w_z=2.0, w_z_steps=steps)
