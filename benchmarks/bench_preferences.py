@@ -284,10 +284,10 @@ def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
     names = [n for n in next(iter(results.values()))["methods"] if n != "DP"]
     paired = reference in names  # not with --no-baselines
     lines = [
-        f"| method | failures | failed share (target <= {TARGETS['failed_share']}) | "
+        f"| method | failures | failed share (target <= {TARGETS['failed_share']}) | of which on its path | "
         f"preference error (target <= {TARGETS['preference_error']}) | "
         f"preference error minus {reference}'s |",
-        "|---|---|---|---|---|",
+        "|---|---|---|---|---|---|",
     ]
     for name in names:
         for count in "12":
@@ -295,6 +295,8 @@ def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
             for metric, target in TARGETS.items():
                 estimate = bootstrap_mean([r["methods"][name][count][metric] for r in results.values()])
                 cells.append(f"{_three(estimate)} {verdict(estimate, high_bound=target)}")
+                if metric == "failed_share":
+                    cells.append(_on_path(results, name, count))
             if not paired or name == reference:
                 cells.append("")
             else:
@@ -311,6 +313,13 @@ def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
                 cells.append(f"{_three(difference)} {judged}")
             lines.append(f"| {name} | {count} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _on_path(results: dict[int, dict], name: str, count: str) -> str:
+    """The members' mean share of clean repeats (`failed_on_path_share`), blank where a member was measured
+    before it was recorded."""
+    shares = [r["methods"][name][count].get("failed_on_path_share") for r in results.values()]
+    return "" if None in shares else f"{np.mean(shares):.3f}"
 
 
 def _three(estimate) -> str:

@@ -77,9 +77,14 @@ class ReachingTask:
     def option_of(self, chunks: np.ndarray) -> np.ndarray:
         """The goal each planned chunk of positions (R, T, 2), started at the origin, heads to: the goal whose
         demonstrated path from the origin it is nearest to."""
+        return self.path_distances(chunks).argmin(axis=1)
+
+    def path_distances(self, chunks: np.ndarray) -> np.ndarray:
+        """Squared distance (R, K) of each planned chunk of positions (R, T, 2), started at the origin, to
+        each goal's demonstrated path over the same steps."""
         progress = np.minimum(np.arange(1, chunks.shape[1] + 1) / REACH_STEPS, 1.0)
         paths = np.stack([self.path(g, np.zeros(2), progress) for g in range(len(self.goals))])  # (K, T, 2)
-        return ((chunks[:, None] - paths[None]) ** 2).sum(axis=(2, 3)).argmin(axis=1)
+        return ((chunks[:, None] - paths[None]) ** 2).sum(axis=(2, 3))
 
     def record(self, root: str | Path, repo_id: str, n_episodes: int, seed: int = 0) -> LeRobotDataset:
         """Write a LeRobot v3 dataset of demos whose goals follow the preference in proportion (rounded)."""

@@ -4,6 +4,8 @@ From the start state, a policy plans one chunk per row after the most preferred 
 after the two most preferred goals failed ("after 2"), under torch.inference_mode() as LeRobot calls it:
 
     failed share       fraction of planned chunks heading to a failed goal
+    ... on its path    of which those as near the failed goal's path as 95% of DP's chunks are to theirs: a
+                       clean repeat; the rest of the failed share lies between that path and another
     preference error   total-variation distance between the method's shares over the remaining goals and DP's
                        own shares renormalised over them (same checkpoint, same start state), so the base's
                        own error does not count against the recovery
@@ -98,6 +100,23 @@ def goal_shares(task: ReachingTask, positions: np.ndarray) -> np.ndarray:
     return np.bincount(task.option_of(positions), minlength=len(task.goals)) / len(positions)
 
 
+def on_path_tolerance(task: ReachingTask, positions: np.ndarray) -> float:
+    """The squared distance to its own goal's path within which 95% of `positions` (R, T, 2) lie: how near a
+    path DP's plans are."""
+    return float(np.quantile(task.path_distances(positions).min(axis=1), 0.95))
+
+
+def failed_on_path_share(
+    task: ReachingTask, positions: np.ndarray, failed: list[int], tolerance: float
+) -> float:
+    """Share of planned chunks heading to a failed goal and within `tolerance` of its path: clean repeats of
+    a failure, where the rest of the failed share is chunks between a failed goal's path and another."""
+    distances = task.path_distances(positions)
+    nearest = distances.argmin(axis=1)
+    on_path = distances[np.arange(len(positions)), nearest] <= tolerance
+    return float((np.isin(nearest, failed) & on_path).mean())
+
+
 def scores(share: np.ndarray, reference: np.ndarray, failed: list[int]) -> tuple[float, float]:
     """(failed share, preference error against `reference` renormalised over the goals that did not fail)."""
     rest = np.setdiff1d(np.arange(len(share)), failed)
@@ -137,7 +156,8 @@ def measure(task: ReachingTask, checkpoint, methods: dict[str, Method], rows: in
     seeds. DP's reference shares come from their own draw (seed 1), so DP measured against them (seed 2) shows
     the sampling noise of this measurement."""
     policy, pre, post = load(checkpoint, recovery_mode="dp")
-    reference = goal_shares(task, planned_positions(policy, pre, post, task, [], rows, seed=1))
+    dp_plans = planned_positions(policy, pre, post, task, [], rows, seed=1)
+    reference, tolerance = goal_shares(task, dp_plans), on_path_tolerance(task, dp_plans)
     result = {
         "goals": len(task.goals),
         "labelled": task.labelled,
@@ -157,6 +177,7 @@ def measure(task: ReachingTask, checkpoint, methods: dict[str, Method], rows: in
                 "failed": failed,
                 "shares": share.tolist(),
                 "failed_share": failed_share,
+                "failed_on_path_share": failed_on_path_share(task, planned, failed, tolerance),
                 "preference_error": error,
             }
             result["positions"][f"{name}|{count}"] = planned[:64].tolist()
