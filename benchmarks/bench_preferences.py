@@ -25,9 +25,9 @@ rows (SET_RECIPE: chunks the base samples at demonstrated states, half of them t
 lerobot-train trains the failure-set denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one
 sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1
 round) on the same base and seeds; each --w-z other than 1 adds the set denoiser at that failure weight on the
-first --w-z-steps reverse steps (negative: the last; 0: every step). --set-states sets the rows' states
-(SET_RECIPE's 512), and --no-baselines leaves out DP and DP* (most of a member's measurement time) for a sweep
-of head settings.
+--w-z-steps reverse steps from each --w-z-from on (0 the noisiest step; 0 steps: to the last). --set-states
+sets the rows' states (SET_RECIPE's 512), and --no-baselines leaves out DP and DP* (most of a member's
+measurement time) for a sweep of head settings.
 """
 
 from __future__ import annotations
@@ -73,8 +73,11 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     baselines = BASELINES if first and sampling.baselines else {}
     if head == "set_denoiser":  # one sample per plan
         forms = {
-            set_denoiser_name(w, k): Method("ccdp", {"w_z": w, "w_z_steps": k or None})
+            set_denoiser_name(w, k, start): Method(
+                "ccdp", {"w_z": w, "w_z_steps": k or None, "w_z_from_step": start}
+            )
             for w in sampling.w_z
+            for start in (sampling.w_z_from if w != 1.0 else [0])
             for k in (sampling.w_z_steps if w != 1.0 else [0])
         }
         return {**baselines, **MATCHED, **forms}
@@ -88,13 +91,15 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
-def set_denoiser_name(w_z: float, steps: int) -> str:
-    """The table's name of the set denoiser at weight `w_z` on the first `steps` reverse steps (negative: the
-    last; 0: every step), 1 elsewhere; "CCDP set denoiser" at w_z = 1, the form of the round on members
-    12-23."""
+def set_denoiser_name(w_z: float, steps: int, start: int = 0) -> str:
+    """The table's name of the set denoiser at weight `w_z` on `steps` reverse steps from step `start` on (0:
+    to the last), 1 elsewhere; "CCDP set denoiser" at w_z = 1, the form of the round on members 12-23."""
     if w_z == 1.0:
         return "CCDP set denoiser"
-    where = f" first {steps} steps" if steps > 0 else f" last {-steps} steps" if steps else ""
+    if not start:
+        where = f" first {steps} steps" if steps else ""
+    else:
+        where = f" steps {start}-{start + steps - 1}" if steps else f" from step {start}"
     return f"CCDP set denoiser w_z={w_z:g}{where}"
 
 
@@ -406,8 +411,15 @@ def main() -> None:
         type=int,
         nargs="+",
         default=[0],
-        help="set denoiser: the first (negative: the last) reverse steps that use each --w-z other than 1, "
-        "1 elsewhere (0: every step)",
+        help="set denoiser: how many reverse steps from each --w-z-from on use each --w-z other than 1, 1 "
+        "elsewhere (0: to the last)",
+    )
+    parser.add_argument(
+        "--w-z-from",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="set denoiser: the first reverse step (0 the noisiest) of each --w-z-steps window",
     )
     parser.add_argument(
         "--no-classifier",
@@ -464,8 +476,8 @@ def main() -> None:
         if len({tuple(names) for names in measured.values()}) > 1:
             sys.exit(
                 f"The members were measured with different methods ({measured}): tabulate together only "
-                "members run with the same --w-z, --w-z-steps, --redraws and --no-baselines, or rerun the "
-                "rest with them."
+                "members run with the same --w-z, --w-z-steps, --w-z-from, --redraws and --no-baselines, or "
+                "rerun the rest with them."
             )
         results_path.write_text(json.dumps(results))
     for seed in [] if args.report_only else args.members:
@@ -510,7 +522,7 @@ def main() -> None:
     )
     shown = ccdp_name(args.w_z[0], args.redraws[0])
     if shown not in next(iter(chosen.values()))["methods"]:  # members measured with --no-classifier
-        shown = set_denoiser_name(args.w_z[0], args.w_z_steps[0])
+        shown = set_denoiser_name(args.w_z[0], args.w_z_steps[0], args.w_z_from[0])
     panel_grid(chosen, args.out / "preferences.png", shown)
 
 

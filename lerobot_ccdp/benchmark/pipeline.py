@@ -478,6 +478,14 @@ def time_breakdown(runs: list[TaskRun]) -> str:
     return "\n".join(lines)
 
 
+def w_z_window(count: int | None, start: int) -> str:
+    """The set denoiser's reverse steps at w_z (`w_z_steps`, `w_z_from_step`), as the forms table says it."""
+    if start:
+        last = "the last" if count is None else start + count - 1
+        return f" on reverse steps {start} to {last} (0 the noisiest), 1 elsewhere"
+    return "" if count is None else f" on the first {count} steps, 1 after"
+
+
 def method_forms(runs: list[TaskRun]) -> str:
     """Which form of each method ran: the seeds, and the settings of the evaluated checkpoint, the recipe's
     synthesis and the methods' flags."""
@@ -512,9 +520,7 @@ def method_forms(runs: list[TaskRun]) -> str:
                 f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by the failure-set denoiser eps_(s,F), "
                 f"w_z {ccdp['w_z']:g}"
             )
-            if ccdp.get("w_z_steps") is not None:
-                guided = ccdp["w_z_steps"]
-                form += f" on the {'first' if guided > 0 else 'last'} {abs(guided)} steps, 1 elsewhere"
+            form += w_z_window(ccdp.get("w_z_steps"), ccdp.get("w_z_from_step", 0))
             synthesis = (
                 f"chunks sampled half at option starts, half along the demos: sigma {recipe.sigma:g}, "
                 f"w_s {recipe.w_s:g}, "

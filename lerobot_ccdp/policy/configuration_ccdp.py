@@ -34,13 +34,14 @@ POSITIVE_FIELDS = (
     "n_action_steps",
     "num_train_timesteps",
     "num_inference_steps",
+    "w_z_steps",
     "kernel_size",
     "diffusion_step_embed_dim",
     "spatial_softmax_num_keypoints",
     "dp_star_candidates",
     "dp_star_rounds",
 )
-NON_NEGATIVE_FIELDS = ("delta_z", "history_length", "ccdp_redraws", "scheduler_warmup_steps")
+NON_NEGATIVE_FIELDS = ("delta_z", "history_length", "ccdp_redraws", "scheduler_warmup_steps", "w_z_from_step")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
 # Observation key an env uses to flag a failed attempt (DESIGN section 5).
@@ -64,10 +65,11 @@ class CCDPConfig(PreTrainedConfig):
         w_h: Weight of the history term eps_h - eps_a in eq. (4); needs `history_length` > 0.
         w_z: Weight of the failure terms of eq. (4), or of the failure-set term for the set denoiser and the
             classifier's guidance.
-        w_z_steps: Set denoiser: apply `w_z` only at the first (noisiest) `w_z_steps` reverse steps, where a
-            sample picks its option, or, when negative, at the last |w_z_steps| (the least noisy), where it
-            refines the option picked, and w_z = 1 (eps_{s,F} alone, one UNet call) at the rest. None: `w_z`
-            at every step. Each guided step costs a base call.
+        w_z_steps: Set denoiser: apply `w_z` only at `w_z_steps` reverse steps from `w_z_from_step` on, and
+            w_z = 1 (eps_{s,F} alone, one UNet call) at the rest. None: `w_z` at every step from
+            `w_z_from_step` on. Each guided step costs a base call.
+        w_z_from_step: Set denoiser: the first reverse step (0 the noisiest, where a sample picks its option)
+            that uses `w_z`.
         z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
             "eps_z_null" (the recovery head with z dropped, trained on the same rows). `unet` head only.
         history_length: States and actions before the observation window that form the history condition
@@ -159,6 +161,7 @@ class CCDPConfig(PreTrainedConfig):
     w_h: float = 0.0
     w_z: float = 1.0
     w_z_steps: int | None = None
+    w_z_from_step: int = 0
     z_reference: ZReference = "eps_z_null"
     history_length: int = 0
     recovery_mode: RecoveryMode = "ccdp"
@@ -233,11 +236,11 @@ class CCDPConfig(PreTrainedConfig):
             raise ValueError(
                 f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon})."
             )
-        if self.w_z_steps is not None and self.recovery_head != "set_denoiser":
+        if (self.w_z_steps is not None or self.w_z_from_step) and self.recovery_head != "set_denoiser":
             raise ValueError(
-                f"`w_z_steps` ({self.w_z_steps}) schedules the set denoiser's failure weight; the "
-                f"{self.recovery_head!r} head weighs every step alike. Remove --policy.w_z_steps or use "
-                "--policy.recovery_head=set_denoiser."
+                f"`w_z_steps` ({self.w_z_steps}) and `w_z_from_step` ({self.w_z_from_step}) schedule the set "
+                f"denoiser's failure weight; the {self.recovery_head!r} head weighs every step alike. Remove "
+                "--policy.w_z_steps and --policy.w_z_from_step or use --policy.recovery_head=set_denoiser."
             )
         if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
             raise ValueError(
@@ -294,11 +297,10 @@ class CCDPConfig(PreTrainedConfig):
                 f"({self.num_train_timesteps}): the reverse diffusion visits training timesteps."
             )
         steps = self.num_inference_steps or self.num_train_timesteps
-        if self.w_z_steps is not None and not 0 < abs(self.w_z_steps) <= steps:
+        if self.w_z_from_step + (self.w_z_steps or 1) > steps:
             raise ValueError(
-                f"`w_z_steps` ({self.w_z_steps}) counts the first (positive) or last (negative) of the "
-                f"{steps} reverse steps that use `w_z`: use 1 to {steps}, -1 to -{steps}, or leave it unset "
-                "for every step."
+                f"`w_z_from_step` ({self.w_z_from_step}) + `w_z_steps` ({self.w_z_steps}) reach past the "
+                f"{steps} reverse steps (numbered 0 to {steps - 1}): lower either."
             )
 
     def _check_vision(self) -> None:

@@ -356,7 +356,7 @@ class CCDPModel(nn.Module):
         )
         self.feature = FailureFeature(config)
         self.weights = CompositionWeights(
-            config.w_s, config.w_h, config.w_z, config.z_reference, config.w_z_steps
+            config.w_s, config.w_h, config.w_z, config.z_reference, config.w_z_steps, config.w_z_from_step
         )
         if dataset_stats is not None and config.training_stage == "base":
             refuse_non_finite_stats(config, dataset_stats)
@@ -634,7 +634,7 @@ class CCDPModel(nn.Module):
         plain_rest = self._composed_estimate(
             weights, state[~failed], history[~failed], no_failures[0][~failed], no_failures[1][~failed]
         )
-        step_weights = {t: weights.at_step(index, len(timesteps)) for index, t in enumerate(timesteps)}
+        step_weights = {t: weights.at_step(index) for index, t in enumerate(timesteps)}
         base = {
             w: self._base_estimates(w.failure_set_base_terms(), state[failed], history[failed])
             for w in set(step_weights.values())

@@ -15,8 +15,8 @@ class CompositionWeights:
 
     `z_reference` names what each failure term is measured against: "eps_a" (the paper's eq. 4) or
     "eps_z_null" (the recovery head's own z-dropped estimate, so that the term compares two estimates learnt
-    from the same recovery data; see `compose_eps`). `w_z_steps` limits w_z to the first reverse steps
-    or, negative, to the last ones (`at_step`).
+    from the same recovery data; see `compose_eps`). `w_z_steps` limits w_z to that many reverse steps
+    from `w_z_from_step` on (`at_step`).
     """
 
     w_s: float
@@ -24,21 +24,20 @@ class CompositionWeights:
     w_z: float
     z_reference: str = "eps_a"
     w_z_steps: int | None = None
+    w_z_from_step: int = 0
 
-    def at_step(self, index: int, total: int) -> "CompositionWeights":
-        """The weights of reverse step `index` of `total` (0 is the noisiest): w_z on the first `w_z_steps`
-        (or, negative, the last |w_z_steps|), w_z = 1 elsewhere: eps_{s,F} alone, in one network call.
+    def at_step(self, index: int) -> "CompositionWeights":
+        """The weights of reverse step `index` (0 is the noisiest): w_z on the `w_z_steps` steps from
+        `w_z_from_step` on (None: to the last), w_z = 1 elsewhere: eps_{s,F} alone, in one network call.
 
         A sample picks its option in the noisy steps, where guidance beyond eps_{s,F} (w_z > 1) also shifts
         the proportions of the options left (it favours those far from F); in the last steps it acts mostly on
         the samples still between an option left and a failed one (docs/benchmarks.md, 2-D family).
         """
-        if self.w_z_steps is None:
+        end = None if self.w_z_steps is None else self.w_z_from_step + self.w_z_steps
+        if self.w_z_from_step <= index and (end is None or index < end):
             return self
-        guided = index < self.w_z_steps if self.w_z_steps > 0 else index >= total + self.w_z_steps
-        if guided:
-            return self
-        return replace(self, w_z=1.0, w_z_steps=None)
+        return replace(self, w_z=1.0, w_z_steps=None, w_z_from_step=0)
 
     def uses_unconditional(self, n_failures: Tensor) -> bool:
         """Whether eps_a carries weight for any row: its coefficient is 1 - w_s - w_h - w_z * N_row, without

@@ -27,6 +27,7 @@ from lerobot_ccdp.benchmark.pipeline import (
     latest_progress,
     main,
     task_slug,
+    w_z_window,
     z_description,
 )
 from lerobot_ccdp.benchmark.results import README_BEGIN, README_END, Run
@@ -530,3 +531,10 @@ def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_
     assert z_description(action) == "action: steps [23] of the attempt's first chunk, dims [1, 2]"
     dropped = {**settings, "failure_segments": "drops"}
     assert z_description(dropped).endswith("demonstrated_end, demonstrated options end at drops")
+
+
+def test_the_forms_table_names_the_set_denoisers_window_of_guided_steps():
+    assert w_z_window(None, 0) == ""
+    assert w_z_window(3, 0) == " on the first 3 steps, 1 after"
+    assert w_z_window(3, 4) == " on reverse steps 4 to 6 (0 the noisiest), 1 elsewhere"
+    assert w_z_window(None, 8) == " on reverse steps 8 to the last (0 the noisiest), 1 elsewhere"

@@ -78,14 +78,21 @@ def test_a_plan_after_failures_calls_only_the_set_denoiser_once_per_step():
     assert base_rows == [1] * steps  # the row without failures: eps_s only
 
 
-@pytest.mark.parametrize("w_z_steps, guided", [(3, {0, 1, 2}), (-2, {8, 9})])
-def test_w_z_steps_guides_only_the_first_or_last_steps_and_uses_the_set_denoiser_alone_elsewhere(
-    w_z_steps: int, guided: set[int]
+@pytest.mark.parametrize(
+    "window, guided",
+    [
+        ({"w_z_steps": 3}, {0, 1, 2}),
+        ({"w_z_steps": 3, "w_z_from_step": 4}, {4, 5, 6}),
+        ({"w_z_from_step": 8}, {8, 9}),
+    ],
+)
+def test_w_z_guides_only_its_window_of_steps_and_the_set_denoiser_alone_serves_the_rest(
+    window: dict, guided: set[int]
 ):
-    """w_z = 2 on the first 3 (or the last 2) of 10 reverse steps: there eps_s + 2 (eps_{s,F} - eps_s), a base
-    call for the failed rows; elsewhere eps_{s,F} alone. The plan equals the one sampled step by step by
-    hand."""
-    policy = make_policy(**SETTINGS, w_z=2.0, w_z_steps=w_z_steps)
+    """w_z = 2 on a window of the 10 reverse steps (the first 3, steps 4-6, steps 8 to the last): there
+    eps_s + 2 (eps_{s,F} - eps_s), a base call for the failed rows; elsewhere eps_{s,F} alone. The plan equals
+    the one sampled step by step by hand."""
+    policy = make_policy(**SETTINGS, w_z=2.0, **window)
     policy.model.recovery_trained.fill_(True)
     model = policy.model
     state, history = torch.zeros(2, 2), torch.zeros(2, 0)
@@ -116,6 +123,10 @@ def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
         make_policy(**SETTINGS, n_obs_steps=2, n_action_steps=8)
     with pytest.raises(ValueError, match="--policy.recovery_head=set_denoiser"):
         make_policy(**{**SETTINGS, "recovery_head": "unet"}, w_z_steps=3)
-    for steps in (0, 11, -11):
-        with pytest.raises(ValueError, match="w_z_steps"):
-            make_policy(**SETTINGS, w_z=2.0, w_z_steps=steps)
+    with pytest.raises(ValueError, match="--policy.recovery_head=set_denoiser"):
+        make_policy(**{**SETTINGS, "recovery_head": "unet"}, w_z_from_step=2)
+    for window in ({"w_z_steps": 0}, {"w_z_steps": 11}, {"w_z_from_step": -1}, {"w_z_from_step": 10}):
+        with pytest.raises(ValueError, match="w_z_"):
+            make_policy(**SETTINGS, w_z=2.0, **window)
+    with pytest.raises(ValueError, match="reach past the 10 reverse steps"):
+        make_policy(**SETTINGS, w_z=2.0, w_z_steps=3, w_z_from_step=8)
