@@ -31,8 +31,9 @@ class CompositionWeights:
         `w_z_from_step` on (None: to the last), w_z = 1 elsewhere: eps_{s,F} alone, in one network call.
 
         A sample picks its option in the noisy steps, where guidance beyond eps_{s,F} (w_z > 1) also shifts
-        the proportions of the options left (it favours those far from F); in the last steps it acts mostly on
-        the samples still between an option left and a failed one (docs/benchmarks.md, 2-D family).
+        the proportions of the options left (it favours those far from F); in the last steps it no longer
+        moves a sample already on a failed option; in between it takes most of what eps_{s,F} lets through at
+        a small cost in proportions (docs/benchmarks.md, 2-D family).
         """
         end = None if self.w_z_steps is None else self.w_z_from_step + self.w_z_steps
         if self.w_z_from_step <= index and (end is None or index < end):
