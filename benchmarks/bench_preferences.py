@@ -339,7 +339,11 @@ def measured_members(out: Path) -> dict[int, dict]:
 
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
     """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`)
-    after one and two failures."""
+    after one and two failures. Members whose results came without their planned chunks (a results.json
+    stripped of "positions" to carry it between machines) are left out of the grid."""
+    results = {seed: r for seed, r in results.items() if r.get("positions")}
+    if not results:
+        return
     import matplotlib
 
     matplotlib.use("Agg")

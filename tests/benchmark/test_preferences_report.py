@@ -1,0 +1,44 @@
+"""`benchmarks/bench_preferences.py --report-only` tabulates members whose results.json was carried between
+machines without its planned chunks ("positions", most of the file): the tables need only the shares, and the
+panel grid draws the members that kept their chunks."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+SCRIPT = REPO / "benchmarks" / "bench_preferences.py"
+spec = importlib.util.spec_from_file_location("bench_preferences", SCRIPT)
+bench = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(bench)
+
+NAMES = ("DP", "CCDP set denoiser")
+
+
+def member(seed: int, positions: bool) -> dict:
+    """A member's results as `measure` writes them, with made-up shares and, with `positions`, chunks heading
+    out from the origin."""
+    scores = {"failed": [0], "failed_share": 0.01, "failed_on_path_share": 0.0, "preference_error": 0.04}
+    result = {
+        "goals": 3,
+        "labelled": seed % 2 == 0,
+        "methods": {name: {count: dict(scores) for count in "12"} for name in NAMES},
+        "positions": {},
+    }
+    if positions:
+        chunks = np.cumsum(np.full((4, 8, 2), 0.05), axis=1).tolist()
+        result["positions"] = {f"{name}|{count}": chunks for name in NAMES for count in "12"}
+    return result
+
+
+def test_the_grid_draws_the_members_that_kept_their_chunks(tmp_path: Path) -> None:
+    results = {100: member(100, positions=True), 101: member(101, positions=False)}
+    assert "| 101 |" in bench.table(results)  # the shares alone make the table
+    bench.panel_grid(results, tmp_path / "grid.png", "CCDP set denoiser")
+    assert (tmp_path / "grid.png").stat().st_size > 0
+
+
+def test_no_grid_when_no_member_kept_its_chunks(tmp_path: Path) -> None:
+    bench.panel_grid({101: member(101, positions=False)}, tmp_path / "grid.png", "CCDP set denoiser")
+    assert not (tmp_path / "grid.png").exists()
