@@ -340,9 +340,11 @@ def measured_members(out: Path) -> dict[int, dict]:
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
     """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`)
     after one and two failures. Members whose results came without their planned chunks (a results.json
-    stripped of "positions" to carry it between machines) are left out of the grid."""
+    stripped of "positions" to carry it between machines) are left out of the grid; with none, an earlier
+    grid at `path` (inside the bench's own --out) is removed, not left beside tables it no longer shows."""
     results = {seed: r for seed, r in results.items() if r.get("positions")}
     if not results:
+        path.unlink(missing_ok=True)
         return
     import matplotlib
 

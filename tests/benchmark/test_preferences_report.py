@@ -40,5 +40,6 @@ def test_the_grid_draws_the_members_that_kept_their_chunks(tmp_path: Path) -> No
 
 
 def test_no_grid_when_no_member_kept_its_chunks(tmp_path: Path) -> None:
+    (tmp_path / "grid.png").write_bytes(b"an earlier report's grid")
     bench.panel_grid({101: member(101, positions=False)}, tmp_path / "grid.png", "CCDP set denoiser")
     assert not (tmp_path / "grid.png").exists()
