@@ -337,6 +337,32 @@ def measured_members(out: Path) -> dict[int, dict]:
     return {int(k): v for k, v in json.loads(path.read_text()).items()} if path.exists() else {}
 
 
+def measured_settings(args: argparse.Namespace) -> dict:
+    """What a member was measured with, beyond the methods its results name: kept with its results, so that
+    a `--report-only` over members measured elsewhere describes them, not its own command line's defaults."""
+    keys = ("rows", "base_steps", "head_steps", "episodes", "classifier", "set_denoiser", "set_states")
+    return {key: getattr(args, key) for key in keys}
+
+
+def settings_line(results: dict[int, dict]) -> str:
+    """The members' recorded settings, one clause per distinct set (members measured before settings were
+    recorded are named as such)."""
+    clauses: dict[str, list[int]] = {}
+    for seed, result in results.items():
+        s = result.get("settings")
+        clause = (
+            f"{s['rows']} chunks each, base {s['base_steps']} steps on {s['episodes']} demos, heads "
+            f"{s['head_steps']} steps (classifier {s['classifier']}, set denoiser {s['set_denoiser']} on "
+            f"{s['set_states']} states)"
+            if s
+            else "settings not recorded in results.json (measured before they were kept)"
+        )
+        clauses.setdefault(clause, []).append(seed)
+    if len(clauses) == 1:
+        return next(iter(clauses))
+    return "; ".join(f"members {seeds}: {clause}" for clause, seeds in clauses.items())
+
+
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
     """Fig. 2-style panels: per member, 64 planned chunks of DP, and of DP* and CCDP (the method named `ccdp`)
     after one and two failures. Members whose results came without their planned chunks (a results.json
@@ -513,6 +539,7 @@ def main() -> None:
             else:
                 results[seed]["methods"].update(measured["methods"])
                 results[seed]["positions"].update(measured["positions"])
+        results[seed]["settings"] = measured_settings(args)
         results_path.write_text(json.dumps(results))
         print(f"member {seed} done in {time.perf_counter() - started:.0f} s", flush=True)
     chosen = {seed: results[seed] for seed in args.members}
@@ -522,9 +549,7 @@ def main() -> None:
     )
     print(text)
     (args.out / "preferences.md").write_text(
-        f"Failed share / preference error; members {args.members}, {args.rows} chunks each, base "
-        f"{args.base_steps} steps, heads {args.head_steps} steps (classifier {args.classifier}, set denoiser "
-        f"{args.set_denoiser}), guidance weights {args.w_z}, redraws {args.redraws}.\n\n{text}\n"
+        f"Failed share / preference error; members {args.members}, {settings_line(chosen)}.\n\n{text}\n"
     )
     shown = ccdp_name(args.w_z[0], args.redraws[0])
     if shown not in next(iter(chosen.values()))["methods"]:  # members measured with --no-classifier

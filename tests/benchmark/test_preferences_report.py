@@ -1,6 +1,7 @@
 """`benchmarks/bench_preferences.py --report-only` tabulates members whose results.json was carried between
 machines without its planned chunks ("positions", most of the file): the tables need only the shares, and the
-panel grid draws the members that kept their chunks."""
+panel grid draws the members that kept their chunks; the header describes what the members were measured
+with."""
 
 import importlib.util
 from pathlib import Path
@@ -43,3 +44,21 @@ def test_no_grid_when_no_member_kept_its_chunks(tmp_path: Path) -> None:
     (tmp_path / "grid.png").write_bytes(b"an earlier report's grid")
     bench.panel_grid({101: member(101, positions=False)}, tmp_path / "grid.png", "CCDP set denoiser")
     assert not (tmp_path / "grid.png").exists()
+
+
+def test_the_header_describes_what_the_members_were_measured_with_not_the_report_commands_defaults() -> None:
+    settings = {
+        "rows": 2048,
+        "base_steps": 1000,
+        "head_steps": 12000,
+        "episodes": 100,
+        "classifier": False,
+        "set_denoiser": True,
+        "set_states": 2048,
+    }
+    measured = {seed: {**member(seed, positions=False), "settings": settings} for seed in (100, 101)}
+    line = bench.settings_line(measured)
+    assert line.startswith("2048 chunks each") and "heads 12000 steps" in line and "on 2048 states" in line
+    carried = {**measured, 102: member(102, positions=False)}  # measured before settings were kept
+    line = bench.settings_line(carried)
+    assert "members [100, 101]: 2048 chunks each" in line and "members [102]: settings not recorded" in line
