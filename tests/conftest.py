@@ -18,20 +18,28 @@ if "PYTEST_XDIST_WORKER" in os.environ:  # two workers on two cores: one thread 
     torch.set_num_threads(1)
 
 
+# The files of a minute or more of setup, longest first: dealt before the rest, so that neither ends the run
+# with the other worker idle (the set-denoiser claim last cost CI about two minutes alone on one worker).
+FIRST = ("test_pipeline.py", "test_set_denoiser_claim.py")
+# Files of several slow tests each, dealt after the users of `trained_run`, before the short files.
+HEAVY = ("test_synthesis.py", "test_experts.py", "test_policy_safety.py")
+LAST = len(FIRST) + 2
+
+
 def _deal_rank(item: pytest.Item) -> int:
     """Where `item`'s file goes in the order `make test` deals files to its two workers (`-n 2 --dist loadfile
-    --no-loadscope-reorder`): the reduced pipeline's runs first, then the users of `trained_run` (the first of
-    them builds it while the other worker runs the pipeline), the preference family, and the short files
-    behind them."""
-    if item.path.name == "test_pipeline.py":
-        return 0
+    --no-loadscope-reorder`): the reduced pipeline's runs and the set-denoiser claim first, one per worker,
+    then the users of `trained_run` (the first of them builds it while the other worker still runs the
+    pipeline), the heavy files, and the short files behind them."""
+    if item.path.name in FIRST:
+        return FIRST.index(item.path.name)
     if "trained_run" in item.fixturenames:
-        return 1
-    return 2 if item.path.name == "test_preferences.py" else 3
+        return len(FIRST)
+    return len(FIRST) + 1 if item.path.name in HEAVY else LAST
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     rank: dict[Path, int] = {}
     for item in items:
-        rank[item.path] = min(rank.get(item.path, 3), _deal_rank(item))
+        rank[item.path] = min(rank.get(item.path, LAST), _deal_rank(item))
     items.sort(key=lambda item: rank[item.path])  # stable: each file's tests stay together and in order
