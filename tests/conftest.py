@@ -19,7 +19,7 @@ if "PYTEST_XDIST_WORKER" in os.environ:  # two workers on two cores: one thread 
 
 
 # The files of a minute or more of setup, longest first: dealt before the rest, so that neither ends the run
-# with the other worker idle (the set-denoiser claim last cost CI about two minutes alone on one worker).
+# with the other worker idle (the set-denoiser claim among the short files: 746 s of tests; first: 671 s).
 FIRST = ("test_pipeline.py", "test_set_denoiser_claim.py")
 # Files of several slow tests each, dealt after the users of `trained_run`, before the short files.
 HEAVY = ("test_synthesis.py", "test_experts.py", "test_policy_safety.py")
