@@ -25,8 +25,7 @@ rows (SET_RECIPE: chunks the base samples at demonstrated states, half of them t
 lerobot-train trains the failure-set denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one
 sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1
 round) on the same base and seeds; each --w-z other than 1 adds the set denoiser at that failure weight on the
---w-z-steps reverse steps from each --w-z-from on (0 the noisiest step; 0 steps: to the last), measured there
-against each --set-reference (eps_s_empty: the head's own empty-set estimate, at w_z 1 too). --set-states
+--w-z-steps reverse steps from each --w-z-from on (0 the noisiest step; 0 steps: to the last). --set-states
 sets the rows' states (SET_RECIPE's 512), and --no-baselines leaves out DP and DP* (most of a member's
 measurement time) for a sweep of head settings.
 """
@@ -52,7 +51,6 @@ from lerobot_ccdp.benchmark.reaching2d import ReachingTask
 from lerobot_ccdp.benchmark.reaching_preferences import Method, measure
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
-from lerobot_ccdp.policy.configuration_ccdp import SET_REFERENCES
 
 # Issue 50 on the family's mean, after one and after two failures (issue 17 asked 0.03 and 0.08).
 TARGETS = {"failed_share": 0.01, "preference_error": 0.05}
@@ -75,13 +73,12 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     baselines = BASELINES if first and sampling.baselines else {}
     if head == "set_denoiser":  # one sample per plan
         forms = {
-            set_denoiser_name(w, k, start, ref): Method(
-                "ccdp", {"w_z": w, "w_z_steps": k or None, "w_z_from_step": start, "set_reference": ref}
+            set_denoiser_name(w, k, start): Method(
+                "ccdp", {"w_z": w, "w_z_steps": k or None, "w_z_from_step": start}
             )
-            for ref in sampling.set_reference
             for w in sampling.w_z
-            for start in (sampling.w_z_from if w != 1.0 or ref != "eps_s" else [0])
-            for k in (sampling.w_z_steps if w != 1.0 or ref != "eps_s" else [0])
+            for start in (sampling.w_z_from if w != 1.0 else [0])
+            for k in (sampling.w_z_steps if w != 1.0 else [0])
         }
         return {**baselines, **MATCHED, **forms}
     ccdp = {
@@ -94,18 +91,16 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
-def set_denoiser_name(w_z: float, steps: int, start: int = 0, reference: str = "eps_s") -> str:
+def set_denoiser_name(w_z: float, steps: int, start: int = 0) -> str:
     """The table's name of the set denoiser at weight `w_z` on `steps` reverse steps from step `start` on (0:
-    to the last), 1 elsewhere, measured against `reference` there; "CCDP set denoiser" at w_z = 1 against
-    eps_s (eps_{s,F} alone), the form of the round on members 12-23."""
-    against = " vs eps_s{}" if reference == "eps_s_empty" else ""
-    if w_z == 1.0 and not against:
+    to the last), 1 elsewhere; "CCDP set denoiser" at w_z = 1, the form of the round on members 12-23."""
+    if w_z == 1.0:
         return "CCDP set denoiser"
     if not start:
         where = f" first {steps} steps" if steps else ""
     else:
         where = f" steps {start}-{start + steps - 1}" if steps else f" from step {start}"
-    return f"CCDP set denoiser w_z={w_z:g}{where}{against}"
+    return f"CCDP set denoiser w_z={w_z:g}{where}"
 
 
 def ccdp_name(w_z: float, redraws: int) -> str:
@@ -157,7 +152,6 @@ def prepare_member(
     classifier: bool,
     set_denoiser: bool,
     set_states: int,
-    set_empty_share: float = 0.0,
 ) -> dict[str, Path]:
     """Record member `seed`, train its base and, from it, the classifier head (with `classifier`) and the
     failure-set denoiser (with `set_denoiser`); return the heads' checkpoints by head name."""
@@ -211,24 +205,15 @@ def prepare_member(
             book,
         )[0]
     if set_denoiser:
-        heads["set_denoiser"] = train_set_denoiser(
-            root, task, base, base_stamp, head_steps, set_states, book, set_empty_share
-        )
+        heads["set_denoiser"] = train_set_denoiser(root, task, base, base_stamp, head_steps, set_states, book)
     return heads
 
 
 def train_set_denoiser(
-    root: Path,
-    task: ReachingTask,
-    base: Path,
-    base_stamp: str,
-    steps: int,
-    states: int,
-    book: StampBook,
-    empty_share: float = 0.0,
+    root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int, states: int, book: StampBook
 ) -> Path:
     """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE at `states` states), then
-    lerobot-train it on them (`empty_share` of its training sets empty, for eps_{s,{}})."""
+    lerobot-train it on them."""
     z = (
         {"failure_feature": "primitive", "num_primitives": len(task.goals)}
         if task.labelled
@@ -262,7 +247,6 @@ def train_set_denoiser(
             f"--steps={steps}",
             "--batch_size=64",
             f"--save_freq={steps}",
-            *([f"--policy.set_empty_share={empty_share}"] if empty_share else []),
         ],
         rows_stamp,
         book,
@@ -356,16 +340,7 @@ def measured_members(out: Path) -> dict[int, dict]:
 def measured_settings(args: argparse.Namespace) -> dict:
     """What a member was measured with, beyond the methods its results name: kept with its results, so that
     a `--report-only` over members measured elsewhere describes them, not its own command line's defaults."""
-    keys = (
-        "rows",
-        "base_steps",
-        "head_steps",
-        "episodes",
-        "classifier",
-        "set_denoiser",
-        "set_states",
-        "set_empty_share",
-    )
+    keys = ("rows", "base_steps", "head_steps", "episodes", "classifier", "set_denoiser", "set_states")
     return {key: getattr(args, key) for key in keys}
 
 
@@ -378,7 +353,7 @@ def settings_line(results: dict[int, dict]) -> str:
         clause = (
             f"{s['rows']} chunks each, base {s['base_steps']} steps on {s['episodes']} demos, heads "
             f"{s['head_steps']} steps (classifier {s['classifier']}, set denoiser {s['set_denoiser']} on "
-            f"{s['set_states']} states{empty_sets(s)})"
+            f"{s['set_states']} states)"
             if s
             else "settings not recorded in results.json (measured before they were kept)"
         )
@@ -386,12 +361,6 @@ def settings_line(results: dict[int, dict]) -> str:
     if len(clauses) == 1:
         return next(iter(clauses))
     return "; ".join(f"members {seeds}: {clause}" for clause, seeds in clauses.items())
-
-
-def empty_sets(settings: dict) -> str:
-    """The clause of `settings_line` for a set denoiser trained with some empty failure sets."""
-    share = settings.get("set_empty_share")
-    return f", {share:g} of its training sets empty" if share else ""
 
 
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
@@ -485,21 +454,6 @@ def main() -> None:
         help="set denoiser: the first reverse step (0 the noisiest) of each --w-z-steps window",
     )
     parser.add_argument(
-        "--set-reference",
-        nargs="+",
-        default=["eps_s"],
-        choices=SET_REFERENCES,
-        help="set denoiser: what eps_{s,F} is measured against on the --w-z steps (sampling settings); "
-        "eps_s_empty also at w_z 1",
-    )
-    parser.add_argument(
-        "--set-empty-share",
-        type=float,
-        default=0.0,
-        help="set denoiser: the share of its training sets left empty (eps_{s,{}}, which --set-reference "
-        "eps_s_empty needs)",
-    )
-    parser.add_argument(
         "--no-classifier",
         dest="classifier",
         action="store_false",
@@ -540,10 +494,6 @@ def main() -> None:
         help="take over an --out made by a version of this script from before ownership markers",
     )
     args = parser.parse_args()
-    if "eps_s_empty" in args.set_reference and not args.set_empty_share:
-        sys.exit(
-            "--set-reference eps_s_empty needs a head that learnt empty sets: add --set-empty-share 0.25."
-        )
     try:
         claim_output_folder(args.out, "benchmarks/bench_preferences.py", adopt=args.adopt)
     except NotOwned as error:
@@ -579,7 +529,6 @@ def main() -> None:
             args.classifier,
             args.set_denoiser,
             args.set_states,
-            args.set_empty_share,
         )
         root, repo = member_dataset(seed, args.out)
         demos = LeRobotDataset(repo, root=root)
@@ -604,7 +553,7 @@ def main() -> None:
     )
     shown = ccdp_name(args.w_z[0], args.redraws[0])
     if shown not in next(iter(chosen.values()))["methods"]:  # members measured with --no-classifier
-        shown = set_denoiser_name(args.w_z[0], args.w_z_steps[0], args.w_z_from[0], args.set_reference[0])
+        shown = set_denoiser_name(args.w_z[0], args.w_z_steps[0], args.w_z_from[0])
     panel_grid(chosen, args.out / "preferences.png", shown)
 
 

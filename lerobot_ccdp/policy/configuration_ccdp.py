@@ -20,7 +20,6 @@ FailureSegments = Literal["labels", "drops", "pauses"]
 TrainingStage = Literal["base", "recovery"]
 RecoveryHead = Literal["unet", "classifier", "set_denoiser"]
 ZReference = Literal["eps_a", "eps_z_null"]
-SetReference = Literal["eps_s", "eps_s_empty"]
 RECOVERY_MODES = choices(RecoveryMode)
 FAILURE_FEATURES = choices(FailureFeatureKind)
 FAILURE_STATES_AT = choices(FailureStateAt)
@@ -28,7 +27,6 @@ FAILURE_SEGMENTS = choices(FailureSegments)
 TRAINING_STAGES = choices(TrainingStage)
 RECOVERY_HEADS = choices(RecoveryHead)
 Z_REFERENCES = choices(ZReference)
-SET_REFERENCES = choices(SetReference)
 # Counts and sizes that must be >= 1, and those that must be >= 0 (`_check_numbers`).
 POSITIVE_FIELDS = (
     "n_obs_steps",
@@ -74,13 +72,6 @@ class CCDPConfig(PreTrainedConfig):
             that uses `w_z`.
         z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
             "eps_z_null" (the recovery head with z dropped, trained on the same rows). `unet` head only.
-        set_reference: Set denoiser: what eps_{s,F} is measured against on the steps that use `w_z`:
-            "eps_s" (the base) or "eps_s_empty" (the head itself with an empty failure set, learnt on the same
-            rows, so the term cancels what the head gets wrong with and without F; one head row more per
-            guided step). Needs a head trained with `set_empty_share` > 0.
-        set_empty_share: Set denoiser, recovery stage: the share of training rows given an empty failure set,
-            which teach the head eps_{s,{}} for `set_reference="eps_s_empty"`; 0 trains sets of 1 to 3
-            failures only.
         history_length: States and actions before the observation window that form the history condition
             h_t^H. 0 trains no history condition.
         recovery_mode: How a plan is drawn after failures: "ccdp" (composition), "dp" (the base alone,
@@ -172,8 +163,6 @@ class CCDPConfig(PreTrainedConfig):
     w_z_steps: int | None = None
     w_z_from_step: int = 0
     z_reference: ZReference = "eps_z_null"
-    set_reference: SetReference = "eps_s"
-    set_empty_share: float = 0.0
     history_length: int = 0
     recovery_mode: RecoveryMode = "ccdp"
     recovery_head: RecoveryHead = "unet"
@@ -228,7 +217,6 @@ class CCDPConfig(PreTrainedConfig):
             ("training_stage", TRAINING_STAGES),
             ("recovery_head", RECOVERY_HEADS),
             ("z_reference", Z_REFERENCES),
-            ("set_reference", SET_REFERENCES),
         ):
             self._check_choice(name, allowed)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
@@ -253,20 +241,6 @@ class CCDPConfig(PreTrainedConfig):
                 f"`w_z_steps` ({self.w_z_steps}) and `w_z_from_step` ({self.w_z_from_step}) schedule the set "
                 f"denoiser's failure weight; the {self.recovery_head!r} head weighs every step alike. Remove "
                 "--policy.w_z_steps and --policy.w_z_from_step or use --policy.recovery_head=set_denoiser."
-            )
-        if self.set_reference != "eps_s" and self.recovery_head != "set_denoiser":
-            raise ValueError(
-                f"`set_reference` ({self.set_reference!r}) is the set denoiser's; the {self.recovery_head!r} "
-                "head measures its failure terms by `z_reference`. Remove --policy.set_reference or use "
-                "--policy.recovery_head=set_denoiser."
-            )
-        if not 0.0 <= self.set_empty_share < 1.0:
-            raise ValueError(f"`set_empty_share` is a share of rows in [0, 1); got {self.set_empty_share}.")
-        if self.set_reference == "eps_s_empty" and not self.set_empty_share:
-            raise ValueError(
-                "set_reference='eps_s_empty' needs the head's estimate with an empty failure set, which a "
-                "head trained with set_empty_share=0 never learnt. Retrain the recovery stage with "
-                "--policy.set_empty_share=0.25, or use --policy.set_reference=eps_s."
             )
         if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
             raise ValueError(

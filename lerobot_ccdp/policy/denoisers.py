@@ -143,12 +143,10 @@ class FailureSetDenoiser(nn.Module):
 
     def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
         """noisy (R, horizon, A); timestep (R,); state (R, state_cond_dim); z (R, N, z_dim) with z_mask
-        (R, N) -> predicted noise (R, horizon, A). A row without failures gets a zero set embedding:
-        eps_{s,{}}, which `start_from` makes eps_s exactly."""
+        (R, N), at least one failure per row -> predicted noise (R, horizon, A)."""
         ones = state.new_ones(state.shape[0], 1)
         no_history = state.new_zeros(state.shape[0], self.history_cond_dim)
         failures = self.set_embedding(z).masked_fill(~z_mask[..., None], float("-inf")).amax(dim=1)
-        failures = torch.where(z_mask.any(dim=1, keepdim=True), failures, torch.zeros_like(failures))
         cond = torch.cat([state, ones, no_history, 0 * ones, failures], dim=-1)
         return self.unet(noisy, timestep, global_cond=cond)
 

@@ -356,13 +356,7 @@ class CCDPModel(nn.Module):
         )
         self.feature = FailureFeature(config)
         self.weights = CompositionWeights(
-            config.w_s,
-            config.w_h,
-            config.w_z,
-            config.z_reference,
-            config.w_z_steps,
-            config.w_z_from_step,
-            config.set_reference,
+            config.w_s, config.w_h, config.w_z, config.z_reference, config.w_z_steps, config.w_z_from_step
         )
         if dataset_stats is not None and config.training_stage == "base":
             refuse_non_finite_stats(config, dataset_stats)
@@ -467,10 +461,8 @@ class CCDPModel(nn.Module):
         row gets a failure set F of 1..FAILURE_SET_TRAIN_SIZE z drawn from other rows (so F is independent of
         the row's own chunk); rows whose own z lies within delta_z of a failure in F are left out. The rows
         kept are p_s(a | s) q(F) 1[z(a) outside F], whose conditional given (s, F) is p_s restricted to the
-        options outside F in the base's proportions: DP*'s rejection, distilled. A `set_empty_share` of the
-        rows get an empty F instead and teach the head eps_{s,{}}, its own estimate of eps_s
-        (`set_reference="eps_s_empty"`). The first step copies the base into the head
-        (`FailureSetDenoiser.start_from`)."""
+        options outside F in the base's proportions: DP*'s rejection, distilled. The first step copies the
+        base into the head (`FailureSetDenoiser.start_from`)."""
         cfg = self.config
         state, chunk = self.frames(batch), batch[ACTION]
         if state.ndim != 2 or chunk.ndim != 3 or chunk.shape[1] != cfg.horizon:
@@ -487,10 +479,7 @@ class CCDPModel(nn.Module):
             self.recovery.start_from(self.base)
             self.recovery_trained.fill_(True)
         z_set, z_mask, repeats = draw_failure_sets(
-            self.feature.from_chunk(chunk, self.outcomes),
-            FAILURE_SET_TRAIN_SIZE,
-            cfg.delta_z,
-            cfg.set_empty_share,
+            self.feature.from_chunk(chunk, self.outcomes), FAILURE_SET_TRAIN_SIZE, cfg.delta_z
         )
         noise, timesteps, noisy = self._noised(chunk)
         loss = F.mse_loss(self.recovery(noisy, timesteps, state, z_set, z_mask), noise, reduction="none")
@@ -658,18 +647,9 @@ class CCDPModel(nn.Module):
                 eps[~failed] = plain_rest(sample[~failed], t)
             noisy = sample[failed]
             step = torch.full((noisy.shape[0],), t, dtype=torch.long, device=sample.device)
-            estimates = base[step_weights[t]](noisy, t)
-            if step_weights[t].measures_against_empty_set:  # eps_{s,F} and eps_{s,{}} in one head call
-                both = self.recovery(
-                    noisy.repeat(2, 1, 1),
-                    step.repeat(2),
-                    state_failed.repeat(2, 1),
-                    z_failed.repeat(2, 1, 1),
-                    torch.cat([mask_failed, torch.zeros_like(mask_failed)]),
-                )
-                estimates |= dict(zip(("sF", "s0"), both.split(noisy.shape[0]), strict=True))
-            else:
-                estimates["sF"] = self.recovery(noisy, step, state_failed, z_failed, mask_failed)
+            estimates = base[step_weights[t]](noisy, t) | {
+                "sF": self.recovery(noisy, step, state_failed, z_failed, mask_failed)
+            }
             eps[failed] = compose_with_failure_set(step_weights[t], estimates)
             return eps
 

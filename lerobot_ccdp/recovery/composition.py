@@ -16,8 +16,7 @@ class CompositionWeights:
     `z_reference` names what each failure term is measured against: "eps_a" (the paper's eq. 4) or
     "eps_z_null" (the recovery head's own z-dropped estimate, so that the term compares two estimates learnt
     from the same recovery data; see `compose_eps`). `w_z_steps` limits w_z to that many reverse steps
-    from `w_z_from_step` on (`at_step`). `set_reference` names what the set denoiser's eps_{s,F} is measured
-    against on those steps: "eps_s" (the base) or "eps_s_empty" (the head with an empty set, eps_{s,{}}).
+    from `w_z_from_step` on (`at_step`).
     """
 
     w_s: float
@@ -26,7 +25,6 @@ class CompositionWeights:
     z_reference: str = "eps_a"
     w_z_steps: int | None = None
     w_z_from_step: int = 0
-    set_reference: str = "eps_s"
 
     def at_step(self, index: int) -> "CompositionWeights":
         """The weights of reverse step `index` (0 is the noisiest): w_z on the `w_z_steps` steps from
@@ -40,7 +38,7 @@ class CompositionWeights:
         end = None if self.w_z_steps is None else self.w_z_from_step + self.w_z_steps
         if self.w_z_from_step <= index and (end is None or index < end):
             return self
-        return replace(self, w_z=1.0, w_z_steps=None, w_z_from_step=0, set_reference="eps_s")
+        return replace(self, w_z=1.0, w_z_steps=None, w_z_from_step=0)
 
     def uses_unconditional(self, n_failures: Tensor) -> bool:
         """Whether eps_a carries weight for any row: its coefficient is 1 - w_s - w_h - w_z * N_row, without
@@ -65,25 +63,13 @@ class CompositionWeights:
 
     def failure_set_coefficients(self) -> dict[str, float]:
         """The coefficient of each estimate in `compose_with_failure_set` for a row with failures: "a"
-        (eps_a), "s" (eps_s), "h" (eps_h), "sF" (eps_{s,F}) and, against the empty set, "s0" (eps_{s,{}}).
-        At w_s = w_z = 1, w_h = 0 against eps_s only eps_{s,F} remains: one network call per step."""
-        coefficients = {"a": 1.0 - self.w_s - self.w_h, "s": self.w_s, "h": self.w_h, "sF": self.w_z}
-        if self.set_reference == "eps_s_empty":
-            return coefficients | {"s0": -self.w_z}
-        return coefficients | {"s": self.w_s - self.w_z}
-
-    @property
-    def measures_against_empty_set(self) -> bool:
-        """Whether the set denoiser's term needs eps_{s,{}}, the head's own estimate with an empty set."""
-        return bool(self.w_z) and self.set_reference == "eps_s_empty"
+        (eps_a), "s" (eps_s), "h" (eps_h) and "sF" (eps_{s,F}). At w_s = w_z = 1, w_h = 0 only eps_{s,F}
+        remains: one network call per step."""
+        return {"a": 1.0 - self.w_s - self.w_h, "s": self.w_s - self.w_z, "h": self.w_h, "sF": self.w_z}
 
     def failure_set_base_terms(self) -> list[str]:
         """The base network's outputs `compose_with_failure_set` needs (those with a non-zero coefficient)."""
-        return [
-            name
-            for name, c in self.failure_set_coefficients().items()
-            if name not in ("sF", "s0") and abs(c) > 1e-9
-        ]
+        return [name for name, c in self.failure_set_coefficients().items() if name != "sF" and abs(c) > 1e-9]
 
     @classmethod
     def exploration(cls, w_s: float) -> "CompositionWeights":
@@ -135,17 +121,14 @@ def compose_eps(
 
 def compose_with_failure_set(weights: CompositionWeights, estimates: dict[str, Tensor]) -> Tensor:
     """eps = eps_a + w_s (eps_s - eps_a) + w_h (eps_h - eps_a) + w_z (eps_{s,F} - eps_s)
-    (eq. 4, failure-set head), or with `set_reference="eps_s_empty"` the failure term
-    w_z (eps_{s,F} - eps_{s,{}})
+    (eq. 4, failure-set head)
 
     `recovery_head="set_denoiser"`: one term for the whole failure set F, where eq. (4) sums one term per
     failure. eps_{s,F} (`denoisers.FailureSetDenoiser`) is the noise estimate of p_s restricted to the options
     outside F, so at w_z = 1 the failure term replaces eps_s by it: exact "everything but what failed" in the
     demonstrated proportions at every noise level, up to the network's error, and w_z > 1 pushes further from
-    F as classifier-free guidance does. Against eps_{s,{}} (the same head with an empty set, learnt on the
-    same rows) the term keeps only what F changes in the head, and leaves out an error the head makes with
-    and without F. `estimates` maps "a", "s", "h", "sF", "s0" to (B, horizon, action_dim) tensors; those
-    whose coefficient (`CompositionWeights.failure_set_coefficients`) is zero may be absent.
+    F as classifier-free guidance does. `estimates` maps "a", "s", "h", "sF" to (B, horizon, action_dim)
+    tensors; those whose coefficient (`CompositionWeights.failure_set_coefficients`) is zero may be absent.
     """
     eps = None
     for name, coefficient in weights.failure_set_coefficients().items():

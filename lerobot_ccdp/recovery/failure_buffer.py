@@ -60,20 +60,14 @@ def distinct_failures(z: Tensor, z_mask: Tensor, delta_z: float) -> Tensor:
     return z_mask & ~(close & earlier & z_mask[:, None]).any(dim=-1)
 
 
-def draw_failure_sets(
-    z: Tensor, size: int, delta_z: float, empty_share: float = 0.0
-) -> tuple[Tensor, Tensor, Tensor]:
+def draw_failure_sets(z: Tensor, size: int, delta_z: float) -> tuple[Tensor, Tensor, Tensor]:
     """Training failure sets for the rows of a batch with outcomes z (B, z_dim): each row gets 1..`size`
-    failures drawn from the other rows (so its set does not depend on its own chunk), or, with probability
-    `empty_share`, none (an empty set repeats nothing). Returns the sets (B, size, z_dim), their masks
-    (B, size) and whether each row's own z lies within `delta_z` (squared distance) of a failure in its set
-    (B,): a repeat."""
+    failures drawn from the other rows (so its set does not depend on its own chunk). Returns the sets
+    (B, size, z_dim), their masks (B, size) and whether each row's own z lies within `delta_z` (squared
+    distance) of a failure in its set (B,): a repeat."""
     b = z.shape[0]
     others = (torch.arange(b, device=z.device)[:, None] + torch.randint(1, b, (b, size), device=z.device)) % b
     z_set = z[others]
-    count = torch.randint(1, size + 1, (b, 1), device=z.device)
-    if empty_share:
-        count = count * (torch.rand(b, 1, device=z.device) >= empty_share)
-    z_mask = torch.arange(size, device=z.device)[None] < count
+    z_mask = torch.arange(size, device=z.device)[None] < torch.randint(1, size + 1, (b, 1), device=z.device)
     repeats = ((((z_set - z[:, None]) ** 2).sum(dim=-1) <= delta_z) & z_mask).any(dim=1)
     return z_set, z_mask, repeats

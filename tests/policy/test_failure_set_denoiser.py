@@ -41,38 +41,15 @@ def test_failure_sets_come_from_other_rows_and_flag_the_rows_whose_outcome_they_
     assert torch.equal(repeats, holds_own) and 0 < repeats.float().mean() < 1
 
 
-def test_failure_sets_may_be_empty_and_an_empty_set_repeats_nothing():
+def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set():
+    """With a single option, every drawn failure set holds each row's own outcome: no row is kept, so no
+    gradient."""
     torch.manual_seed(0)
-    z = torch.eye(4)[torch.arange(256) % 4]
-    _, z_mask, repeats = draw_failure_sets(z, 3, delta_z=0.1, empty_share=0.25)
-    empty = ~z_mask.any(dim=1)
-    assert 0.15 < empty.float().mean() < 0.35
-    assert not repeats[empty].any()
-
-
-def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set(monkeypatch):
-    """With a single option, every non-empty failure set holds each row's own outcome: only the rows drawn an
-    empty set (eps_{s,{}}) are kept; without empty sets, none is, so there is no gradient."""
-    torch.manual_seed(0)
-    alone = make_policy(**{**SETTINGS, "training_stage": "recovery"}).train()
-    alone.model.outcomes.fill(torch.zeros(4, 16 * 2), torch.zeros(4, 2), torch.zeros(4, dtype=torch.long))
-    loss, info = alone.forward({"observation.state": torch.randn(8, 2), "action": torch.randn(8, 16, 2)})
-    assert info["kept_rows"] == 0.0 and loss.item() == 0.0
-
-    policy = make_policy(**{**SETTINGS, "training_stage": "recovery", "set_empty_share": 0.25}).train()
+    policy = make_policy(**{**SETTINGS, "training_stage": "recovery"}).train()
     policy.model.outcomes.fill(torch.zeros(4, 16 * 2), torch.zeros(4, 2), torch.zeros(4, dtype=torch.long))
-    drawn = []
-
-    def recorded(*args, **kwargs):
-        drawn.append(draw_failure_sets(*args, **kwargs))
-        return drawn[-1]
-
-    monkeypatch.setattr("lerobot_ccdp.policy.modeling_ccdp.draw_failure_sets", recorded)
-    batch = {"observation.state": torch.randn(64, 2), "action": torch.randn(64, 16, 2)}  # synthesised rows
+    batch = {"observation.state": torch.randn(8, 2), "action": torch.randn(8, 16, 2)}  # synthesised rows
     loss, info = policy.forward(batch)
-    ((_, z_mask, repeats),) = drawn
-    assert torch.equal(repeats, z_mask.any(dim=1))  # every non-empty set repeats the one option
-    assert info["kept_rows"] == float((~z_mask.any(dim=1)).float().mean()) > 0 and loss.item() > 0
+    assert info["kept_rows"] == 0.0 and loss.item() == 0.0
     assert bool(policy.model.recovery_trained)  # the first step copied the base into the head
 
 
@@ -141,47 +118,7 @@ def test_w_z_guides_only_its_window_of_steps_and_the_set_denoiser_alone_serves_t
     torch.testing.assert_close(plan, sample)
 
 
-def test_against_the_empty_set_the_guided_steps_ask_the_head_for_eps_s_f_and_eps_s_empty_in_one_call():
-    """set_reference="eps_s_empty", w_z = 2 on steps 4-6: there eps_s + 2 (eps_{s,F} - eps_{s,{}}), the head
-    called once on twice the failed rows (with F and with an empty set) and the base once; elsewhere
-    eps_{s,F} alone. The plan equals the one sampled step by step by hand."""
-    policy = make_policy(
-        **SETTINGS, w_z=2.0, w_z_steps=3, w_z_from_step=4, set_reference="eps_s_empty", set_empty_share=0.25
-    )
-    policy.model.recovery_trained.fill_(True)
-    model = policy.model
-    state, history = torch.zeros(2, 2), torch.zeros(2, 0)
-    z, z_mask = torch.eye(3)[torch.tensor([[0], [1]])], torch.ones(2, 1, dtype=torch.bool)
-    base_rows, head_rows = count_calls(model.base), count_calls(model.recovery)
-    start = torch.randn(2, 16, 2)
-    torch.manual_seed(1)
-    with torch.inference_mode():
-        plan = model.denoise(start.clone(), state, history, z, z_mask)
-    assert base_rows == [2] * 3 and head_rows == [2] * 4 + [4] * 3 + [2] * 3
-
-    torch.manual_seed(1)
-    sample, ones, no_history = start.clone(), torch.ones(2, 1), torch.zeros(2, 1)
-    with torch.inference_mode():
-        for index, t in enumerate(model.noise_scheduler.timesteps):
-            step = torch.full((2,), int(t))
-            eps = model.recovery(sample, step, state, z, z_mask)
-            if index in (4, 5, 6):
-                eps_s = model.base(sample, step, state, ones, history, no_history)
-                eps_empty = model.recovery(sample, step, state, z, torch.zeros_like(z_mask))
-                eps = eps_s + 2.0 * (eps - eps_empty)
-            sample = model.noise_scheduler.step(eps, t, sample).prev_sample
-    torch.testing.assert_close(plan, sample)
-
-
 def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
-    with pytest.raises(ValueError, match="--policy.set_reference"):
-        make_policy(
-            **{**SETTINGS, "recovery_head": "unet"}, set_reference="eps_s_empty", set_empty_share=0.25
-        )
-    with pytest.raises(ValueError, match="--policy.set_empty_share=0.25"):
-        make_policy(**SETTINGS, set_reference="eps_s_empty")
-    with pytest.raises(ValueError, match="set_empty_share"):
-        make_policy(**SETTINGS, set_empty_share=1.0)
     with pytest.raises(ValueError, match="n_obs_steps=1"):
         make_policy(**SETTINGS, n_obs_steps=2, n_action_steps=8)
     with pytest.raises(ValueError, match="--policy.recovery_head=set_denoiser"):
