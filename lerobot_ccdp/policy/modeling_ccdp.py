@@ -325,6 +325,7 @@ class CCDPPolicy(PreTrainedPolicy):
             z_mask,
             None if noise is None else noise[rows],
             streams,
+            memory.attempt_planned[rows],
         )
         return SAMPLERS[mode](self.model, plan)
 
