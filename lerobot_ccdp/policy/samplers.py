@@ -76,12 +76,13 @@ def plan_ccdp(model: CCDPModel, rows: PlanRows) -> Tensor:
     for group, group_weights in ((~rows.continuing, None), (rows.continuing, weights)):
         if group.any():
             streams = None if rows.streams is None else [rows.streams[i] for i in group.nonzero().flatten()]
+            n = int(rows.z_mask[group].sum(dim=1).max())  # the group's failure slots (left-aligned)
             sample[group] = model.denoise(
                 sample[group],
                 rows.state[group],
                 rows.history[group],
-                rows.z[group],
-                rows.z_mask[group],
+                rows.z[group][:, :n],
+                rows.z_mask[group][:, :n],
                 group_weights,
                 streams,
             )

@@ -156,6 +156,14 @@ def test_w_z_continuing_weighs_an_attempts_later_plans_and_w_z_its_first():
         base_rows.clear(), head_rows.clear()
         policy.predict_action_chunk({"observation.state": torch.zeros(2, 2)})  # row 0 continues it
     assert [r for r in base_rows if r] == [1] * steps and [r for r in head_rows if r] == [1] * steps
+    # A group of rows none of which remembers a failure plans as the base, whatever the weights.
+    policy = make_policy(**SETTINGS, w_z=2.0, w_z_steps=3, w_z_continuing=3.0)
+    policy.model.recovery_trained.fill_(True)
+    with torch.inference_mode():
+        policy.select_action({"observation.state": torch.zeros(2, 2)})
+        policy.report_failure(rows=[0], z=torch.eye(3)[[1]])
+        for _ in range(2):
+            assert policy.predict_action_chunk({"observation.state": torch.zeros(2, 2)}).isfinite().all()
     with pytest.raises(ValueError, match="--policy.recovery_head=set_denoiser"):
         make_policy(**{**SETTINGS, "recovery_head": "unet"}, w_z_continuing=1.0)
     with pytest.raises(ValueError, match="w_z_continuing"):
