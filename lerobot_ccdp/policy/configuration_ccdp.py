@@ -20,7 +20,6 @@ FailureSegments = Literal["labels", "drops", "pauses"]
 TrainingStage = Literal["base", "recovery"]
 RecoveryHead = Literal["unet", "classifier", "set_denoiser"]
 ZReference = Literal["eps_a", "eps_z_null"]
-FailureSetDraw = Literal["independent", "distinct"]
 RECOVERY_MODES = choices(RecoveryMode)
 FAILURE_FEATURES = choices(FailureFeatureKind)
 FAILURE_STATES_AT = choices(FailureStateAt)
@@ -28,7 +27,6 @@ FAILURE_SEGMENTS = choices(FailureSegments)
 TRAINING_STAGES = choices(TrainingStage)
 RECOVERY_HEADS = choices(RecoveryHead)
 Z_REFERENCES = choices(ZReference)
-FAILURE_SET_DRAWS = choices(FailureSetDraw)
 # Counts and sizes that must be >= 1, and those that must be >= 0 (`_check_numbers`).
 POSITIVE_FIELDS = (
     "n_obs_steps",
@@ -107,10 +105,6 @@ class CCDPConfig(PreTrainedConfig):
             the policy acts on: never saved in a checkpoint.
         delta_z: Squared distance in z under which an outcome repeats a failure (DP*'s rejection, the set
             denoiser's training sets, redraws).
-        failure_set_draw: Set denoiser and classifier training: each row's 1-3 failures drawn from other rows
-            "independent"ly (one option may come twice) or as "distinct" options (more than `delta_z` apart),
-            the sets an episode meets when no failure repeats (the set denoiser's max over its members
-            already reads a repeated one as one).
         dp_star_candidates: DP*: candidates drawn per plan.
         dp_star_rounds: DP*: rounds of fresh candidates for a row whose candidates were all rejected, before
             it falls back to the candidate farthest from every failure (1: no redraw).
@@ -188,7 +182,6 @@ class CCDPConfig(PreTrainedConfig):
     num_primitives: int = 0
     failure_signal_file: str | None = None
     delta_z: float = 0.1
-    failure_set_draw: FailureSetDraw = "independent"
     dp_star_candidates: int = 16
     dp_star_rounds: int = 4
     ccdp_redraws: int = 0
@@ -228,7 +221,6 @@ class CCDPConfig(PreTrainedConfig):
             ("training_stage", TRAINING_STAGES),
             ("recovery_head", RECOVERY_HEADS),
             ("z_reference", Z_REFERENCES),
-            ("failure_set_draw", FAILURE_SET_DRAWS),
         ):
             self._check_choice(name, allowed)
         self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))

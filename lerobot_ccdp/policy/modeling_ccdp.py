@@ -449,7 +449,7 @@ class CCDPModel(nn.Module):
             )
         self.recovery_trained.fill_(True)
         z_set, z_mask, repeats = draw_failure_sets(
-            self.feature.from_chunk(chunk, self.outcomes), n, cfg.delta_z, cfg.failure_set_draw == "distinct"
+            self.feature.from_chunk(chunk, self.outcomes), n, cfg.delta_z
         )
         keep_s = (torch.rand(b, 1, device=chunk.device) >= P_DROP_STATE).to(chunk.dtype)
         _, timesteps, noisy = self._noised(chunk)
@@ -480,10 +480,7 @@ class CCDPModel(nn.Module):
             self.recovery.start_from(self.base)
             self.recovery_trained.fill_(True)
         z_set, z_mask, repeats = draw_failure_sets(
-            self.feature.from_chunk(chunk, self.outcomes),
-            FAILURE_SET_TRAIN_SIZE,
-            cfg.delta_z,
-            cfg.failure_set_draw == "distinct",
+            self.feature.from_chunk(chunk, self.outcomes), FAILURE_SET_TRAIN_SIZE, cfg.delta_z
         )
         noise, timesteps, noisy = self._noised(chunk)
         loss = F.mse_loss(self.recovery(noisy, timesteps, state, z_set, z_mask), noise, reduction="none")

@@ -5,9 +5,6 @@ from torch import Tensor
 
 from lerobot_ccdp.policy.tensor_modes import ordinary_tensors
 
-# Draws per failure-set slot from which `draw_failure_sets(distinct=True)` keeps the distinct options.
-DISTINCT_CANDIDATES = 4
-
 
 class FailureBuffer:
     """Remembers up to `cap` failure features per batch row; beyond the cap the oldest is forgotten.
@@ -63,32 +60,14 @@ def distinct_failures(z: Tensor, z_mask: Tensor, delta_z: float) -> Tensor:
     return z_mask & ~(close & earlier & z_mask[:, None]).any(dim=-1)
 
 
-def draw_failure_sets(
-    z: Tensor, size: int, delta_z: float, distinct: bool = False
-) -> tuple[Tensor, Tensor, Tensor]:
+def draw_failure_sets(z: Tensor, size: int, delta_z: float) -> tuple[Tensor, Tensor, Tensor]:
     """Training failure sets for the rows of a batch with outcomes z (B, z_dim): each row gets 1..`size`
     failures drawn from the other rows (so its set does not depend on its own chunk). Returns the sets
     (B, size, z_dim), their masks (B, size) and whether each row's own z lies within `delta_z` (squared
-    distance) of a failure in its set (B,): a repeat.
-
-    Independent draws often pick one option twice, so a set of `size` failures seldom names `size` options;
-    `distinct` keeps only members more than `delta_z` from every earlier member (from DISTINCT_CANDIDATES
-    draws per slot), the sets an episode meets when no failure repeats."""
+    distance) of a failure in its set (B,): a repeat."""
     b = z.shape[0]
-    draws = size * (DISTINCT_CANDIDATES if distinct else 1)
-    others = (
-        torch.arange(b, device=z.device)[:, None] + torch.randint(1, b, (b, draws), device=z.device)
-    ) % b
+    others = (torch.arange(b, device=z.device)[:, None] + torch.randint(1, b, (b, size), device=z.device)) % b
     z_set = z[others]
-    count = torch.randint(1, size + 1, (b, 1), device=z.device)
-    if distinct:
-        kept = torch.zeros(b, draws, dtype=torch.bool, device=z.device)
-        for j in range(draws):
-            close = ((z_set[:, j : j + 1] - z_set) ** 2).sum(dim=-1) <= delta_z
-            kept[:, j] = ~(close & kept).any(dim=1)
-        first_kept = torch.sort((~kept).to(torch.uint8), dim=1, stable=True).indices[:, :size]
-        z_set = torch.gather(z_set, 1, first_kept[..., None].expand(-1, -1, z.shape[-1]))
-        count = torch.minimum(count, kept.sum(dim=1, keepdim=True))
-    z_mask = torch.arange(size, device=z.device)[None] < count
+    z_mask = torch.arange(size, device=z.device)[None] < torch.randint(1, size + 1, (b, 1), device=z.device)
     repeats = ((((z_set - z[:, None]) ** 2).sum(dim=-1) <= delta_z) & z_mask).any(dim=1)
     return z_set, z_mask, repeats

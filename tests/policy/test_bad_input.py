@@ -30,7 +30,6 @@ from fixtures.policy_factory import make_policy
         ({"failure_action_steps": [0, 99]}, "failure_action_steps"),
         ({"horizon": 12}, "multiple"),
         ({"recovery_head": "mlp"}, "recovery_head"),
-        ({"failure_set_draw": "unique"}, "failure_set_draw"),
         ({"failure_segments": "releases"}, "failure_segments"),
         ({"ccdp_redraws": -1}, "ccdp_redraws"),
         ({"w_h": 0.5}, "history_length"),

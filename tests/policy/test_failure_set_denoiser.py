@@ -41,26 +41,6 @@ def test_failure_sets_come_from_other_rows_and_flag_the_rows_whose_outcome_they_
     assert torch.equal(repeats, holds_own) and 0 < repeats.float().mean() < 1
 
 
-def test_distinct_failure_sets_name_each_option_once_and_reach_every_other_option_more_often():
-    """Four options: a kept row's set of three names all three others only when its members differ, which
-    independent draws seldom give (2/9 of their three-member sets without the row's own option)."""
-    torch.manual_seed(0)
-    z = torch.eye(4)[torch.arange(4096) % 4]
-    shares = {}
-    for distinct in (False, True):
-        z_set, z_mask, repeats = draw_failure_sets(z, 3, delta_z=0.1, distinct=distinct)
-        assert z_mask[:, 0].all() and not z_mask.all()
-        holds_own = ((z_set == z[:, None]).all(-1) & z_mask).any(1)
-        assert torch.equal(repeats, holds_own)
-        same = ((z_set[:, :, None] - z_set[:, None]) ** 2).sum(-1) <= 0.1
-        pairs = z_mask[:, :, None] & z_mask[:, None] & ~torch.eye(3, dtype=torch.bool)
-        if distinct:
-            assert not (same & pairs).any()  # no option twice in a set
-        options = torch.stack([((z_set == torch.eye(4)[k]).all(-1) & z_mask).any(1) for k in range(4)], 1)
-        shares[distinct] = ((options.sum(1) == 3) & ~repeats).float().mean().item()
-    assert shares[True] > 2 * shares[False] > 0
-
-
 def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set():
     """With a single option, every drawn failure set holds each row's own outcome: no row is kept, so no
     gradient."""
