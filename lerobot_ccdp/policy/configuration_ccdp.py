@@ -68,9 +68,6 @@ class CCDPConfig(PreTrainedConfig):
         w_z_steps: Set denoiser: apply `w_z` only at `w_z_steps` reverse steps from `w_z_from_step` on, and
             w_z = 1 (eps_{s,F} alone, one UNet call) at the rest. None: `w_z` at every step from
             `w_z_from_step` on. Each guided step costs a base call.
-        w_z_continuing: Set denoiser: the failure weight of an attempt's later plans, once its first has
-            chosen an option (None: `w_z`). 1 follows that choice through with eps_{s,F} alone, where a strong
-            weight at every replan can switch between the options left and never commit.
         w_z_from_step: Set denoiser: the first reverse step (0 the noisiest, where a sample picks its option)
             that uses `w_z`.
         z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
@@ -165,7 +162,6 @@ class CCDPConfig(PreTrainedConfig):
     w_z: float = 1.0
     w_z_steps: int | None = None
     w_z_from_step: int = 0
-    w_z_continuing: float | None = None
     z_reference: ZReference = "eps_z_null"
     history_length: int = 0
     recovery_mode: RecoveryMode = "ccdp"
@@ -203,8 +199,8 @@ class CCDPConfig(PreTrainedConfig):
                 f"CCDP composes noise estimates (eq. 4), so `prediction_type` must be 'epsilon'; got "
                 f"{self.prediction_type!r}. Remove --policy.prediction_type or set it to epsilon."
             )
-        for name in ("w_s", "w_h", "w_z", "w_z_continuing"):
-            if (getattr(self, name) or 0) < 0:
+        for name in ("w_s", "w_h", "w_z"):
+            if getattr(self, name) < 0:
                 raise ValueError(
                     f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(self, name)}."
                 )
@@ -245,12 +241,6 @@ class CCDPConfig(PreTrainedConfig):
                 f"`w_z_steps` ({self.w_z_steps}) and `w_z_from_step` ({self.w_z_from_step}) schedule the set "
                 f"denoiser's failure weight; the {self.recovery_head!r} head weighs every step alike. Remove "
                 "--policy.w_z_steps and --policy.w_z_from_step or use --policy.recovery_head=set_denoiser."
-            )
-        if self.w_z_continuing is not None and self.recovery_head != "set_denoiser":
-            raise ValueError(
-                f"`w_z_continuing` ({self.w_z_continuing}) weighs the set denoiser's later plans of an "
-                f"attempt; the {self.recovery_head!r} head has no such weight. Remove "
-                "--policy.w_z_continuing or use --policy.recovery_head=set_denoiser."
             )
         if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
             raise ValueError(

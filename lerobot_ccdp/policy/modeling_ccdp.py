@@ -325,7 +325,6 @@ class CCDPPolicy(PreTrainedPolicy):
             z_mask,
             None if noise is None else noise[rows],
             streams,
-            memory.attempt_planned[rows],
         )
         return SAMPLERS[mode](self.model, plan)
 

@@ -11,7 +11,7 @@ function here. All of them run the model's one reverse diffusion (`CCDPModel.den
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
@@ -36,7 +36,6 @@ class PlanRows:
     z_mask: Tensor
     noise: Tensor | None = None
     streams: list[torch.Generator] | None = None
-    continuing: Tensor | None = None  # (R,) bool: the attempt has planned before (None: none has)
 
     def initial_noise(self, model: CCDPModel) -> Tensor:
         shape = (self.state.shape[0], model.config.horizon, model.config.action_dim)
@@ -68,25 +67,7 @@ def plan_ccdp(model: CCDPModel, rows: PlanRows) -> Tensor:
         return sample_without_repeats(
             model, rows, 1, 1 + model.config.ccdp_redraws, guided=True, first_noise=sample
         )
-    later = model.config.w_z_continuing is not None and rows.continuing is not None
-    if not later or not rows.continuing.any():
-        return model.denoise(sample, rows.state, rows.history, rows.z, rows.z_mask, generators=rows.streams)
-    # An attempt's later plans follow the option its first chose: `w_z_continuing` instead of `w_z`.
-    weights = replace(model.weights, w_z=model.config.w_z_continuing)
-    for group, group_weights in ((~rows.continuing, None), (rows.continuing, weights)):
-        if group.any():
-            streams = None if rows.streams is None else [rows.streams[i] for i in group.nonzero().flatten()]
-            n = int(rows.z_mask[group].sum(dim=1).max())  # the group's failure slots (left-aligned)
-            sample[group] = model.denoise(
-                sample[group],
-                rows.state[group],
-                rows.history[group],
-                rows.z[group][:, :n],
-                rows.z_mask[group][:, :n],
-                group_weights,
-                streams,
-            )
-    return sample
+    return model.denoise(sample, rows.state, rows.history, rows.z, rows.z_mask, generators=rows.streams)
 
 
 SAMPLERS: dict[str, Callable[[CCDPModel, PlanRows], Tensor]] = {

@@ -118,38 +118,6 @@ def test_w_z_guides_only_its_window_of_steps_and_the_set_denoiser_alone_serves_t
     torch.testing.assert_close(plan, sample)
 
 
-def test_w_z_continuing_weighs_an_attempts_later_plans_and_w_z_its_first():
-    """w_z = 2 at every step guides the plan that starts an attempt after a failure (a base call per step
-    for the failed row); with w_z_continuing = 1 the attempt's later plans are eps_{s,F} alone (no base call
-    for that row), while a row without failures keeps its one base call per step."""
-    torch.manual_seed(0)
-    policy = make_policy(**SETTINGS, w_z=2.0, w_z_continuing=1.0)
-    policy.model.recovery_trained.fill_(True)
-    base_rows, head_rows = count_calls(policy.model.base), count_calls(policy.model.recovery)
-    steps = policy.config.num_inference_steps
-    with torch.inference_mode():
-        policy.select_action({"observation.state": torch.zeros(2, 2)})
-        policy.report_failure(rows=[0], z=torch.eye(3)[[1]])
-        base_rows.clear(), head_rows.clear()
-        policy.predict_action_chunk({"observation.state": torch.zeros(2, 2)})  # row 0's attempt starts
-        assert [r for r in base_rows if r] == [1] * (2 * steps) and [r for r in head_rows if r] == [1] * steps
-        base_rows.clear(), head_rows.clear()
-        policy.predict_action_chunk({"observation.state": torch.zeros(2, 2)})  # row 0 continues it
-    assert [r for r in base_rows if r] == [1] * steps and [r for r in head_rows if r] == [1] * steps
-    # A group of rows none of which remembers a failure plans as the base, whatever the weights.
-    policy = make_policy(**SETTINGS, w_z=2.0, w_z_steps=3, w_z_continuing=3.0)
-    policy.model.recovery_trained.fill_(True)
-    with torch.inference_mode():
-        policy.select_action({"observation.state": torch.zeros(2, 2)})
-        policy.report_failure(rows=[0], z=torch.eye(3)[[1]])
-        for _ in range(2):
-            assert policy.predict_action_chunk({"observation.state": torch.zeros(2, 2)}).isfinite().all()
-    with pytest.raises(ValueError, match="--policy.recovery_head=set_denoiser"):
-        make_policy(**{**SETTINGS, "recovery_head": "unet"}, w_z_continuing=1.0)
-    with pytest.raises(ValueError, match="w_z_continuing"):
-        make_policy(**SETTINGS, w_z_continuing=-1.0)
-
-
 def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
     with pytest.raises(ValueError, match="n_obs_steps=1"):
         make_policy(**SETTINGS, n_obs_steps=2, n_action_steps=8)
