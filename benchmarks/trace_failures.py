@@ -1,0 +1,186 @@
+"""Why a recovery method's episodes are lost: each attempt's outcome beside the plans that led to it.
+
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/trace_failures.py \
+        --checkpoint outputs/benchmark/button_search/recovery/checkpoints/last/pretrained_model \
+        --eval-config configs/button_search/eval.json [--seed 1000] [--episodes 100] [--verbose] \
+        [--policy.w_z=5 --policy.w_z_steps=3 ...]
+
+Runs lerobot-eval (the method's flags as given, the development seeds, unrendered, on common random
+numbers as the pipeline evaluates) with the env and the policy watched: every plan's outcome as the
+outcome table looks it up (the z DP* would read), and every attempt's outcome as the env judges it. Prints,
+per lost episode, the options tried and the plans' looked-up options, and two counts:
+- repeats: how many repeated failures followed a plan that the lookup already placed on a failed option
+  (the sampler chose it) rather than on another (the lookup and the env disagree);
+- stalls: lost episodes that neither succeeded nor used up their failures, and how many times their last
+  attempt's plans switched option (two consecutive plans more than `delta_z` apart).
+lerobot-eval's own output goes to a temporary folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lerobot_ccdp.envs.base import CCDPTaskEnv
+from lerobot_ccdp.policy import modeling_ccdp
+
+
+@dataclass
+class Episode:
+    events: list[str] = field(default_factory=list)
+    plans: list[tuple[np.ndarray, bool]] = field(default_factory=list)  # (looked-up z, on a failed option)
+    attempt_plans: list[np.ndarray] = field(default_factory=list)
+    repeats: int = 0
+    repeats_chosen: int = 0  # repeats whose last plan the lookup placed on a failed option
+    repeats_other: int = 0
+    switches: int = 0  # in the current attempt
+    done: bool = False
+    success: bool = False
+    out_of_failures: bool = False
+
+
+class Tracer:
+    """Collects per-row episodes of the batch being evaluated; lerobot-eval's batches follow each other."""
+
+    def __init__(self, delta_z: float):
+        self.delta_z = delta_z
+        self.rows: dict[int, Episode] = defaultdict(Episode)
+        self.env_rows: dict[int, int] = {}
+        self.finished: list[Episode] = []
+
+    def new_batch(self) -> None:
+        self.finished.extend(self.rows[r] for r in sorted(self.rows))
+        self.rows.clear()
+        self.env_rows.clear()
+
+    def row_of(self, env: CCDPTaskEnv) -> int:
+        return self.env_rows.setdefault(id(env), len(self.env_rows))
+
+    def plan(self, row: int, z: np.ndarray, failed: np.ndarray) -> None:
+        episode = self.rows[row]
+        if episode.done:
+            return
+        on_failed = bool(len(failed)) and bool((((failed - z) ** 2).sum(-1) <= self.delta_z).any())
+        if episode.attempt_plans and ((episode.attempt_plans[-1] - z) ** 2).sum() > self.delta_z:
+            episode.switches += 1
+        episode.attempt_plans.append(z)
+        episode.plans.append((z, on_failed))
+        episode.events.append(f"plan {np.round(z, 2).tolist()}{' (a failed option)' if on_failed else ''}")
+
+    def outcome(self, row: int, info: dict, failure: bool, terminated: bool) -> None:
+        episode = self.rows[row]
+        if episode.done:
+            return
+        if failure:
+            repeat = info["repeated_failures"] > episode.repeats
+            if repeat:
+                episode.repeats += 1
+                chosen = bool(episode.plans) and episode.plans[-1][1]
+                episode.repeats_chosen += chosen
+                episode.repeats_other += not chosen
+            episode.events.append(f"fail option {info['option']}{' (repeat)' if repeat else ''}")
+            episode.attempt_plans, episode.switches = [], 0
+        elif info["is_success"]:
+            episode.events.append(f"success option {info['option']}")
+        episode.success = bool(info["is_success"])
+        episode.out_of_failures = terminated and not episode.success
+        episode.done = terminated
+
+    def env_reset(self, env: CCDPTaskEnv) -> None:
+        """A reset of an env that already stepped in this batch ends its episode (the time limit's)."""
+        if id(env) in self.env_rows:
+            self.rows[self.env_rows[id(env)]].done = True
+
+    def report(self, verbose: bool) -> None:
+        episodes = self.finished
+        lost = [e for e in episodes if not e.success]
+        stalls = [e for e in lost if not e.out_of_failures]
+        chosen = sum(e.repeats_chosen for e in episodes)
+        other = sum(e.repeats_other for e in episodes)
+        for index, episode in enumerate(episodes):
+            if verbose or not episode.success:
+                print(f"episode {index}: " + "; ".join(episode.events))
+        print(
+            f"\n{len(episodes)} episodes, {len(lost)} lost: {len(lost) - len(stalls)} out of failures, "
+            f"{len(stalls)} stalled (their last attempt's plans switched option "
+            f"{[e.switches for e in stalls]} times)"
+        )
+        print(
+            f"repeated failures: {chosen + other}; after a plan looked up on a failed option {chosen}, "
+            f"on another option {other}"
+        )
+
+
+def install(tracer: Tracer) -> None:
+    """Wrap the env's step and the policy's reset and sampler (in this process only)."""
+    step, env_reset = CCDPTaskEnv.step, CCDPTaskEnv.reset
+    reset, sample = modeling_ccdp.CCDPPolicy.reset, modeling_ccdp.CCDPPolicy._sample
+
+    def traced_step(env, action):
+        observation, reward, terminated, truncated, info = step(env, action)
+        row, failure = tracer.row_of(env), bool(observation["failure"][0] > 0)  # rows in stepping order
+        if failure or terminated or truncated:
+            tracer.outcome(row, info, failure, terminated or truncated)
+        return observation, reward, terminated, truncated, info
+
+    def traced_env_reset(env, *args, **kwargs):
+        tracer.env_reset(env)
+        return env_reset(env, *args, **kwargs)
+
+    def traced_reset(policy):
+        tracer.new_batch()
+        reset(policy)
+
+    def traced_sample(policy, rows, noise):
+        chunk = sample(policy, rows, noise)
+        z = policy.model.feature.from_chunk(chunk, policy.model.outcomes).cpu().numpy()
+        failures, mask = policy._failures.padded(rows)
+        for i, row in enumerate(rows.nonzero().flatten().tolist()):
+            tracer.plan(row, z[i], failures[i][mask[i]].cpu().numpy())
+        return chunk
+
+    CCDPTaskEnv.step = traced_step
+    CCDPTaskEnv.reset = traced_env_reset
+    modeling_ccdp.CCDPPolicy.reset = traced_reset
+    modeling_ccdp.CCDPPolicy._sample = traced_sample
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--checkpoint", required=True, help="a recovery checkpoint (pretrained_model folder)")
+    parser.add_argument("--eval-config", required=True, help="the task's eval.json")
+    parser.add_argument("--seed", type=int, default=1000, help="first seed (default: the development seeds)")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--delta-z", type=float, default=0.1, help="the task's delta_z (its recipe's)")
+    parser.add_argument("--verbose", action="store_true", help="print every episode, not only the lost")
+    args, policy_flags = parser.parse_known_args()
+    from lerobot.scripts.lerobot_eval import main as lerobot_eval
+
+    tracer = Tracer(args.delta_z)
+    install(tracer)
+    with tempfile.TemporaryDirectory() as out:
+        sys.argv = [
+            "lerobot-eval",
+            f"--config_path={args.eval_config}",
+            f"--policy.path={args.checkpoint}",
+            "--policy.row_noise_streams=true",
+            "--env.render_mode=null",
+            f"--eval.n_episodes={args.episodes}",
+            f"--seed={args.seed}",
+            f"--output_dir={out}/eval",
+            *policy_flags,
+        ]
+        lerobot_eval()
+    tracer.new_batch()
+    tracer.report(args.verbose)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,58 @@
+"""`benchmarks/trace_failures.py` sorts a lost episode's causes: a repeat after a plan the lookup already
+placed on a failed option (the sampler chose it) or on another (lookup and env disagree), and a stall (no
+success, failures left) with the option switches of its last attempt."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[2]
+spec = importlib.util.spec_from_file_location("trace_failures", REPO / "benchmarks" / "trace_failures.py")
+trace = importlib.util.module_from_spec(spec)
+sys.modules["trace_failures"] = trace  # its dataclasses look their module up
+spec.loader.exec_module(trace)
+
+A, B, C = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+NONE = np.zeros((0, 3))
+
+
+def info(option: int, repeated: int = 0, success: bool = False) -> dict:
+    return {"option": option, "repeated_failures": repeated, "is_success": success}
+
+
+def test_repeats_are_told_apart_by_the_last_plan_and_stalls_count_their_switches(capsys):
+    tracer = trace.Tracer(delta_z=0.1)
+    # Row 0: fails on A, plans A again (a failed option), repeats it: the sampler's choice.
+    tracer.plan(0, A, NONE)
+    tracer.outcome(0, info(0), failure=True, terminated=False)
+    tracer.plan(0, A, A[None])
+    tracer.outcome(0, info(0, repeated=1), failure=True, terminated=True)
+    # Row 1: fails on A, plans B, the env still reports A: the lookup disagrees with the env.
+    tracer.plan(1, A, NONE)
+    tracer.outcome(1, info(0), failure=True, terminated=False)
+    tracer.plan(1, B, A[None])
+    tracer.outcome(1, info(0, repeated=1), failure=True, terminated=False)
+    # Row 2: fails on A, then its plans switch B -> C -> B and the time limit ends it (a reset).
+    tracer.plan(2, A, NONE)
+    tracer.outcome(2, info(0), failure=True, terminated=False)
+    for z in (B, C, B):
+        tracer.plan(2, z, A[None])
+    tracer.rows[2].done = True
+    tracer.plan(2, C, A[None])  # after its end: ignored
+    # Row 3: succeeds.
+    tracer.plan(3, B, NONE)
+    tracer.outcome(3, info(1, success=True), failure=False, terminated=True)
+    tracer.new_batch()
+
+    episodes = tracer.finished
+    assert [e.success for e in episodes] == [False, False, False, True]
+    assert (episodes[0].repeats_chosen, episodes[0].repeats_other) == (1, 0)
+    assert (episodes[1].repeats_chosen, episodes[1].repeats_other) == (0, 1)
+    assert episodes[0].out_of_failures and not episodes[2].out_of_failures
+    assert episodes[2].switches == 2 and len(episodes[2].plans) == 4
+    tracer.report(verbose=False)
+    out = capsys.readouterr().out
+    assert "4 episodes, 3 lost: 1 out of failures, 2 stalled" in out
+    assert "after a plan looked up on a failed option 1, on another option 1" in out
