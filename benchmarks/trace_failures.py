@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lerobot_ccdp.benchmark.pipeline import COMMON_NOISE
 from lerobot_ccdp.envs.base import CCDPTaskEnv
 from lerobot_ccdp.policy import modeling_ccdp
 
@@ -34,7 +35,7 @@ from lerobot_ccdp.policy import modeling_ccdp
 class Episode:
     events: list[str] = field(default_factory=list)
     plans: list[tuple[np.ndarray, bool]] = field(default_factory=list)  # (looked-up z, on a failed option)
-    attempt_plans: list[np.ndarray] = field(default_factory=list)
+    attempt_z: np.ndarray | None = None  # the current attempt's latest plan
     repeats: int = 0
     repeats_chosen: int = 0  # repeats whose last plan the lookup placed on a failed option
     repeats_other: int = 0
@@ -66,9 +67,9 @@ class Tracer:
         if episode.done:
             return
         on_failed = bool(len(failed)) and bool((((failed - z) ** 2).sum(-1) <= self.delta_z).any())
-        if episode.attempt_plans and ((episode.attempt_plans[-1] - z) ** 2).sum() > self.delta_z:
+        if episode.attempt_z is not None and ((episode.attempt_z - z) ** 2).sum() > self.delta_z:
             episode.switches += 1
-        episode.attempt_plans.append(z)
+        episode.attempt_z = z
         episode.plans.append((z, on_failed))
         episode.events.append(f"plan {np.round(z, 2).tolist()}{' (a failed option)' if on_failed else ''}")
 
@@ -84,7 +85,7 @@ class Tracer:
                 episode.repeats_chosen += chosen
                 episode.repeats_other += not chosen
             episode.events.append(f"fail option {info['option']}{' (repeat)' if repeat else ''}")
-            episode.attempt_plans, episode.switches = [], 0
+            episode.attempt_z, episode.switches = None, 0
         elif info["is_success"]:
             episode.events.append(f"success option {info['option']}")
         episode.success = bool(info["is_success"])
@@ -170,7 +171,7 @@ def main() -> None:
             "lerobot-eval",
             f"--config_path={args.eval_config}",
             f"--policy.path={args.checkpoint}",
-            "--policy.row_noise_streams=true",
+            COMMON_NOISE,
             "--env.render_mode=null",
             f"--eval.n_episodes={args.episodes}",
             f"--seed={args.seed}",
