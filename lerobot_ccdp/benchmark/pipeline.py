@@ -187,9 +187,11 @@ class TaskFiles:
 
     def method_flags(self, method: str, overrides: dict[str, Any] | None = None) -> list[str]:
         """`method_settings`, with `overrides` on top (a setting being tuned), as lerobot-eval's `--policy.*`
-        flags."""
+        flags (booleans spelled as draccus reads them: true/false, not Python's True/False)."""
         settings = {**self.method_settings(method), **(overrides or {})}
-        return [f"--policy.{key}={value}" for key, value in settings.items()]
+        return [
+            f"--policy.{key}={json.dumps(v) if isinstance(v, bool) else v}" for key, v in settings.items()
+        ]
 
     def eval_command(
         self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str], videos: bool = False
