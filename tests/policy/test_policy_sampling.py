@@ -362,3 +362,41 @@ def test_untrained_recovery_head_falls_back_to_dp_with_a_warning(caplog):
     with caplog.at_level("WARNING"):
         policy.select_action(obs)
     assert "untrained" in caplog.text
+
+
+@pytest.mark.parametrize("mode", ["dp", "dp_star", "ccdp"])
+def test_continued_plans_keep_their_attempts_option_until_a_failure(mode):
+    """continue_plans: an attempt's later plan starts with exactly the previous plan's unexecuted steps and
+    draws the same mode (constant modes, so the time shift does not matter); without it the later plan picks a
+    mode afresh (same mode with probability sum p^2 = 0.30). A reported failure starts a fresh plan."""
+    rows, corners = 512, torch.tensor([[0.3, 0.3], [-0.3, 0.3], [-0.3, -0.3], [0.3, -0.3]])
+    modes = corners[:, None].expand(4, HORIZON, ACTION_DIM).contiguous()
+    obs = {"observation.state": torch.zeros(rows, 2)}
+
+    def mode_of(chunk):
+        return ((chunk[:, None] - modes[None]) ** 2).sum(dim=(2, 3)).argmin(dim=1)
+
+    kept_share = {}
+    for continuing in (False, True):
+        policy, _ = mixture_policy(recovery_mode=mode, continue_plans=continuing, dp_star_candidates=4)
+        policy.model.base = MixtureBase(policy.model.noise_scheduler, modes)
+        policy.model.recovery = MixtureRecovery(policy.model.noise_scheduler, modes)
+        policy.model.outcomes.fill(modes, torch.zeros(4, 2), torch.arange(4))
+        steps = policy.config.n_action_steps
+        with torch.inference_mode():
+            for _ in range(steps):
+                policy.select_action(obs)
+            first = policy._memory.latest_chunk.clone()
+            policy.select_action(obs)  # the attempt's second plan
+            second = policy._memory.latest_chunk.clone()
+            kept_share[continuing] = (mode_of(second) == mode_of(first)).float().mean().item()
+            if continuing:
+                assert torch.equal(second[:, : HORIZON - steps], first[:, steps:])
+            for _ in range(steps - 1):
+                policy.select_action(obs)
+            policy.report_failure(z=policy.model.feature.one_hot(mode_of(second)))
+            policy.select_action(obs)  # the next attempt's first plan
+            fresh = policy._memory.latest_chunk
+        assert not torch.isclose(fresh[:, : HORIZON - steps], second[:, steps:]).all(dim=(1, 2)).any()
+    print(f"{mode}: second plan on the first plan's mode in {kept_share}")
+    assert kept_share[True] > 0.9 and kept_share[False] < 0.45, kept_share
