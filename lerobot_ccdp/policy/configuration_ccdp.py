@@ -110,10 +110,6 @@ class CCDPConfig(PreTrainedConfig):
         row_noise_streams: Each batch row of each rollout draws its noise from its own generator seeded from
             lerobot-eval's --seed, so methods evaluated on the same seed act alike until the first failure
             (common random numbers). False: torch's global generator, as LeRobot's diffusion policy.
-        continue_plans: A plan that is not its attempt's first keeps the previous plan's unexecuted steps as
-            its own first steps, imposed at every reverse step at that step's noise level (inpainting), so
-            the rest is drawn to continue them: an attempt does not switch options between its plans. Every
-            recovery mode; `select_action` only (`predict_action_chunk`'s caller decides what ran).
     """
 
     # Diffusion (same meaning as in LeRobot's DiffusionConfig).
@@ -186,7 +182,6 @@ class CCDPConfig(PreTrainedConfig):
     dp_star_rounds: int = 4
     ccdp_redraws: int = 0
     row_noise_streams: bool = False
-    continue_plans: bool = False
 
     # Training presets.
     optimizer_lr: float = 1e-3

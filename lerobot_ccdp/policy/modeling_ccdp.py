@@ -41,7 +41,7 @@ from lerobot_ccdp.policy.observations import (
     refuse_unknown_cameras,
 )
 from lerobot_ccdp.policy.rollout_memory import RolloutMemory
-from lerobot_ccdp.policy.samplers import SAMPLERS, KeptSteps, PlanRows
+from lerobot_ccdp.policy.samplers import SAMPLERS, PlanRows
 from lerobot_ccdp.policy.training_checks import refuse_fresh_training
 from lerobot_ccdp.recovery.composition import (
     CompositionWeights,
@@ -165,8 +165,7 @@ class CCDPPolicy(PreTrainedPolicy):
         the other rows keep executing their current chunk."""
         rows = self._observe(batch).needs_plan()
         if rows.any():
-            chunk = self._sample(rows, noise, continuing=self.config.continue_plans)
-            self._memory.set_plan(rows, chunk, start=self.config.n_obs_steps - 1)
+            self._memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
         return self._memory.pop_action()
 
     @torch.no_grad()
@@ -303,9 +302,8 @@ class CCDPPolicy(PreTrainedPolicy):
         self._failures.add(rows, z)
         memory.restart(failed)
 
-    def _sample(self, rows: Tensor, noise: Tensor | None, continuing: bool = False) -> Tensor:
-        """Chunks (R, horizon, A) for the selected rows, from the configured recovery mode's sampler;
-        `continuing`: each row's plan continues its attempt's previous plan (`continue_plans`)."""
+    def _sample(self, rows: Tensor, noise: Tensor | None) -> Tensor:
+        """Chunks (R, horizon, A) for the selected rows, from the configured recovery mode's sampler."""
         memory, mode = self._memory, self.config.recovery_mode
         z, z_mask = self._failures.padded(rows)
         self._planned_with_recovery |= mode != "dp"
@@ -320,9 +318,6 @@ class CCDPPolicy(PreTrainedPolicy):
         streams = (
             None if self._streams is None else [self._streams[i] for i in rows.nonzero().flatten().tolist()]
         )
-        kept = None
-        if continuing:
-            kept = KeptSteps(*memory.continuation(rows))
         plan = PlanRows(
             memory.state_condition(rows),
             memory.history_condition(rows),
@@ -330,7 +325,6 @@ class CCDPPolicy(PreTrainedPolicy):
             z_mask,
             None if noise is None else noise[rows],
             streams,
-            kept,
         )
         return SAMPLERS[mode](self.model, plan)
 
@@ -555,14 +549,12 @@ class CCDPModel(nn.Module):
         z_mask: Tensor,
         weights: CompositionWeights | None = None,
         generators: list[torch.Generator] | None = None,
-        kept: KeptSteps | None = None,
     ) -> Tensor:
         """Reverse diffusion with eq. (4) at every step (with the policy's weights unless `weights` is given):
         one base call and at most one recovery call per step, whatever the number of failures. With the
         classifier head the failures enter by guidance instead (`guide_away_from_failures`); with the set
         denoiser, by its single failure-set term (`compose_with_failure_set`). The reverse steps' noise comes
-        from `generators` (one per row, `noise_streams`) when given, else from torch's global generator.
-        `kept` steps (`continue_plans`) are imposed at every step's noise level and exactly at the end."""
+        from `generators` (one per row, `noise_streams`) when given, else from torch's global generator."""
         weights = weights or self.weights
         self.noise_scheduler.set_timesteps(self.config.num_inference_steps or self.config.num_train_timesteps)
         timesteps = [int(t) for t in self.noise_scheduler.timesteps]
@@ -571,10 +563,9 @@ class CCDPModel(nn.Module):
         else:
             estimate = self._composed_estimate(weights, state, history, z, z_mask)
         for t in timesteps:
-            sample = sample if kept is None else kept.impose(sample, self.noise_scheduler, t, generators)
             eps = estimate(sample, t)
             sample = self.noise_scheduler.step(eps, t, sample, generator=generators).prev_sample
-        return sample if kept is None else kept.impose(sample, self.noise_scheduler, None)
+        return sample
 
     def _base_estimates(self, terms: list[str], state: Tensor, history: Tensor):
         """A function of (noisy sample, timestep) giving the base network's `terms` ("a": eps_a, "s": eps_s,

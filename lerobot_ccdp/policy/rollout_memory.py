@@ -77,18 +77,6 @@ class RolloutMemory:
         self.latest_chunk[index] = chunk
         self.attempt_planned[index] = True
 
-    def continuation(self, rows: Tensor) -> tuple[Tensor, Tensor]:
-        """What a new plan of `rows` must continue (`continue_plans`): the latest chunk's steps after the
-        executed ones, shifted to where the new chunk starts (a chunk's step i is the next chunk's step
-        i - n_action_steps), as (values (R, horizon, A), mask (R, horizon)); no step for rows starting an
-        attempt."""
-        shift, chunk = self.plan.shape[1], self.latest_chunk[rows]
-        values = torch.zeros_like(chunk)
-        values[:, : chunk.shape[1] - shift] = chunk[:, shift:]
-        mask = torch.zeros(chunk.shape[:2], dtype=torch.bool, device=chunk.device)
-        mask[:, : chunk.shape[1] - shift] = self.attempt_planned[rows, None]
-        return values, mask
-
     @ordinary_tensors
     def pop_action(self) -> Tensor:
         action = self.plan[torch.arange(self.batch_size, device=self.plan.device), self.plan_pos]

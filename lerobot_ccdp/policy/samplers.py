@@ -25,32 +25,10 @@ if TYPE_CHECKING:  # the model module imports this one
 
 
 @dataclass
-class KeptSteps:
-    """Steps a plan keeps from the previous plan (`continue_plans`): `values` (R, horizon, A) where `mask`
-    (R, horizon) is set. `impose` writes them into the sample at every reverse step, noised to that step's
-    level with fresh noise (RePaint's replacement; one fixed noise let a fifth of the free steps of an
-    exact four-mode mixture switch mode, fresh noise a twentieth), and exactly at the end."""
-
-    values: Tensor
-    mask: Tensor
-
-    def impose(self, sample: Tensor, scheduler, t: int | None, generators=None) -> Tensor:
-        kept = self.values
-        if t is not None:
-            noise = draw_noise(tuple(sample.shape), generators, sample.device)
-            kept = scheduler.add_noise(kept, noise, torch.full((sample.shape[0],), t, dtype=torch.long))
-        return torch.where(self.mask[..., None], kept, sample)
-
-    def select(self, rows: Tensor, repeats: int) -> KeptSteps:
-        """The steps of `rows`, each repeated `repeats` times (one per candidate)."""
-        return KeptSteps(*(x[rows].repeat_interleave(repeats, dim=0) for x in (self.values, self.mask)))
-
-
-@dataclass
 class PlanRows:
     """The rows that need a plan: their conditions, their failures (`z` (R, N, z_dim), `z_mask` (R, N)), the
-    caller's initial noise for them (or None: drawn), one noise stream per row (`noise_streams`, or None) and
-    the steps each row's plan keeps from its previous plan (`continue_plans`, or None)."""
+    caller's initial noise for them (or None: drawn) and one noise stream per row (`noise_streams`, or
+    None)."""
 
     state: Tensor
     history: Tensor
@@ -58,7 +36,6 @@ class PlanRows:
     z_mask: Tensor
     noise: Tensor | None = None
     streams: list[torch.Generator] | None = None
-    kept: KeptSteps | None = None
 
     def initial_noise(self, model: CCDPModel) -> Tensor:
         shape = (self.state.shape[0], model.config.horizon, model.config.action_dim)
@@ -69,12 +46,7 @@ def plan_dp(model: CCDPModel, rows: PlanRows) -> Tensor:
     """The base policy's plan: what was recorded as failed plays no part."""
     no_failures = rows.z[:, :0], rows.z_mask[:, :0]
     return model.denoise(
-        rows.initial_noise(model),
-        rows.state,
-        rows.history,
-        *no_failures,
-        generators=rows.streams,
-        kept=rows.kept,
+        rows.initial_noise(model), rows.state, rows.history, *no_failures, generators=rows.streams
     )
 
 
@@ -95,9 +67,7 @@ def plan_ccdp(model: CCDPModel, rows: PlanRows) -> Tensor:
         return sample_without_repeats(
             model, rows, 1, 1 + model.config.ccdp_redraws, guided=True, first_noise=sample
         )
-    return model.denoise(
-        sample, rows.state, rows.history, rows.z, rows.z_mask, generators=rows.streams, kept=rows.kept
-    )
+    return model.denoise(sample, rows.state, rows.history, rows.z, rows.z_mask, generators=rows.streams)
 
 
 SAMPLERS: dict[str, Callable[[CCDPModel, PlanRows], Tensor]] = {
@@ -136,7 +106,6 @@ def sample_without_repeats(
             z[pending][:, failures].repeat_interleave(candidates, dim=0),
             z_mask[pending][:, failures].repeat_interleave(candidates, dim=0),
             generators=generators,
-            kept=None if rows.kept is None else rows.kept.select(pending, candidates),
         )
         z_candidates = model.feature.from_chunk(chunks, model.outcomes).view(r, candidates, -1)
         distance = nearest_failure_distance(z_candidates, z[pending], z_mask[pending])
