@@ -28,6 +28,12 @@ heads compare paired; `--write` refuses a pick on such a checkpoint, as the head
 train_base.json. `--heads NAME ...` evaluates only the heads named (`recovery` is the run's own), where
 another head's grid needs settings the run's own head has no use for; the differences are then against the
 first named head's first setting.
+
+`--against METHOD` also evaluates METHOD at its `methods.json` settings on the same seeds (into
+`<task>/tune_<METHOD>/frozen_seed<seed>`) and prints a second table: each row's paired success and repeats
+differences against it, and how many test seeds would show success non-inferior to it (interval above
+-0.05, issue 50) if the difference and its spread held (`paired.seeds_for_non_inferiority`): the size a test
+round needs.
 """
 
 from __future__ import annotations
@@ -45,7 +51,12 @@ import numpy as np
 
 from lerobot_ccdp.benchmark.comparison import LOST_HEADER, MethodMetrics
 from lerobot_ccdp.benchmark.episodes import Episodes, LostEpisodes
-from lerobot_ccdp.benchmark.paired import paired_difference, repeats_per_opportunity, success_rate
+from lerobot_ccdp.benchmark.paired import (
+    paired_difference,
+    repeats_per_opportunity,
+    seeds_for_non_inferiority,
+    success_rate,
+)
 from lerobot_ccdp.benchmark.pipeline import (
     BIN,
     CHECKPOINT,
@@ -55,6 +66,7 @@ from lerobot_ccdp.benchmark.pipeline import (
     TaskFiles,
     expand_tasks,
 )
+from lerobot_ccdp.benchmark.targets import NON_INFERIORITY
 from lerobot_ccdp.datasets.ownership import MARKER, owner
 
 REPO = Path(__file__).resolve().parents[1]
@@ -109,7 +121,7 @@ def table_rows(grid: list[Setting], checkpoints: dict[str, str], heads: list[str
 
 
 def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, seed: int) -> Path:
-    name = "_".join(f"{field}{value}" for field, value in setting)
+    name = "_".join(f"{field}{value}" for field, value in setting) or "frozen"  # () is methods.json's
     prefix = "" if checkpoint == OWN else f"{checkpoint}_"
     return files.out / f"tune_{method}" / f"{prefix}{name}_seed{seed}"
 
@@ -173,6 +185,16 @@ def measured(files: TaskFiles, method: str, name: str, setting: Setting, seed: i
     ) if seconds.is_file() else np.nan
 
 
+def against(episodes: Episodes, reference: Episodes) -> str:
+    """The `--against` table's cells of one row: the reference's success, the paired differences of success
+    and repeats, and the test seeds that would show non-inferiority."""
+    seeds = seeds_for_non_inferiority(episodes, reference, NON_INFERIORITY)
+    return (
+        f"{MethodMetrics.of(reference).success} | {paired_difference(episodes, reference, success_rate)} | "
+        f"{paired_difference(episodes, reference, repeats_per_opportunity)} | {seeds:.0f}"
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -187,6 +209,12 @@ def main(argv: list[str] | None = None) -> None:
         nargs="+",
         default=["dp_star_candidates=16,32", "dp_star_rounds=1,4"],
         help="policy fields and the values to try, FIELD=V1,V2,...",
+    )
+    parser.add_argument(
+        "--against",
+        choices=list(METHODS),
+        default=None,
+        help="also evaluate this method at its methods.json settings and compare every row with it",
     )
     parser.add_argument(
         "--checkpoint",
@@ -254,9 +282,16 @@ def main(argv: list[str] | None = None) -> None:
                 "tune on development seeds."
             )
 
+    if args.against == args.method:
+        raise SystemExit(f"--against {args.against} is the method being tuned; name another (e.g. dp_star).")
     rows, scores, by_task = [], {row: [] for row in rows_of}, {row: [] for row in rows_of}
+    against_rows = []
     for task in args.tasks:
         episodes = {}
+        if args.against:
+            if not args.report_only:
+                evaluate(files[task], args.against, paths[task][OWN], OWN, (), args.seed)
+            reference, _ = measured(files[task], args.against, OWN, (), args.seed)
         for row in rows_of:
             name, setting = row
             if not args.report_only:
@@ -274,6 +309,9 @@ def main(argv: list[str] | None = None) -> None:
                 f"{metrics.attempts} | {LostEpisodes.of(episodes[row])} | {seconds:.0f} |"
             )
             print(rows[-1], flush=True)
+            if args.against:
+                against_rows.append(f"| {task} | {row_label(row)} | {against(episodes[row], reference)} |")
+                print(against_rows[-1], flush=True)
     print(
         f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "
         f"{row_label(rows_of[0])}\n\n"
@@ -281,6 +319,13 @@ def main(argv: list[str] | None = None) -> None:
         f"| attempts (successes) | {LOST_HEADER} | eval s |\n|---|---|---|---|---|---|---|---|---|\n"
         + "\n".join(rows)
     )
+    if args.against:
+        print(
+            f"\nAgainst {args.against} at its methods.json settings, same seeds\n\n| task | setting | "
+            f"{args.against}'s success | success - {args.against} | repeats - {args.against} | "
+            f"test seeds for a lower bound >= -{NON_INFERIORITY} |\n|---|---|---|---|---|---|\n"
+            + "\n".join(against_rows)
+        )
 
     means = {r: np.nanmean(np.array(v, dtype=float), axis=0) for r, v in scores.items()}  # (success, repeats)
     for row, (success, repeats) in means.items():

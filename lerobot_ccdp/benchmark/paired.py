@@ -9,6 +9,7 @@ side of the threshold; otherwise the methods are `not distinguishable` at this m
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -75,6 +76,17 @@ def paired_difference(
             f"{len(b)}. Evaluate every method with the same eval config."
         )
     return _bootstrap(len(a), lambda idx: statistic(a, idx) - statistic(b, idx), n_resamples, seed)
+
+
+def seeds_for_non_inferiority(a: Episodes, b: Episodes, margin: float) -> float:
+    """How many paired episodes would put the 95% interval of success(a) - success(b) above -`margin` if
+    the mean and the spread of the per-seed differences stayed as measured (normal approximation): the size
+    of a test round that can show non-inferiority. inf when the measured difference is at or below -margin."""
+    d = a.success.astype(float) - b.success.astype(float)
+    gap = d.mean() + margin
+    if gap <= 0:
+        return math.inf
+    return float(max(1, math.ceil((1.96 * d.std(ddof=1) / gap) ** 2))) if len(d) > 1 else math.nan
 
 
 def preference_difference(a: Episodes, b: Episodes) -> Estimate:

@@ -72,3 +72,22 @@ def test_heads_choose_which_checkpoints_are_evaluated_and_the_first_is_the_refer
 def test_heads_refuses_a_head_without_a_checkpoint():
     with pytest.raises(SystemExit, match="mlp.*--checkpoint NAME=PATH"):
         tune.table_rows(tune.parse_grid(["w_z=1"]), {"classifier": "x"}, ["mlp"])
+
+
+def test_seeds_for_non_inferiority_follow_the_difference_and_its_spread():
+    """`--against`'s last column: a method 0.02 ahead with 10 + 8 discordant seeds of 100 needs about
+    (1.96 * sd / 0.07)^2 seeds; one 0.05 behind can never show non-inferiority at margin 0.05; agreeing
+    seeds need fewer."""
+    from lerobot_ccdp.benchmark.paired import seeds_for_non_inferiority
+
+    reference = episodes(70)
+    ahead = episodes(72, shift=8)  # solves 10 the reference lost, loses 8 it solved
+    d = ahead.success.astype(float) - reference.success.astype(float)
+    assert d.mean() == pytest.approx(0.02)
+    expected = np.ceil((1.96 * d.std(ddof=1) / 0.07) ** 2)
+    assert seeds_for_non_inferiority(ahead, reference, 0.05) == expected
+    assert seeds_for_non_inferiority(episodes(65, shift=8), reference, 0.05) == np.inf
+    closer = episodes(72, shift=1)  # 3 and 1 discordant: same mean, less spread
+    assert seeds_for_non_inferiority(closer, reference, 0.05) < expected
+    cells = tune.against(ahead, reference).split(" | ")
+    assert cells[1].startswith("0.02 [") and cells[-1] == f"{expected:.0f}"
