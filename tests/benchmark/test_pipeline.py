@@ -355,7 +355,7 @@ def test_the_compute_matched_baseline_is_dp_star_with_few_candidates(tmp_path):
         "--policy.dp_star_rounds=1",
     ]
     # a boolean setting as draccus parses it (it refuses Python's "True")
-    assert files.method_flags("ccdp", {"continue_plans": True}) == ["--policy.continue_plans=true"]
+    assert files.method_flags("ccdp", {"clip_sample": False}) == ["--policy.clip_sample=false"]
 
 
 def test_every_timed_evaluation_is_unrendered_and_videos_are_a_run_of_their_own(settings, tmp_path):
