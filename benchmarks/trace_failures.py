@@ -13,6 +13,10 @@ per lost episode, the options tried and the plans' looked-up options, and two co
   (the sampler chose it) rather than on another (the lookup and the env disagree);
 - stalls: lost episodes that neither succeeded nor used up their failures, and how many times their last
   attempt's plans switched option (two consecutive plans more than `delta_z` apart).
+With `--probe K`, every attempt's first plan after a failure is also drawn K more times from the same state
+and failures, by the method and by the base alone (DP, failures ignored): the shares of those draws that the
+lookup places on a failed option, per stage of the task, show where the recovery head leaves the base's
+mistake in place.
 lerobot-eval's own output goes to a temporary folder.
 """
 
@@ -25,10 +29,13 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 
 import numpy as np
+from torch import Tensor
 
 from lerobot_ccdp.benchmark.pipeline import COMMON_NOISE
 from lerobot_ccdp.envs.base import CCDPTaskEnv
 from lerobot_ccdp.policy import modeling_ccdp
+from lerobot_ccdp.policy.dp_star import nearest_failure_distance
+from lerobot_ccdp.policy.samplers import SAMPLERS, PlanRows
 
 
 @dataclass
@@ -40,6 +47,7 @@ class Episode:
     repeats_chosen: int = 0  # repeats whose last plan the lookup placed on a failed option
     repeats_other: int = 0
     switches: int = 0  # in the current attempt
+    stage: int = 0  # stages finished so far (the env's)
     done: bool = False
     success: bool = False
     out_of_failures: bool = False
@@ -53,6 +61,7 @@ class Tracer:
         self.rows: dict[int, Episode] = defaultdict(Episode)
         self.env_rows: dict[int, int] = {}
         self.finished: list[Episode] = []
+        self.probes: dict[int, list[tuple[float, float]]] = defaultdict(list)  # stage: (method, DP) shares
 
     def new_batch(self) -> None:
         self.finished.extend(self.rows[r] for r in sorted(self.rows))
@@ -103,6 +112,13 @@ class Tracer:
         stalls = [e for e in lost if not e.out_of_failures]
         chosen = sum(e.repeats_chosen for e in episodes)
         other = sum(e.repeats_other for e in episodes)
+        for stage, shares in sorted(self.probes.items()):
+            method, base = np.mean(shares, axis=0)
+            high = sum(m > 0.5 for m, _ in shares)
+            print(
+                f"stage {stage}: {len(shares)} first plans after a failure; share of draws on a failed "
+                f"option: method {method:.2f}, DP {base:.2f}; states where the method's share > 0.5: {high}"
+            )
         for index, episode in enumerate(episodes):
             if verbose or not episode.success:
                 print(f"episode {index}: " + "; ".join(episode.events))
@@ -117,7 +133,28 @@ class Tracer:
         )
 
 
-def install(tracer: Tracer) -> None:
+def probe_shares(policy, rows: Tensor, i: int, draws: int, delta_z: float) -> tuple[float, float]:
+    """Shares of `draws` plans for the i-th selected row, by the policy's recovery mode and by DP, that the
+    lookup places within `delta_z` of one of the row's failures."""
+    model, memory = policy.model, policy._memory
+    z, z_mask = policy._failures.padded(rows)
+    state, history = memory.state_condition(rows)[i : i + 1], memory.history_condition(rows)[i : i + 1]
+    probe = PlanRows(
+        state.repeat_interleave(draws, 0),
+        history.repeat_interleave(draws, 0),
+        z[i : i + 1].repeat_interleave(draws, 0),
+        z_mask[i : i + 1].repeat_interleave(draws, 0),
+    )
+    shares = []
+    for mode in (policy.config.recovery_mode, "dp"):
+        chunks = SAMPLERS[mode](model, probe)
+        z_draws = model.feature.from_chunk(chunks, model.outcomes)[:, None]
+        distance = nearest_failure_distance(z_draws, probe.z, probe.z_mask)[:, 0]
+        shares.append(float((distance <= delta_z).float().mean()))
+    return shares[0], shares[1]
+
+
+def install(tracer: Tracer, draws: int) -> None:
     """Wrap the env's step and the policy's reset and sampler (in this process only)."""
     step, env_reset = CCDPTaskEnv.step, CCDPTaskEnv.reset
     reset, sample = modeling_ccdp.CCDPPolicy.reset, modeling_ccdp.CCDPPolicy._sample
@@ -125,6 +162,7 @@ def install(tracer: Tracer) -> None:
     def traced_step(env, action):
         observation, reward, terminated, truncated, info = step(env, action)
         row, failure = tracer.row_of(env), bool(observation["failure"][0] > 0)  # rows in stepping order
+        tracer.rows[row].stage = env._attempts - env._failures  # stages finished
         if failure or terminated or truncated:
             tracer.outcome(row, info, failure, terminated or truncated)
         return observation, reward, terminated, truncated, info
@@ -142,6 +180,9 @@ def install(tracer: Tracer) -> None:
         z = policy.model.feature.from_chunk(chunk, policy.model.outcomes).cpu().numpy()
         failures, mask = policy._failures.padded(rows)
         for i, row in enumerate(rows.nonzero().flatten().tolist()):
+            episode = tracer.rows[row]
+            if draws and mask[i].any() and episode.attempt_z is None and not episode.done:
+                tracer.probes[episode.stage].append(probe_shares(policy, rows, i, draws, tracer.delta_z))
             tracer.plan(row, z[i], failures[i][mask[i]].cpu().numpy())
         return chunk
 
@@ -161,11 +202,14 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--delta-z", type=float, default=0.1, help="the task's delta_z (its recipe's)")
     parser.add_argument("--verbose", action="store_true", help="print every episode, not only the lost")
+    parser.add_argument(
+        "--probe", type=int, default=0, metavar="K", help="draw each first plan after a failure K more times"
+    )
     args, policy_flags = parser.parse_known_args()
     from lerobot.scripts.lerobot_eval import main as lerobot_eval
 
     tracer = Tracer(args.delta_z)
-    install(tracer)
+    install(tracer, args.probe)
     with tempfile.TemporaryDirectory() as out:
         sys.argv = [
             "lerobot-eval",
