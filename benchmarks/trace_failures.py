@@ -162,7 +162,10 @@ def install(tracer: Tracer, draws: int) -> None:
     def traced_step(env, action):
         observation, reward, terminated, truncated, info = step(env, action)
         row, failure = tracer.row_of(env), bool(observation["failure"][0] > 0)  # rows in stepping order
-        tracer.rows[row].stage = env._attempts - env._failures  # stages finished
+        episode, stage = tracer.rows[row], env._attempts - env._failures  # stages finished
+        if stage > episode.stage and not episode.done and not info["is_success"]:
+            episode.events.append(f"stage done with option {info['option']}")
+        episode.stage = stage
         if failure or terminated or truncated:
             tracer.outcome(row, info, failure, terminated or truncated)
         return observation, reward, terminated, truncated, info
@@ -182,7 +185,9 @@ def install(tracer: Tracer, draws: int) -> None:
         for i, row in enumerate(rows.nonzero().flatten().tolist()):
             episode = tracer.rows[row]
             if draws and mask[i].any() and episode.attempt_z is None and not episode.done:
-                tracer.probes[episode.stage].append(probe_shares(policy, rows, i, draws, tracer.delta_z))
+                shares = probe_shares(policy, rows, i, draws, tracer.delta_z)
+                tracer.probes[episode.stage].append(shares)
+                episode.events.append(f"probe: {shares[0]:.2f} on a failed option (DP {shares[1]:.2f})")
             tracer.plan(row, z[i], failures[i][mask[i]].cpu().numpy())
         return chunk
 
