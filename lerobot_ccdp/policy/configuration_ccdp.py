@@ -44,10 +44,6 @@ POSITIVE_FIELDS = (
 NON_NEGATIVE_FIELDS = ("delta_z", "history_length", "ccdp_redraws", "scheduler_warmup_steps", "w_z_from_step")
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
-# Set-denoiser recovery datasets: the z of the other chunks sampled at a row's state (normalised z space) and
-# their count (`synthesize.state_outcomes`), for failure sets drawn at the row's own state.
-STATE_OUTCOMES_KEY = "observation.state_outcomes"
-STATE_OUTCOME_COUNT_KEY = "observation.state_outcome_count"
 # Observation key an env uses to flag a failed attempt (DESIGN section 5).
 FAILURE_FLAG_KEY = "observation.failure"
 
@@ -106,11 +102,6 @@ class CCDPConfig(PreTrainedConfig):
             the policy acts on: never saved in a checkpoint.
         delta_z: Squared distance in z under which an outcome repeats a failure (DP*'s rejection, the set
             denoiser's training sets, redraws).
-        state_failure_sets: Set denoiser training: the share of rows whose failure set is drawn among the
-            outcomes of the other chunks the base sampled at the row's own state (the failures that state
-            produces), the rest among the batch's rows. Either keeps F independent of the row's chunk given
-            its state, so both distil DP*'s rejection exactly; the state's own sets spend the rows on the
-            sets that matter there.
         dp_star_candidates: DP*: candidates drawn per plan.
         dp_star_rounds: DP*: rounds of fresh candidates for a row whose candidates were all rejected, before
             it falls back to the candidate farthest from every failure (1: no redraw).
@@ -187,7 +178,6 @@ class CCDPConfig(PreTrainedConfig):
     num_primitives: int = 0
     failure_signal_file: str | None = None
     delta_z: float = 0.1
-    state_failure_sets: float = 0.0
     dp_star_candidates: int = 16
     dp_star_rounds: int = 4
     ccdp_redraws: int = 0
@@ -251,10 +241,6 @@ class CCDPConfig(PreTrainedConfig):
                 f"`w_z_steps` ({self.w_z_steps}) and `w_z_from_step` ({self.w_z_from_step}) schedule the set "
                 f"denoiser's failure weight; the {self.recovery_head!r} head weighs every step alike. Remove "
                 "--policy.w_z_steps and --policy.w_z_from_step or use --policy.recovery_head=set_denoiser."
-            )
-        if not 0.0 <= self.state_failure_sets <= 1.0:
-            raise ValueError(
-                f"`state_failure_sets` is a share of training rows, in [0, 1]; got {self.state_failure_sets}."
             )
         if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
             raise ValueError(

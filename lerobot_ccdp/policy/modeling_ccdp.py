@@ -27,13 +27,7 @@ from lerobot_ccdp.policy.checkpoint_files import (
     refuse_unfit_weights,
     saved_config,
 )
-from lerobot_ccdp.policy.configuration_ccdp import (
-    FAILURE_FEATURE_KEY,
-    FAILURE_FLAG_KEY,
-    STATE_OUTCOME_COUNT_KEY,
-    STATE_OUTCOMES_KEY,
-    CCDPConfig,
-)
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
 from lerobot_ccdp.policy.denoisers import BaseDenoiser, make_recovery_denoiser
 from lerobot_ccdp.policy.failure_signal import FailureSignalFile
 from lerobot_ccdp.policy.image_encoder import ImageEncoder
@@ -484,21 +478,8 @@ class CCDPModel(nn.Module):
         if not bool(self.recovery_trained):
             self.recovery.start_from(self.base)
             self.recovery_trained.fill_(True)
-        state_outcomes = batch.get(STATE_OUTCOMES_KEY)
-        if cfg.state_failure_sets > 0 and state_outcomes is None:
-            raise ValueError(
-                f"state_failure_sets={cfg.state_failure_sets} draws failure sets among the chunks sampled at "
-                f"each row's state, but the dataset has no {STATE_OUTCOMES_KEY!r} column (a dataset "
-                "synthesised before it existed). Synthesise it again with lerobot-ccdp-synthesize, or set "
-                "--policy.state_failure_sets=0."
-            )
         z_set, z_mask, repeats = draw_failure_sets(
-            self.feature.from_chunk(chunk, self.outcomes),
-            FAILURE_SET_TRAIN_SIZE,
-            cfg.delta_z,
-            state_outcomes,
-            batch.get(STATE_OUTCOME_COUNT_KEY),
-            cfg.state_failure_sets,
+            self.feature.from_chunk(chunk, self.outcomes), FAILURE_SET_TRAIN_SIZE, cfg.delta_z
         )
         noise, timesteps, noisy = self._noised(chunk)
         loss = F.mse_loss(self.recovery(noisy, timesteps, state, z_set, z_mask), noise, reduction="none")

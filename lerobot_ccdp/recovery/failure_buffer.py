@@ -60,33 +60,14 @@ def distinct_failures(z: Tensor, z_mask: Tensor, delta_z: float) -> Tensor:
     return z_mask & ~(close & earlier & z_mask[:, None]).any(dim=-1)
 
 
-def draw_failure_sets(
-    z: Tensor,
-    size: int,
-    delta_z: float,
-    state_outcomes: Tensor | None = None,
-    state_count: Tensor | None = None,
-    state_share: float = 0.0,
-) -> tuple[Tensor, Tensor, Tensor]:
+def draw_failure_sets(z: Tensor, size: int, delta_z: float) -> tuple[Tensor, Tensor, Tensor]:
     """Training failure sets for the rows of a batch with outcomes z (B, z_dim): each row gets 1..`size`
-    failures drawn from the other rows (so its set does not depend on its own chunk), or, for a share
-    `state_share` of the rows that have them, from `state_outcomes` (B, W, z_dim): the z of the other chunks
-    sampled at the row's own state, `state_count` (B,) of them. Returns the sets (B, size, z_dim), their masks
-    (B, size) and whether each row's own z lies within `delta_z` (squared distance) of a failure in its set
-    (B,): a repeat."""
+    failures drawn from the other rows (so its set does not depend on its own chunk). Returns the sets
+    (B, size, z_dim), their masks (B, size) and whether each row's own z lies within `delta_z` (squared
+    distance) of a failure in its set (B,): a repeat."""
     b = z.shape[0]
     others = (torch.arange(b, device=z.device)[:, None] + torch.randint(1, b, (b, size), device=z.device)) % b
     z_set = z[others]
-    if state_share > 0 and state_outcomes is not None:
-        count = state_count.reshape(b)
-        at_state = (torch.rand(b, device=z.device) < state_share) & (count > 0)
-        pick = (
-            (torch.rand(b, size, device=z.device) * count[:, None])
-            .long()
-            .clamp_max(state_outcomes.shape[1] - 1)
-        )
-        from_state = state_outcomes.gather(1, pick[..., None].expand(-1, -1, z.shape[1])).to(z.dtype)
-        z_set = torch.where(at_state[:, None, None], from_state, z_set)
     z_mask = torch.arange(size, device=z.device)[None] < torch.randint(1, size + 1, (b, 1), device=z.device)
     repeats = ((((z_set - z[:, None]) ** 2).sum(dim=-1) <= delta_z) & z_mask).any(dim=1)
     return z_set, z_mask, repeats

@@ -16,13 +16,6 @@ satisfy eq. (5) against it. Every row holds one pair:
     observation.state / .environment_state   the state of the recovery chunk (last frame of its window)
     pair_source                  where the recovery chunk comes from: 0 synthesised, 1 demonstrated
 
-A set-denoiser dataset (one row per pool sample, `own_outcome_rows`) also holds, for the failure sets its
-training draws at the row's own state (`CCDPConfig.state_failure_sets`):
-
-    observation.state_outcomes       z of the other chunks sampled at the row's state (chunks_per_state - 1,
-                                     z_dim), in the policy's normalised z space (the loss's), zero-padded
-    observation.state_outcome_count  how many of them there are (0 for a demonstrated chunk)
-
 The dataset carries the checkpoint's normalisation stats (lerobot-train normalises with the training
 dataset's stats, so recovery training sees actions exactly as the base did) and a copy of the recipe with
 the source dataset and checkpoint in `meta/ccdp_recovery_recipe.yaml`. It is written atomically.
@@ -65,12 +58,7 @@ from lerobot_ccdp.datasets.configs import SynthesizeConfig, parse_cli
 from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
 from lerobot_ccdp.datasets.staging import check_disjoint, check_output_root, staged_dataset_root
 from lerobot_ccdp.policy.checkpoint_files import checkpoint_loading
-from lerobot_ccdp.policy.configuration_ccdp import (
-    FAILURE_FEATURE_KEY,
-    STATE_OUTCOME_COUNT_KEY,
-    STATE_OUTCOMES_KEY,
-    CCDPConfig,
-)
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch, unnormalize_batch
 from lerobot_ccdp.recovery.demo_segments import segment_ends
@@ -99,9 +87,6 @@ class Samples:
     chunks: Tensor  # (R, horizon, A)
     z: Tensor  # (R, z_dim)
     source: Tensor  # (R,): SYNTHESISED or FROM_DEMOS
-    state: (
-        Tensor  # (R,): the index of the state a synthesised chunk was sampled at; -1 for a demonstrated one
-    )
 
     @staticmethod
     def cat(parts: list[Samples]) -> Samples:
@@ -272,10 +257,8 @@ def synthesised_samples(
     cfg, k, device = policy.config, recipe.chunks_per_state, torch.device(policy.config.device)
     among = torch.arange(len(demos.windows)) if among is None else among
     picks = among[torch.randint(0, len(among), (recipe.n_states,), generator=generator)]
-    parts, first_state = [], 0
+    parts = []
     for batch in tqdm(picks.split(recipe.batch_states), desc="Sampling chunks (eq. 7)", disable=not progress):
-        state = torch.arange(first_state, first_state + len(batch)).repeat_interleave(k)
-        first_state += len(batch)
         x_s = demos.windows[batch].repeat_interleave(k, dim=0)  # (b * k, n_obs, D)
         x = x_s + recipe.sigma * torch.randn(x_s.shape, generator=generator)  # eq. (6)
         condition = x if images is None else torch.cat([x, images(batch).repeat_interleave(k, dim=0)], dim=-1)
@@ -285,9 +268,9 @@ def synthesised_samples(
         chunks = policy.model.sample_exploratory(condition, recipe.w_s, noise)
         if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
             near = policy.model.outcomes.rms_distance(chunks) <= recipe.outcome_radius
-            x, chunks, state = x[near.cpu()], chunks[near], state[near.cpu()]
+            x, chunks = x[near.cpu()], chunks[near]
         z = policy.model.feature.from_chunk(chunks, policy.model.outcomes)
-        parts.append(Samples(x, chunks.cpu(), z.cpu(), torch.full((len(x),), SYNTHESISED), state))
+        parts.append(Samples(x, chunks.cpu(), z.cpu(), torch.full((len(x),), SYNTHESISED)))
     return Samples.cat(parts)
 
 
@@ -319,9 +302,7 @@ def demo_samples(
     pick = among[torch.randperm(len(among), generator=generator)[: recipe.demo_frames]]
     chunks = demos.chunks[pick]
     z = policy.model.feature.from_chunk(chunks.to(policy.config.device), policy.model.outcomes).cpu()
-    return Samples(
-        demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS), torch.full((len(pick),), -1)
-    )
+    return Samples(demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS))
 
 
 def recovery_pairs(
@@ -349,25 +330,6 @@ def own_outcome_rows(pool: Samples) -> tuple[Tensor, Tensor]:
     failure set; the same (failure, recovery) indices as `recovery_pairs`."""
     rows = torch.arange(len(pool))
     return rows, rows
-
-
-def state_outcomes(pool: Samples) -> tuple[Tensor, Tensor]:
-    """For each pool sample, the z of the other chunks sampled at its state ((R, W, z_dim), zero-padded to
-    the largest state's count less one, W >= 1) and how many there are ((R,); 0 for a demonstrated chunk).
-    Given the state they are independent of the sample's own chunk, so a failure set drawn among them keeps
-    the set denoiser's target exact."""
-    states, counts = torch.unique(pool.state, return_counts=True)
-    counts = torch.where(states >= 0, counts, 1)
-    width = max(1, int(counts.max()) - 1) if len(counts) else 1
-    others = pool.z.new_zeros(len(pool), width, pool.z.shape[1])
-    count = torch.zeros(len(pool), dtype=torch.long)
-    for state in states[states >= 0].tolist():
-        rows = (pool.state == state).nonzero().flatten()
-        for i, row in enumerate(rows.tolist()):
-            rest = torch.cat([rows[:i], rows[i + 1 :]])
-            others[row, : len(rest)] = pool.z[rest]
-            count[row] = len(rest)
-    return others, count
 
 
 def synthesize_recovery_dataset(
@@ -500,13 +462,7 @@ def _write(
         FAILURE_FEATURE_KEY: {"dtype": "float32", "shape": (config.failure_feature_dim,), "names": None},
         PAIR_SOURCE: {"dtype": "int64", "shape": (1,), "names": None},
     }
-    if config.recovery_head == "set_denoiser":  # one row per pool sample: `recovery` is every index in order
-        others, count = state_outcomes(pool)
-        raw[STATE_OUTCOMES_KEY], raw[STATE_OUTCOME_COUNT_KEY] = others[recovery], count[recovery][:, None]
-        features[STATE_OUTCOMES_KEY] = {"dtype": "float32", "shape": tuple(others.shape[1:]), "names": None}
-        features[STATE_OUTCOME_COUNT_KEY] = {"dtype": "int64", "shape": (1,), "names": None}
-    integer = (PAIR_SOURCE, STATE_OUTCOME_COUNT_KEY)
-    columns = {k: raw[k].numpy().astype(np.int64 if k in integer else np.float32) for k in features}
+    columns = {k: raw[k].numpy().astype(np.int64 if k == PAIR_SOURCE else np.float32) for k in features}
     task = f"recover from a failure: {meta.tasks.index[0]}" if len(meta.tasks) else "recover from a failure"
     dataset = LeRobotDataset.create(repo_id, fps=meta.fps, features=features, root=path, use_videos=False)
     try:

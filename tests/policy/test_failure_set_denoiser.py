@@ -41,39 +41,6 @@ def test_failure_sets_come_from_other_rows_and_flag_the_rows_whose_outcome_they_
     assert torch.equal(repeats, holds_own) and 0 < repeats.float().mean() < 1
 
 
-def test_failure_sets_drawn_at_the_state_come_from_the_other_chunks_sampled_there():
-    """`state_failure_sets`: a row's set drawn among the z of the other chunks sampled at its state (the first
-    `count` of its padded list), for the given share of the rows that have them; demonstrated rows (count 0)
-    keep the batch's draw."""
-    torch.manual_seed(0)
-    b = 400
-    z = torch.eye(4)[torch.arange(b) % 4]
-    state_outcomes = torch.zeros(b, 5, 4)
-    state_outcomes[:, :2] = torch.eye(4)[[1, 2]]  # two others at each state: options 1 and 2 ...
-    state_outcomes[:, 2:] = torch.eye(4)[3]  # ... then padding that must never be drawn
-    count = torch.where(torch.arange(b) < b // 2, 2, 0)
-    z_set, z_mask, repeats = draw_failure_sets(z, 3, 0.1, state_outcomes, count, state_share=1.0)
-    drawn = z_set.argmax(-1)
-    at_state = count > 0
-    assert ((drawn[at_state] == 1) | (drawn[at_state] == 2)).all()
-    assert (drawn[at_state] == 1).any() and (drawn[at_state] == 2).any()
-    assert (drawn[~at_state] == 3).any()  # the batch's draw holds every option
-    holds_own = ((z_set == z[:, None]).all(-1) & z_mask).any(1)
-    assert torch.equal(repeats, holds_own)
-    z_set, _, _ = draw_failure_sets(z, 3, 0.1, state_outcomes, count, state_share=0.5)
-    from_state = ((z_set.argmax(-1) == 1) | (z_set.argmax(-1) == 2)).all(-1)[at_state].float().mean()
-    assert 0.5 < from_state < 0.85  # half from the state, and a batch draw of options 1-2 only now and then
-
-
-def test_sets_at_the_state_need_the_column_that_holds_them():
-    policy = make_policy(**{**SETTINGS, "training_stage": "recovery", "state_failure_sets": 0.5}).train()
-    batch = {"observation.state": torch.randn(8, 2), "action": torch.randn(8, 16, 2)}  # synthesised before
-    with pytest.raises(ValueError, match="observation.state_outcomes.*lerobot-ccdp-synthesize"):
-        policy.forward(batch)
-    with pytest.raises(ValueError, match="state_failure_sets.*in \\[0, 1\\]"):
-        make_policy(**{**SETTINGS, "state_failure_sets": 1.5})
-
-
 def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set():
     """With a single option, every drawn failure set holds each row's own outcome: no row is kept, so no
     gradient."""
