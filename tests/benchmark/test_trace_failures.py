@@ -5,8 +5,10 @@ success, failures left) with the option switches of its last attempt."""
 import importlib.util
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
+import torch
 
 REPO = Path(__file__).resolve().parents[2]
 spec = importlib.util.spec_from_file_location("trace_failures", REPO / "benchmarks" / "trace_failures.py")
@@ -56,3 +58,40 @@ def test_repeats_are_told_apart_by_the_last_plan_and_stalls_count_their_switches
     out = capsys.readouterr().out
     assert "4 episodes, 3 lost: 1 out of failures, 2 stalled" in out
     assert "after a plan looked up on a failed option 1, on another option 1" in out
+
+
+def test_the_probe_counts_the_draws_a_method_and_dp_place_on_a_failed_option(monkeypatch, capsys):
+    """`--probe K`: an attempt's first plan after a failure is drawn K more times by the method and by DP from
+    the same state and failures; the shares within `delta_z` of a failure are reported per stage."""
+    failed = torch.tensor(A, dtype=torch.float32)
+
+    def chunks_on(options: list[np.ndarray]):
+        return lambda model, plan: torch.tensor(np.stack(options), dtype=torch.float32)[:, None].expand(
+            -1, 2, -1
+        )
+
+    draws = 4
+    monkeypatch.setitem(trace.SAMPLERS, "ccdp", chunks_on([B, C, B, C]))
+    monkeypatch.setitem(trace.SAMPLERS, "dp", chunks_on([A, B, A, C]))
+    memory = SimpleNamespace(
+        state_condition=lambda rows: torch.zeros(int(rows.sum()), 2),
+        history_condition=lambda rows: torch.zeros(int(rows.sum()), 0),
+    )
+    failures = SimpleNamespace(
+        padded=lambda rows: (failed.expand(1, 1, 3), torch.ones(1, 1, dtype=torch.bool))
+    )
+    model = SimpleNamespace(
+        feature=SimpleNamespace(from_chunk=lambda chunk, outcomes: chunk[:, 0]), outcomes=None
+    )
+    policy = SimpleNamespace(
+        model=model, _memory=memory, _failures=failures, config=SimpleNamespace(recovery_mode="ccdp")
+    )
+    shares = trace.probe_shares(policy, torch.tensor([True]), 0, draws, delta_z=0.1)
+    assert shares == (0.0, 0.5)
+    tracer = trace.Tracer(delta_z=0.1)
+    tracer.probes[1].append(shares)
+    tracer.report(verbose=False)
+    assert (
+        "stage 1: 1 first plans after a failure; share of draws on a failed option: method 0.00, DP 0.50"
+        in (capsys.readouterr().out)
+    )
