@@ -16,7 +16,8 @@ per lost episode, the options tried and the plans' looked-up options, and two co
 With `--probe K`, every attempt's first plan after a failure is also drawn K more times from the same state
 and failures, by the method and by the base alone (DP, failures ignored): the shares of those draws that the
 lookup places on a failed option, per stage of the task, show where the recovery head leaves the base's
-mistake in place.
+mistake in place. The extra draws come from torch's global generator: CCDP's own plans (common random
+numbers) are unchanged, DP*'s later rounds, which draw from it too, are not.
 lerobot-eval's own output goes to a temporary folder.
 """
 
