@@ -545,8 +545,8 @@ def method_forms(runs: list[TaskRun]) -> str:
 
 
 def z_description(settings: dict[str, Any]) -> str:
-    """What z was: the feature, for `action` which steps and dims, and for `final_state` which dims and where
-    a failure's z was read."""
+    """What z was: the feature, for `action` which steps and dims, and for `final_state` which dims, where
+    a failure's z was read and the set embedding's Fourier octaves."""
     if settings["failure_feature"] == "action":
         steps, dims = (
             settings.get("failure_action_steps") or "all",
@@ -559,6 +559,8 @@ def z_description(settings: dict[str, Any]) -> str:
     at = settings.get("failure_state_at", CCDPConfig.failure_state_at)
     segments = settings.get("failure_segments", CCDPConfig.failure_segments)
     ends = "" if segments == "labels" else f", demonstrated options end at {segments}"
+    octaves = settings.get("z_fourier_octaves", CCDPConfig.z_fourier_octaves)
+    ends += f", {octaves} Fourier octaves" if octaves else ""
     return f"final_state: {settings['failure_state_key']} dims {dims}, a failure's read at {at}{ends}"
 
 

@@ -41,7 +41,14 @@ POSITIVE_FIELDS = (
     "dp_star_candidates",
     "dp_star_rounds",
 )
-NON_NEGATIVE_FIELDS = ("delta_z", "history_length", "ccdp_redraws", "scheduler_warmup_steps", "w_z_from_step")
+NON_NEGATIVE_FIELDS = (
+    "delta_z",
+    "history_length",
+    "ccdp_redraws",
+    "scheduler_warmup_steps",
+    "w_z_from_step",
+    "z_fourier_octaves",
+)
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
 # Observation key an env uses to flag a failed attempt (DESIGN section 5).
@@ -100,6 +107,10 @@ class CCDPConfig(PreTrainedConfig):
         failure_signal_file: A file whose appearance or touch reports a failure of every row, for loops such
             as lerobot-record that pass no failure signal (policy/failure_signal.py). A setting of the machine
             the policy acts on: never saved in a checkpoint.
+        z_fourier_octaves: Set denoiser and classifier: each failure's z enters the set embedding as z with
+            sin and cos of 2^k pi z for k < z_fourier_octaves (0: z alone), so that a point z (`final_state`)
+            whose options lie a few tenths apart in normalised units is told apart as easily as a one-hot
+            label. Part of the head's architecture: chosen at the recovery stage.
         delta_z: Squared distance in z under which an outcome repeats a failure (DP*'s rejection, the set
             denoiser's training sets, redraws).
         dp_star_candidates: DP*: candidates drawn per plan.
@@ -177,6 +188,7 @@ class CCDPConfig(PreTrainedConfig):
     primitive_key: str = "primitive"
     num_primitives: int = 0
     failure_signal_file: str | None = None
+    z_fourier_octaves: int = 0
     delta_z: float = 0.1
     dp_star_candidates: int = 16
     dp_star_rounds: int = 4

@@ -84,9 +84,7 @@ class FailureSetClassifier(nn.Module):
         width, chunk = HIDDEN_WIDTH, config.horizon * config.action_dim
         self.step_embedding = _step_embedding(config, width)
         self.state_embedding = nn.Linear(config.n_obs_steps * config.frame_dim + 1, width)
-        self.set_embedding = nn.Sequential(
-            nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width)
-        )
+        self.set_embedding = _set_embedding(config, width)
         self.inp = nn.Linear(chunk, width)
         self.blocks = nn.ModuleList(_FiLMBlock(width) for _ in range(CLASSIFIER_BLOCKS))
         self.logit = nn.Linear(width, 1)
@@ -134,9 +132,7 @@ class FailureSetDenoiser(nn.Module):
         width = HIDDEN_WIDTH
         self.history_cond_dim = config.history_length * (config.frame_dim + config.action_dim)
         base_cond_dim = config.n_obs_steps * config.frame_dim + self.history_cond_dim + 2
-        self.set_embedding = nn.Sequential(
-            nn.Linear(config.failure_feature_dim, width), nn.Mish(), nn.Linear(width, width)
-        )
+        self.set_embedding = _set_embedding(config, width)
         self.unet = with_small_batch_convolutions(
             DiffusionConditionalUnet1d(config, global_cond_dim=base_cond_dim + width)
         )
@@ -161,6 +157,33 @@ class FailureSetDenoiser(nn.Module):
                 target.copy_(value)
             else:  # a FiLM encoder's input weights: (out, base_cond + width)
                 target.zero_()[:, : value.shape[1]].copy_(value)
+
+
+def _set_embedding(config: CCDPConfig, width: int) -> nn.Module:
+    """An MLP of one failure's z (its Fourier features with `z_fourier_octaves`), maxed over F by the
+    heads. With octaves the Linear layers sit at other indices than without, so a base checkpoint's untrained
+    head of the other kind loads as missing and unexpected keys, never as a size mismatch."""
+    dim = config.failure_feature_dim
+    if not config.z_fourier_octaves:
+        return nn.Sequential(nn.Linear(dim, width), nn.Mish(), nn.Linear(width, width))
+    features = FourierFeatures(config.z_fourier_octaves)
+    return nn.Sequential(
+        features, nn.Linear(dim * (1 + 2 * features.octaves), width), nn.Mish(), nn.Linear(width, width)
+    )
+
+
+class FourierFeatures(nn.Module):
+    """z -> [z, sin(2^k pi z), cos(2^k pi z)] for k < octaves: a continuous z's nearby outcomes made far apart
+    in the features the set embedding reads."""
+
+    def __init__(self, octaves: int):
+        super().__init__()
+        self.octaves = octaves
+        self.register_buffer("scales", torch.pi * 2.0 ** torch.arange(octaves), persistent=False)
+
+    def forward(self, z: Tensor) -> Tensor:
+        angles = (z[..., None] * self.scales).flatten(start_dim=-2)
+        return torch.cat([z, angles.sin(), angles.cos()], dim=-1)
 
 
 def _step_embedding(config: CCDPConfig, width: int) -> nn.Module:

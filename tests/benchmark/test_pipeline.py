@@ -537,6 +537,7 @@ def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_
     assert z_description(action) == "action: steps [23] of the attempt's first chunk, dims [1, 2]"
     dropped = {**settings, "failure_segments": "drops"}
     assert z_description(dropped).endswith("demonstrated_end, demonstrated options end at drops")
+    assert z_description({**settings, "z_fourier_octaves": 4}).endswith("demonstrated_end, 4 Fourier octaves")
 
 
 def test_the_forms_table_names_the_set_denoisers_window_of_guided_steps():

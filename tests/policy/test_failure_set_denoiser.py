@@ -130,3 +130,33 @@ def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
             make_policy(**SETTINGS, w_z=2.0, **window)
     with pytest.raises(ValueError, match="reach past the 10 reverse steps"):
         make_policy(**SETTINGS, w_z=2.0, w_z_steps=3, w_z_from_step=8)
+
+
+def test_fourier_octaves_feed_the_set_embedding_z_with_its_sines_and_cosines():
+    policy = make_policy(**SETTINGS, z_fourier_octaves=2)
+    features = policy.model.recovery.set_embedding[0](torch.tensor([[0.25, -1.0, 0.0]]))
+    angles = torch.pi * torch.tensor([0.25, 0.5, -1.0, -2.0, 0.0, 0.0])  # each dim's octaves 0 and 1
+    expected = torch.cat([torch.tensor([0.25, -1.0, 0.0]), angles.sin(), angles.cos()])
+    torch.testing.assert_close(features, expected[None])
+
+
+def test_a_base_checkpoint_starts_a_recovery_stage_with_fourier_octaves(reaching_root, tmp_path):
+    """The octaves are chosen at the recovery stage (`--policy.z_fourier_octaves` beside `--policy.path`): the
+    base's untrained set embedding has other keys, so it loads as missing and unexpected keys, not as a size
+    mismatch, and the base's weights load unchanged."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+
+    from fixtures.policy_factory import untrained_checkpoint
+
+    settings = {**SETTINGS, "num_primitives": 4}
+    base = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
+    config = PreTrainedConfig.from_pretrained(base)
+    config.z_fourier_octaves, config.training_stage = 3, "recovery"
+    policy = CCDPPolicy.from_pretrained(base, config=config)
+    saved = CCDPPolicy.from_pretrained(base)
+    torch.testing.assert_close(policy.model.base.state_dict(), saved.model.base.state_dict())
+    assert policy.model.recovery.set_embedding[1].in_features == 4 * (1 + 2 * 3)
+    with pytest.raises(ValueError, match="z_fourier_octaves"):
+        make_policy(**SETTINGS, z_fourier_octaves=-1)
