@@ -110,7 +110,8 @@ class CCDPConfig(PreTrainedConfig):
         z_fourier_octaves: Set denoiser and classifier: each failure's z enters the set embedding as z with
             sin and cos of 2^k pi z for k < z_fourier_octaves (0: z alone), so that a point z (`final_state`)
             whose options lie a few tenths apart in normalised units is told apart as easily as a one-hot
-            label. Part of the head's architecture: chosen at the recovery stage.
+            label. Part of the head's architecture: set with the base (train_base.json, as the label-free
+            configs do) or at the recovery stage beside --policy.path.
         delta_z: Squared distance in z under which an outcome repeats a failure (DP*'s rejection, the set
             denoiser's training sets, redraws).
         dp_star_candidates: DP*: candidates drawn per plan.
