@@ -42,14 +42,15 @@ class FlaggingPoint(gym.Env):
         return {"agent_pos": self.pos.copy(), "failure": np.array([float(failed)], np.float32)}
 
 
-def test_rollout_delivers_failures_to_the_policy(trained_checkpoint):
+def test_rollout_delivers_failures_to_the_policy(untrained_primitive_checkpoint):
+    """What the policy is told, not what it does: an untrained checkpoint serves (no 1000-step training)."""
     gym.register("ccdp_test/FlaggingPoint-v0", entry_point=FlaggingPoint, max_episode_steps=20)
     env = gym.vector.SyncVectorEnv(
         [lambda: gym.make("ccdp_test/FlaggingPoint-v0")] * 2,
         autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
     )
-    policy = CCDPPolicy.from_pretrained(trained_checkpoint).eval()
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(trained_checkpoint))
+    policy = CCDPPolicy.from_pretrained(untrained_primitive_checkpoint).eval()
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(untrained_primitive_checkpoint))
     seen = []
     original = policy.select_action
 
