@@ -95,7 +95,8 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
 def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp_path):
     """`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`: z where an option ends,
     defined alike in the recipe and the policy (synthesis refuses a base checkpoint whose z differs), no label
-    read, and nothing else different from the labelled settings but the files' own paths."""
+    read, and nothing else different from the labelled settings but the files' own paths (and the set
+    embedding's Fourier octaves, for a point z)."""
     labelled = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path)
     files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path, label_free=True)
     slug = task_slug(task) + "_label_free"
@@ -116,6 +117,7 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
         "policy.num_primitives",
         "policy.failure_state_dims",
         "policy.failure_segments",
+        "policy.z_fourier_octaves",  # how the head reads a point z (one-hot labels need none)
     )
     assert _without(base, *z_fields) == _without(json.loads(labelled.train_base.read_text()), *z_fields)
 
