@@ -301,8 +301,8 @@ class CCDPConfig(PreTrainedConfig):
         small |= {"down_dims": self.down_dims} if not self.down_dims or min(self.down_dims) < 1 else {}
         if small:
             raise ValueError(
-                f"{', '.join(f'`{k}`' for k in small)} must be >= 1 (`delta_z`, `history_length`, "
-                f"`ccdp_redraws` and `scheduler_warmup_steps` >= 0, `down_dims` non-empty); got {small}."
+                f"{', '.join(f'`{k}`' for k in small)} must be >= 1 ({', '.join(NON_NEGATIVE_FIELDS)} >= 0, "
+                f"`down_dims` non-empty); got {small}."
             )
         if self.num_inference_steps is not None and self.num_inference_steps > self.num_train_timesteps:
             raise ValueError(
