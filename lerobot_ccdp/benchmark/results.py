@@ -220,14 +220,23 @@ def claims_table(run: Run) -> str:
     return "\n".join(lines)
 
 
+def seeds(run: Run) -> str:
+    """The run's seeds: one range, or each task's where a round sized its tasks differently (episode i of
+    every task has seed first + i)."""
+    last = {task: max(len(e) for e in ms.values()) + run.first_seed - 1 for task, ms in run.episodes.items()}
+    if not last:
+        return "none"
+    if len(set(last.values())) == 1:
+        return f"{run.first_seed}-{next(iter(last.values()))}"
+    return ", ".join(f"{task.removesuffix('-v0')} {run.first_seed}-{end}" for task, end in last.items())
+
+
 def section(title: str, run: Run) -> str:
-    n = {len(e) for ms in run.episodes.values() for e in ms.values()}
-    seeds = f"{run.first_seed}-{run.first_seed + max(n) - 1}" if n else "none"
     return "\n\n".join(
         [
             f"## {title}",
-            f"Seeds {seeds}, the same for every method. Made at commit `{run.commit}` by `{run.command}`; "
-            f"per-episode outcomes: [{run.source.name}]({run.source.name}).",
+            f"Seeds {seeds(run)}, the same for every method. Made at commit `{run.commit}` by "
+            f"`{run.command}`; per-episode outcomes: [{run.source.name}]({run.source.name}).",
             table(run),
             *(
                 [f"Issue 50's claims, each `met` or `missed` as the issue defines it:\n\n{claims}"]

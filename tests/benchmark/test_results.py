@@ -15,6 +15,7 @@ from lerobot_ccdp.benchmark.results import (
     claims_table,
     main,
     save_run,
+    seeds,
     table,
 )
 
@@ -61,6 +62,15 @@ def test_the_table_names_the_hybrid_and_pairs_episodes_by_seed(tmp_path):
         run.episodes["ObjectPacking-v0"]["ccdp"], run.episodes["ObjectPacking-v0"]["dp"], success_rate
     )
     assert lines[2] == f"| ObjectPacking | 0.50 / 0.00 | 0.75 / 0.00 | {gap} |"
+
+
+def test_the_seeds_are_named_per_task_where_a_round_sized_its_tasks_differently(tmp_path):
+    run = _saved(tmp_path / "run.json", {"DoorOpening-v0": "CCDP", "Bartender-v0": "CCDP"})
+    assert seeds(run) == "3000-3003"
+    longer = {m: _episodes([True] * 6, [0] * 6) for m in ("dp", "ccdp")}
+    labels = {task: {"dp": "DP", "ccdp": "CCDP"} for task in run.episodes}
+    save_run(tmp_path / "sized.json", {**run.episodes, "Bartender-v0": longer}, labels, run.command, 3000)
+    assert seeds(Run.load(tmp_path / "sized.json")) == "DoorOpening 3000-3003, Bartender 3000-3005"
 
 
 def test_one_table_never_mixes_ccdp_and_a_hybrid(tmp_path):
