@@ -8,19 +8,19 @@
         --label-free --tasks Bartender-v0 --method ccdp --grid w_z=1,2
 
 Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy
-fields on each task's recovery checkpoint of a `make benchmark` run (or
-`python -m lerobot_ccdp.benchmark.pipeline --train-only`), through lerobot-eval with the task's eval config
-and the method's other settings from `methods.json`, but on the development seeds (`--seed`, default 1000:
-episode i uses seed + i; the configs' test seeds start at 2000), without rendering. Prints one markdown table
-(success, repeats per attempt after a failure, attempts of successful episodes, why episodes were lost,
-evaluation time; success and repeats also as paired differences against the grid's first setting) and picks
-one setting for the tasks given, their episodes pooled: the grid's first setting (list the default or the
-cheapest value first) unless another beats it, paired, with a 95% interval clear of 0, on success (the highest
-mean success of those that do) or, where none does, on repeats without a success interval wholly below 0 (the
-fewest mean repeats). A tie keeps the first setting. With `--write` it stores the pick under the method's key
-of each of those tasks' `configs/<task>/methods.json`, which `make benchmark` passes to that method's
-lerobot-eval (so those evaluations rerun and nothing else). `--report-only` tabulates an earlier run's
-evaluations.
+fields on each task's recovery checkpoint of a `make benchmark` run (or `python -m
+lerobot_ccdp.benchmark.pipeline --train-only`), through lerobot-eval with the task's eval config and the
+method's other settings from `methods.json`, but on the development seeds (`--seed`, default 1000, and
+`--episodes`, default 100: episode i uses seed + i, whatever size the eval config gives its test round),
+without rendering. Prints one markdown table (success, repeats per attempt after a failure, attempts of
+successful episodes, why episodes were lost, evaluation time; success and repeats also as paired differences
+against the grid's first setting) and picks one setting for the tasks given, their episodes pooled: the grid's
+first setting (list the default or the cheapest value first) unless another beats it, paired, with a 95%
+interval clear of 0, on success (the highest mean success of those that do) or, where none does, on repeats
+without a success interval wholly below 0 (the fewest mean repeats). A tie keeps the first setting. With
+`--write` it stores the pick under the method's key of each of those tasks' `configs/<task>/methods.json`,
+which `make benchmark` passes to that method's lerobot-eval (so those evaluations rerun and nothing else).
+`--report-only` tabulates an earlier run's evaluations.
 
 `--checkpoint NAME=PATH` adds another recovery checkpoint of the same base (a different recovery head, trained
 with lerobot-train from `<out>/<task>/base`), evaluated with every grid setting on the same seeds, so the
@@ -137,13 +137,18 @@ def checkpoint_path(files: TaskFiles, checkpoints: dict[str, str], name: str) ->
 
 
 def evaluate(
-    files: TaskFiles, method: str, checkpoint: Path, name: str, setting: Setting, seed: int
+    files: TaskFiles, method: str, checkpoint: Path, name: str, setting: Setting, seed: int, episodes: int
 ) -> float:
     """`method` with `setting` on one task's recovery `checkpoint`, evaluated as the benchmark evaluates it
-    but unrendered, into `run_dir`: the evaluation's wall time."""
+    but unrendered and on `episodes` episodes, into `run_dir`: the evaluation's wall time."""
     out = run_dir(files, method, name, setting, seed)
     shutil.rmtree(out, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
-    flags = files.method_flags(method, dict(setting)) + ["--env.render_mode=null"]
+    batch = min(files.eval_config()["eval"]["batch_size"], episodes)
+    flags = files.method_flags(method, dict(setting)) + [
+        "--env.render_mode=null",
+        f"--eval.n_episodes={episodes}",
+        f"--eval.batch_size={batch}",
+    ]
     command = files.eval_command(checkpoint, method, seed, out, flags)
     command[0] = str(BIN / command[0])
     start = time.perf_counter()
@@ -172,17 +177,23 @@ def pick(rows: list[Row], pooled: dict[Row, Episodes]) -> tuple[Row, str]:
     return first, "the grid's first setting: no other is better by a paired interval clear of 0"
 
 
-def measured(files: TaskFiles, method: str, name: str, setting: Setting, seed: int) -> tuple[Episodes, float]:
-    """The episodes of one evaluation already in `run_dir`, and its wall time."""
+def measured(
+    files: TaskFiles, method: str, name: str, setting: Setting, seed: int, episodes: int
+) -> tuple[Episodes, float]:
+    """The `episodes` episodes of one evaluation already in `run_dir`, and its wall time."""
     out = run_dir(files, method, name, setting, seed)
     if not (out / "eval_info.json").is_file():
         raise SystemExit(
             f"No evaluation of {method} with {label(setting)} under {out}; run without --report-only."
         )
+    found = Episodes.from_eval_info(out / "eval_info.json")
+    if len(found) != episodes:
+        raise SystemExit(
+            f"{out} holds {len(found)} episodes, not --episodes {episodes}; pass --episodes {len(found)} or "
+            "run without --report-only to evaluate again."
+        )
     seconds = out / "seconds.txt"
-    return Episodes.from_eval_info(out / "eval_info.json"), float(
-        seconds.read_text()
-    ) if seconds.is_file() else np.nan
+    return found, float(seconds.read_text()) if seconds.is_file() else np.nan
 
 
 def against(episodes: Episodes, reference: Episodes) -> str:
@@ -237,6 +248,12 @@ def main(argv: list[str] | None = None) -> None:
         help="the tasks' <task>_label_free settings and folders, of a make benchmark-label-free run",
     )
     parser.add_argument("--seed", type=int, default=1000, help="first development seed")
+    parser.add_argument(
+        "--episodes",
+        type=int,
+        default=100,
+        help="episodes per evaluation (seeds seed ... seed + episodes - 1)",
+    )
     parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
     parser.add_argument(
         "--report-only",
@@ -245,6 +262,8 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     args.tasks = expand_tasks(args.tasks)
+    if args.episodes < 1:
+        raise SystemExit(f"--episodes {args.episodes}: evaluate at least one episode.")
     if owner(args.out.resolve()) != CREATED_BY:  # its evaluations are written, and replaced, inside --out
         raise SystemExit(
             f"--out {args.out} is not an output folder of the pipeline (no {MARKER} of it there). Name a "
@@ -275,8 +294,8 @@ def main(argv: list[str] | None = None) -> None:
     for task, f in files.items():
         config = f.eval_config()
         test, n = config["seed"], config["eval"]["n_episodes"]
-        last = args.seed + n - 1
-        if args.seed < test + n and test < args.seed + n:
+        last = args.seed + args.episodes - 1
+        if args.seed < test + n and test < args.seed + args.episodes:
             raise SystemExit(
                 f"--seed {args.seed} overlaps {task}'s test seeds {test}-{test + n - 1}; "
                 "tune on development seeds."
@@ -290,13 +309,15 @@ def main(argv: list[str] | None = None) -> None:
         episodes = {}
         if args.against:
             if not args.report_only:
-                evaluate(files[task], args.against, paths[task][OWN], OWN, (), args.seed)
-            reference, _ = measured(files[task], args.against, OWN, (), args.seed)
+                evaluate(files[task], args.against, paths[task][OWN], OWN, (), args.seed, args.episodes)
+            reference, _ = measured(files[task], args.against, OWN, (), args.seed, args.episodes)
         for row in rows_of:
             name, setting = row
             if not args.report_only:
-                evaluate(files[task], args.method, paths[task][name], name, setting, args.seed)
-            episodes[row], seconds = measured(files[task], args.method, name, setting, args.seed)
+                evaluate(files[task], args.method, paths[task][name], name, setting, args.seed, args.episodes)
+            episodes[row], seconds = measured(
+                files[task], args.method, name, setting, args.seed, args.episodes
+            )
             by_task[row].append(episodes[row])
             metrics = MethodMetrics.of(episodes[row])
             scores[row].append((metrics.success.value, metrics.repeats_per_opportunity.value))

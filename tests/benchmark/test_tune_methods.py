@@ -3,12 +3,14 @@ better: a higher mean that the development seeds cannot tell from noise is a tie
 comparison)."""
 
 import importlib.util
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lerobot_ccdp.benchmark.episodes import Episodes
+from lerobot_ccdp.datasets.ownership import claim_output_folder
 
 REPO = Path(__file__).resolve().parents[2]
 spec = importlib.util.spec_from_file_location("tune_methods", REPO / "benchmarks" / "tune_methods.py")
@@ -91,3 +93,29 @@ def test_seeds_for_non_inferiority_follow_the_difference_and_its_spread():
     assert seeds_for_non_inferiority(closer, reference, 0.05) < expected
     cells = tune.against(ahead, reference).split(" | ")
     assert cells[1].startswith("0.02 [") and cells[-1] == f"{expected:.0f}"
+
+
+def _eval_info(path: Path, n: int) -> None:
+    """An eval_info.json of `n` episodes, as lerobot-eval writes it with lerobot_ccdp's metrics."""
+    path.mkdir(parents=True)
+    metrics = {"successes": [True] * n, "attempts": [2] * n, "repeated_failures": [0] * n}
+    metrics |= {"preference_matched": [True] * n, "attempts_after_failure": [1.0] * n, "failures": [1] * n}
+    (path / "eval_info.json").write_text(json.dumps({"per_task": [{"metrics": metrics}]}))
+
+
+def test_the_development_size_is_its_own_and_a_saved_evaluation_of_another_size_is_refused(tmp_path, capsys):
+    """A round sized 600 in the eval config still tunes on 100 development seeds, and a saved evaluation of
+    another size is named rather than paired against one of 100."""
+    out = tmp_path / "run"
+    claim_output_folder(out, tune.CREATED_BY)
+    task = "DoorOpening-lite-v0"
+    files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", out)
+    (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
+    run = ["--out", str(out), "--tasks", task, "--method", "ccdp", "--grid", "w_z=5", "--report-only"]
+    _eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), 100)
+    tune.main(run)
+    assert "ccdp on seeds 1000-1099" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="holds 100 episodes, not --episodes 60"):
+        tune.main([*run, "--episodes", "60"])
+    with pytest.raises(SystemExit, match="at least one episode"):
+        tune.main([*run, "--episodes", "0"])
