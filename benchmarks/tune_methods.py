@@ -143,13 +143,8 @@ def evaluate(
     but unrendered and on `episodes` episodes, into `run_dir`: the evaluation's wall time."""
     out = run_dir(files, method, name, setting, seed)
     shutil.rmtree(out, ignore_errors=True)  # an earlier run's eval_info.json must not be read as this one's
-    batch = min(files.eval_config()["eval"]["batch_size"], episodes)
-    flags = files.method_flags(method, dict(setting)) + [
-        "--env.render_mode=null",
-        f"--eval.n_episodes={episodes}",
-        f"--eval.batch_size={batch}",
-    ]
-    command = files.eval_command(checkpoint, method, seed, out, flags)
+    flags = files.method_flags(method, dict(setting))
+    command = files.eval_command(checkpoint, method, seed, out, flags, episodes=episodes)
     command[0] = str(BIN / command[0])
     start = time.perf_counter()
     result = subprocess.run(command, capture_output=True, text=True)

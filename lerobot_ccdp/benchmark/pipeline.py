@@ -194,17 +194,30 @@ class TaskFiles:
         ]
 
     def eval_command(
-        self, checkpoint: Path, method: str, seed: int, out: Path, flags: list[str], videos: bool = False
+        self,
+        checkpoint: Path,
+        method: str,
+        seed: int,
+        out: Path,
+        flags: list[str],
+        videos: bool = False,
+        episodes: int | None = None,
     ) -> list[str]:
         """lerobot-eval of `method` on `checkpoint` with this task's eval config, from `seed`, into `out`, on
         common random numbers (`COMMON_NOISE`): unrendered, or (`videos`) the first VIDEO_EPISODES episodes
-        (at most the config's) rendered as the eval config says, in one batch. Episode i has seed `seed + i`
-        and its row's noise stream whatever the batch size, so the rendered episodes are the evaluated ones
-        (up to the floating-point differences of other batch sizes)."""
-        n = min(VIDEO_EPISODES, self.eval_config()["eval"]["n_episodes"])
-        render = (
-            [f"--eval.n_episodes={n}", f"--eval.batch_size={n}"] if videos else ["--env.render_mode=null"]
-        )
+        (at most the evaluated ones) rendered as the eval config says, in one batch. Episode i has seed
+        `seed + i` and its row's noise stream whatever the batch size, so the rendered episodes are the
+        evaluated ones (up to the floating-point differences of other batch sizes). `episodes` replaces the
+        config's number of episodes (None: the config's, and the command names none)."""
+        config = self.eval_config()["eval"]
+        if videos:
+            n = min(VIDEO_EPISODES, config["n_episodes"] if episodes is None else episodes)
+            render = [f"--eval.n_episodes={n}", f"--eval.batch_size={n}"]
+        else:
+            render = ["--env.render_mode=null"]
+            if episodes is not None:
+                batch = min(config["batch_size"], episodes)
+                render += [f"--eval.n_episodes={episodes}", f"--eval.batch_size={batch}"]
         return [
             "lerobot-eval",
             f"--config_path={self.eval}",
@@ -235,9 +248,14 @@ class TaskFiles:
 class TaskRun:
     """Runs one task's stages, skipping those whose output exists, and times each stage."""
 
-    def __init__(self, files: TaskFiles, eval_seed: int | None = None):
+    def __init__(self, files: TaskFiles, eval_seed: int | None = None, eval_episodes: int | None = None):
         self.files = files
         self.eval_seed = files.eval_config().get("seed", 1000) if eval_seed is None else eval_seed
+        # None: the eval config's number, which no command then names (its stamps stay those of the config)
+        self.eval_episodes = eval_episodes
+        self.n_episodes = (
+            files.eval_config()["eval"]["n_episodes"] if eval_episodes is None else eval_episodes
+        )
         self.slug = files.out.name
         self.logs = files.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
@@ -296,7 +314,9 @@ class TaskRun:
             self._stage(
                 f"eval_{method}",
                 out / "eval_info.json",
-                f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method)),
+                f.eval_command(
+                    recovery, method, self.eval_seed, out, f.method_flags(method), episodes=self.eval_episodes
+                ),
                 upstream=recovery_stamp,
                 clear=out,
             )
@@ -305,7 +325,15 @@ class TaskRun:
             self._stage(
                 f"videos_{method}",
                 out / "eval_info.json",
-                f.eval_command(recovery, method, self.eval_seed, out, f.method_flags(method), videos=True),
+                f.eval_command(
+                    recovery,
+                    method,
+                    self.eval_seed,
+                    out,
+                    f.method_flags(method),
+                    videos=True,
+                    episodes=self.eval_episodes,
+                ),
                 upstream=recovery_stamp,
                 clear=out,
             )
@@ -396,17 +424,15 @@ class TaskRun:
 
         It reads the hidden state, never the observation, so cameras are not rendered for it."""
         path = self.files.out / "oracle.json"
-        current = stamp(["oracle", str(self.files.eval), str(self.eval_seed)], upstream=None)
+        sized = [] if self.eval_episodes is None else [str(self.eval_episodes)]
+        current = stamp(["oracle", str(self.files.eval), str(self.eval_seed), *sized], upstream=None)
         if not (path.exists() and self.stamps.matches("oracle", current)):
             config = self.files.eval_config()
             env_settings = {k: v for k, v in config["env"].items() if k != "type"}
             env_config = CCDPEnvConfig(**{**env_settings, "obs_type": "state"})
             env = gym.make(env_config.gym_id, **{**env_config.gym_kwargs, "render_mode": None})
             oracle = NoRepeatOracle(env)
-            infos = [
-                run_episode(env, oracle, seed=self.eval_seed + i).info
-                for i in range(config["eval"]["n_episodes"])
-            ]
+            infos = [run_episode(env, oracle, seed=self.eval_seed + i).info for i in range(self.n_episodes)]
             path.write_text(json.dumps([{k: _plain(v) for k, v in i.items()} for i in infos]))
             self.stamps.record("oracle", current)
         return Episodes.from_infos(json.loads(path.read_text()))
@@ -500,7 +526,7 @@ def method_forms(runs: list[TaskRun]) -> str:
         if not checkpoint.is_file():
             continue
         c = json.loads(checkpoint.read_text())
-        n = r.files.eval_config()["eval"]["n_episodes"]
+        n = r.n_episodes
         steps = json.loads(r.files.train_recovery.read_text()).get("steps")
         recipe = RecoveryRecipe.load(r.files.recipe)
         dp_star = {
@@ -637,7 +663,7 @@ def run_tasks(
     claim_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)
     runs, episodes = [], {}
     for f in files:
-        run = TaskRun(f, args.eval_seed)
+        run = TaskRun(f, args.eval_seed, args.eval_episodes)
         episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
         runs.append(run)
         if episodes[f.task]:
@@ -707,6 +733,13 @@ def main(argv: list[str] | None = None) -> None:
         "range. Tune settings on another range, e.g. the development seeds 1000-1099",
     )
     parser.add_argument(
+        "--eval-episodes",
+        type=int,
+        default=None,
+        help="episodes per method (seeds eval-seed ... eval-seed + N - 1); default: the eval config's, the "
+        "test round's size. 100 with --eval-seed 1000 evaluates the development seeds",
+    )
+    parser.add_argument(
         "--publish",
         type=canonical,
         default=None,
@@ -731,6 +764,8 @@ def main(argv: list[str] | None = None) -> None:
         TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type, args.label_free)
         for t in tasks
     ]
+    if args.eval_episodes is not None and args.eval_episodes < 1:
+        parser.error(f"--eval-episodes {args.eval_episodes}: evaluate at least one episode per method")
     if args.fresh and args.report_only:
         parser.error("--fresh deletes the evaluations --report-only reports on; pass one of them")
     if args.train_only and args.report_only:

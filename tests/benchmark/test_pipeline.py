@@ -371,6 +371,26 @@ def test_every_timed_evaluation_is_unrendered_and_videos_are_a_run_of_their_own(
         assert "--env.render_mode=null" not in videos and f"--eval.n_episodes={N_EPISODES}" in videos
 
 
+def test_eval_episodes_sizes_every_evaluation_and_the_oracle_and_is_named_only_when_given(
+    settings, tmp_path, capsys
+):
+    """`--eval-episodes`: development evaluations of their own size where the eval config sizes a test round;
+    without it no command names a size, so a round's stamps stay those of its eval config."""
+    files = TaskFiles.locate(TASK, *settings, tmp_path)
+    plain = files.eval_command(Path("checkpoint"), "ccdp", 0, tmp_path, [])
+    assert not any(arg.startswith("--eval.") for arg in plain)
+    sized = files.eval_command(Path("checkpoint"), "ccdp", 0, tmp_path, [], episodes=2)
+    assert {"--eval.n_episodes=2", "--eval.batch_size=2"} <= set(sized)  # the config's batch is 4
+    videos = files.eval_command(Path("checkpoint"), "ccdp", 0, tmp_path, [], videos=True, episodes=2)
+    assert "--eval.n_episodes=2" in videos and "--env.render_mode=null" not in videos
+    run = TaskRun(files, EVAL_SEED, 2)
+    assert run.n_episodes == 2 and len(run._oracle()) == 2
+    assert TaskRun(files, EVAL_SEED).n_episodes == N_EPISODES
+    with pytest.raises(SystemExit):
+        main(["--tasks", TASK, "--out", str(tmp_path / "out"), "--eval-episodes", "0"])
+    assert "--eval-episodes 0: evaluate at least one episode" in capsys.readouterr().err
+
+
 def test_stamps_follow_settings_files_and_upstream_stages(tmp_path):
     config = tmp_path / "train.json"
     config.write_text('{"steps": 10}')
