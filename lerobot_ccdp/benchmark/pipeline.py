@@ -348,6 +348,13 @@ class TaskRun:
                 "run the pipeline without --report-only first."
             )
         episodes = {m: Episodes.from_eval_info(self.files.eval_dir(m) / "eval_info.json") for m in methods}
+        stale = {m: len(e) for m, e in episodes.items() if len(e) != self.n_episodes}
+        if stale:
+            raise PipelineError(
+                f"{self.files.task}: the evaluations of {stale} (episodes per method) are not of the "
+                f"{self.n_episodes} episodes asked for (the eval config or --eval-episodes); run the "
+                "pipeline without --report-only to evaluate them again."
+            )
         episodes["oracle"] = self._oracle()
         return episodes
 

@@ -22,6 +22,7 @@ from lerobot_ccdp.benchmark.pipeline import (
     CHECKPOINT,
     COMMON_NOISE,
     VIDEO_METHODS,
+    PipelineError,
     TaskFiles,
     TaskRun,
     latest_progress,
@@ -389,6 +390,12 @@ def test_eval_episodes_sizes_every_evaluation_and_the_oracle_and_is_named_only_w
     with pytest.raises(SystemExit):
         main(["--tasks", TASK, "--out", str(tmp_path / "out"), "--eval-episodes", "0"])
     assert "--eval-episodes 0: evaluate at least one episode" in capsys.readouterr().err
+    # --report-only names evaluations of another size rather than reporting them under this size's seeds
+    files.eval_dir("dp").mkdir(parents=True)
+    metrics = {key: [1] * 3 for key in ("successes", "attempts", "repeated_failures", "preference_matched")}
+    (files.eval_dir("dp") / "eval_info.json").write_text(json.dumps({"per_task": [{"metrics": metrics}]}))
+    with pytest.raises(PipelineError, match=r"evaluations of \{'dp': 3\}.*not of the 2 episodes"):
+        run.episodes(["dp"])
 
 
 def test_stamps_follow_settings_files_and_upstream_stages(tmp_path):
