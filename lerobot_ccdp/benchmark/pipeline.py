@@ -13,7 +13,8 @@ Settings live in files a user can run by hand: `configs/<task>/{train_base,train
 pipeline only moves every output under `--out/<task>/` (datasets, checkpoints, eval_info.json, logs). A stage
 whose output exists is skipped, so an interrupted run resumes; `--fresh` starts over. The pipeline writes only
 into a folder it created or adopted, marked as its own (`lerobot_ccdp.datasets.ownership`), and deletes
-nothing else.
+nothing else. `--publish` copies the report (all tasks) into the docs; `--publish-each` copies each task's own
+report as soon as the task is done, so that a round of many hours keeps its finished tasks across a stop.
 """
 
 from __future__ import annotations
@@ -664,9 +665,10 @@ def publish_report(report: str, out: Path, target: Path) -> None:
 
 
 def run_tasks(
-    files: list[TaskFiles], args: argparse.Namespace
+    files: list[TaskFiles], args: argparse.Namespace, command: str
 ) -> tuple[list[TaskRun], dict[str, dict[str, Episodes]]]:
-    """Every task's stages (or, with --report-only, its finished evaluations), in order."""
+    """Every task's stages (or, with --report-only, its finished evaluations), in order; with --publish-each,
+    each task's own report is published as soon as its evaluations are done."""
     claim_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)
     runs, episodes = [], {}
     for f in files:
@@ -678,6 +680,14 @@ def run_tasks(
                 markdown_table({f.task: {m: MethodMetrics.of(e) for m, e in episodes[f.task].items()}}),
                 flush=True,
             )
+            if args.publish_each:
+                target = args.publish_each / f"{f.task}.md"
+                publish_report(
+                    write_report([run], {f.task: episodes[f.task]}, f.out, command, not args.no_chart),
+                    f.out,
+                    target,
+                )
+                print(f"Published: {target}", flush=True)
     return runs, episodes
 
 
@@ -753,6 +763,14 @@ def main(argv: list[str] | None = None) -> None:
         help="also write the report here (its chart beside it), e.g. docs/benchmark_report.md",
     )
     parser.add_argument(
+        "--publish-each",
+        type=canonical,
+        default=None,
+        help="also write each task's own report to <folder>/<task>.md (chart and run file beside it) as soon "
+        "as its evaluations finish, so that a long round keeps every finished task's figures if it stops "
+        "between tasks (rerun the others with --tasks); e.g. docs/benchmark",
+    )
+    parser.add_argument(
         "--report-only",
         action="store_true",
         help="write the report from the evaluations already in --out, running no stage",
@@ -779,19 +797,19 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--train-only runs the training stages and --report-only runs none; pass one of them")
     if args.fresh and args.adopt:
         parser.error("--adopt keeps the folder's outputs and --fresh deletes them; pass one of them")
+    command = "python -m lerobot_ccdp.benchmark.pipeline " + shlex.join(
+        argv if argv is not None else sys.argv[1:]
+    )
     start = time.perf_counter()
     try:
         check_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)  # before the lock file beside it
         with exclusive(args.out):
-            runs, episodes = run_tasks(files, args)
+            runs, episodes = run_tasks(files, args, command)
     except (PipelineError, PipelineRunning, NotOwned) as error:
         sys.exit(str(error))
     if args.train_only:
         print(f"Trained: {', '.join(str(f.out / 'recovery' / CHECKPOINT) for f in files)}")
         return
-    command = "python -m lerobot_ccdp.benchmark.pipeline " + shlex.join(
-        argv if argv is not None else sys.argv[1:]
-    )
     report = write_report(runs, episodes, args.out, command, chart=not args.no_chart)
     print(report)
     if args.publish:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import shlex
 import subprocess
@@ -97,18 +98,42 @@ def save_run(
 
 
 @dataclass(frozen=True)
-class Run:
-    """One saved run: where it came from, and per task and method its label and episodes."""
+class Origin:
+    """Where a run file came from: the file, the command that wrote it and the commit it ran at."""
 
     source: Path
     command: str
     commit: str
+
+
+@dataclass(frozen=True)
+class Run:
+    """One saved run: where it came from, and per task and method its label and episodes."""
+
+    origins: tuple[Origin, ...]
     first_seed: int
     labels: dict[str, dict[str, str]]
     episodes: dict[str, dict[str, Episodes]]
 
     @classmethod
-    def load(cls, path: Path) -> Run:
+    def load(cls, *paths: Path) -> Run:
+        """A run from its run file, or from the files of one round that published each task on its own (the
+        pipeline's --publish-each): they must share their first seed and name each task once."""
+        parts = [cls._load_one(path) for path in paths]
+        seeds = {part.origins[0].source.name: part.first_seed for part in parts}
+        if len(set(seeds.values())) > 1:
+            raise ValueError(f"run files of one table start at different seeds ({seeds}); pass one round's")
+        labels, episodes = {}, {}
+        for part in parts:
+            repeated = sorted(set(part.episodes) & set(episodes))
+            if repeated:
+                raise ValueError(f"{part.origins[0].source} repeats {repeated}, already in another run file")
+            labels.update(part.labels)
+            episodes.update(part.episodes)
+        return cls(tuple(o for part in parts for o in part.origins), parts[0].first_seed, labels, episodes)
+
+    @classmethod
+    def _load_one(cls, path: Path) -> Run:
         data = json.loads(path.read_text())
         if data.get("format") != FORMAT:
             raise ValueError(
@@ -127,15 +152,15 @@ class Run:
                 )
                 for m, v in methods.items()
             }
-        return cls(path, data["command"], data["commit"], data["first_seed"], labels, episodes)
+        return cls((Origin(path, data["command"], data["commit"]),), data["first_seed"], labels, episodes)
 
     def ccdp_column(self) -> str:
         """The label of the CCDP column, the same on every task (a table never mixes CCDP and a hybrid)."""
         found = {labels["ccdp"] for labels in self.labels.values() if "ccdp" in labels}
         if len(found) > 1:
             raise ValueError(
-                f"{self.source} mixes {sorted(found)} in one run: a hybrid gets its own column, so publish "
-                "each form as a run of its own."
+                f"{', '.join(str(o.source) for o in self.origins)} mix {sorted(found)} in one run: a hybrid "
+                "gets its own column, so publish each form as a run of its own."
             )
         return found.pop() if found else METHOD_LABELS["ccdp"]
 
@@ -231,12 +256,23 @@ def seeds(run: Run) -> str:
     return ", ".join(f"{task.removesuffix('-v0')} {run.first_seed}-{end}" for task, end in last.items())
 
 
-def section(title: str, run: Run) -> str:
+def provenance(run: Run, out: Path) -> str:
+    """The command and commit that made each of the run's files, linked from `out`'s folder."""
+
+    def made(origin: Origin) -> str:
+        link = os.path.relpath(os.path.abspath(origin.source), os.path.abspath(out.parent))
+        return f"at commit `{origin.commit}` by `{origin.command}`; per-episode outcomes: [{link}]({link})"
+
+    if len(run.origins) == 1:
+        return f"Made {made(run.origins[0])}."
+    return "Made task by task:\n\n" + "\n".join(f"- {made(origin)}" for origin in run.origins)
+
+
+def section(title: str, run: Run, out: Path) -> str:
     return "\n\n".join(
         [
             f"## {title}",
-            f"Seeds {seeds(run)}, the same for every method. Made at commit `{run.commit}` by "
-            f"`{run.command}`; per-episode outcomes: [{run.source.name}]({run.source.name}).",
+            f"Seeds {seeds(run)}, the same for every method. {provenance(run, out)}",
             table(run),
             *(
                 [f"Issue 50's claims, each `met` or `missed` as the issue defines it:\n\n{claims}"]
@@ -257,7 +293,7 @@ def write_results(runs: list[tuple[str, Run]], out: Path, command: str, readme: 
             "Each cell: success rate / repeats per attempt after a failure. Differences are paired by seed, "
             "with 95% bootstrap intervals; an interval that spans 0 is a tie. How the figures are computed: "
             "[evaluation.md](evaluation.md); what was tried on the way: [benchmarks.md](benchmarks.md).",
-            *(section(title, run) for title, run in runs),
+            *(section(title, run, out) for title, run in runs),
         ]
     )
     readme_text = with_block(readme, table(runs[0][1])) if readme is not None and runs else None
@@ -280,25 +316,29 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--run",
-        nargs=2,
+        nargs="+",
         action="append",
-        metavar=("TITLE", "JSON"),
+        metavar="TITLE JSON",
         required=True,
-        help="a section's title and the run file the pipeline published (e.g. docs/benchmark_report.json)",
+        help="a section's title and the run file the pipeline published (e.g. docs/benchmark_report.json), "
+        "or one file per task of a round published with --publish-each (docs/benchmark/*.json)",
     )
     parser.add_argument("--out", type=Path, default=Path("docs/results.md"))
     parser.add_argument(
         "--readme", type=Path, default=None, help="also put the first run's table in this file"
     )
     args = parser.parse_args(argv)
-    missing = [path for _, path in args.run if not Path(path).is_file()]
+    short = [run for run in args.run if len(run) < 2]
+    if short:
+        parser.error(f"--run {short[0][0]!r} names no run file: pass --run TITLE JSON [JSON ...]")
+    missing = [path for _, *paths in args.run for path in paths if not Path(path).is_file()]
     if missing:
         sys.exit(
             f"No run file {missing}: the pipeline writes one beside its report with --publish "
             "(make benchmark)."
         )
     try:
-        runs = [(title, Run.load(Path(path))) for title, path in args.run]
+        runs = [(title, Run.load(*map(Path, paths))) for title, *paths in args.run]
         command = "python -m lerobot_ccdp.benchmark.results " + shlex.join(
             argv if argv is not None else sys.argv[1:]
         )

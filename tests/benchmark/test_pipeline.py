@@ -110,7 +110,9 @@ def _run_pipeline(configs: Path, recipes: Path, out: Path, *extra: str, methods:
 @pytest.fixture(scope="module")
 def pipeline_run(settings, tmp_path_factory) -> tuple[Path, str]:
     out = tmp_path_factory.mktemp("pipeline")
-    return out, _run_pipeline(*settings, out, "--publish", str(out / "docs" / "benchmark.md"))
+    return out, _run_pipeline(
+        *settings, out, "--publish", str(out / "docs" / "benchmark.md"), "--publish-each", str(out / "each")
+    )
 
 
 def test_every_stage_output_loads_and_feeds_the_next(pipeline_run):
@@ -188,6 +190,12 @@ def test_report_table_chart_and_timings(pipeline_run):
     published = (out / "docs" / "benchmark.md").read_text()
     assert published.split("\n", 1)[1] == report.replace("](comparison.png)", "](benchmark.png)")
     assert (out / "docs" / "benchmark.png").read_bytes() == (out / "comparison.png").read_bytes()
+    # --publish-each: the task's own report (here the only task's, so the same), chart and run file
+    each = (out / "each" / f"{TASK}.md").read_text()
+    assert each.split("\n", 1)[1] == report.replace("](comparison.png)", f"]({TASK}.png)")
+    assert (out / "each" / f"{TASK}.png").read_bytes() == (out / SLUG / "comparison.png").read_bytes()
+    assert (out / "each" / f"{TASK}.json").read_text() == (out / "docs" / "benchmark.json").read_text()
+    assert f"Published: {out / 'each' / TASK}.md" in stdout.split("## What ran")[0]  # before the last report
     for method in METHODS:  # lerobot-eval logs its config: the seed it was given
         assert f"'seed': {EVAL_SEED}," in (out / SLUG / "logs" / f"eval_{method}.log").read_text()
     timings = json.loads((out / SLUG / "timings.json").read_text())

@@ -46,7 +46,7 @@ def _saved(path, ccdp_labels: dict[str, str]) -> Run:
 
 def test_a_saved_run_loads_back_with_its_missing_values(tmp_path):
     run = _saved(tmp_path / "run.json", {"DoorOpening-v0": "CCDP", "ButtonSearch-v0": "CCDP"})
-    assert run.first_seed == 3000 and run.command.endswith("--tasks x")
+    assert run.first_seed == 3000 and run.origins[0].command.endswith("--tasks x")
     door = run.episodes["DoorOpening-v0"]["ccdp"]
     assert door.success.dtype == bool and list(door.failures) == [1, 1, 2, 0]
     assert np.isnan(run.episodes["ButtonSearch-v0"]["ccdp"].failures[2])  # NaN survives JSON as null
@@ -69,8 +69,40 @@ def test_the_seeds_are_named_per_task_where_a_round_sized_its_tasks_differently(
     assert seeds(run) == "3000-3003"
     longer = {m: _episodes([True] * 6, [0] * 6) for m in ("dp", "ccdp")}
     labels = {task: {"dp": "DP", "ccdp": "CCDP"} for task in run.episodes}
-    save_run(tmp_path / "sized.json", {**run.episodes, "Bartender-v0": longer}, labels, run.command, 3000)
+    save_run(tmp_path / "sized.json", {**run.episodes, "Bartender-v0": longer}, labels, "pipeline", 3000)
     assert seeds(Run.load(tmp_path / "sized.json")) == "DoorOpening 3000-3003, Bartender 3000-3005"
+
+
+def test_a_round_published_task_by_task_is_one_table_that_names_each_file(tmp_path):
+    """--publish-each writes a run file per task; `--run TITLE a.json b.json` tabulates them as one run."""
+    folder = tmp_path / "docs" / "benchmark"
+    folder.mkdir(parents=True)
+    door = _saved(folder / "DoorOpening-v0.json", {"DoorOpening-v0": "CCDP"})
+    bartender = _saved(folder / "Bartender-v0.json", {"Bartender-v0": "CCDP"})
+    out = tmp_path / "docs" / "results.md"
+    main(
+        [
+            "--run",
+            "Round",
+            str(folder / "DoorOpening-v0.json"),
+            str(folder / "Bartender-v0.json"),
+            "--out",
+            str(out),
+        ]
+    )
+    written = out.read_text()
+    assert "Made task by task:" in written
+    for task in ("DoorOpening-v0", "Bartender-v0"):  # linked from docs/results.md's folder
+        assert f"--tasks x`; per-episode outcomes: [benchmark/{task}.json](benchmark/{task}.json)" in written
+    merged = Run.load(folder / "DoorOpening-v0.json", folder / "Bartender-v0.json")
+    assert table(merged).splitlines()[2:] == [table(door).splitlines()[2], table(bartender).splitlines()[2]]
+    with pytest.raises(ValueError, match=r"repeats \['DoorOpening-v0'\]"):
+        Run.load(folder / "DoorOpening-v0.json", folder / "DoorOpening-v0.json")
+    save_run(tmp_path / "other.json", door.episodes, door.labels, "pipeline", 5000)
+    with pytest.raises(ValueError, match="start at different seeds"):
+        Run.load(folder / "Bartender-v0.json", tmp_path / "other.json")
+    with pytest.raises(SystemExit, match="2"):
+        main(["--run", "Round", "--out", str(out)])  # a title without a run file
 
 
 def test_one_table_never_mixes_ccdp_and_a_hybrid(tmp_path):
@@ -135,21 +167,25 @@ def test_the_published_tables_are_what_make_results_writes(tmp_path):
     docs = Path(__file__).parents[2] / "docs"
     readme = tmp_path / "README.md"
     readme.write_text((docs.parent / "README.md").read_text())
+    mirror = tmp_path / "docs"  # the run files where docs/ has them, so that results.md links them alike
+    for run_file in docs.rglob("*.json"):
+        (mirror / run_file.relative_to(docs)).parent.mkdir(parents=True, exist_ok=True)
+        (mirror / run_file.relative_to(docs)).symlink_to(run_file)
     main(
         [
             "--readme",
             str(readme),
             "--run",
             "With option labels (make benchmark)",
-            str(docs / "benchmark_report.json"),
+            str(mirror / "benchmark_report.json"),
             "--run",
             "Without labels (make benchmark-label-free)",
-            str(docs / "benchmark_label_free_report.json"),
+            str(mirror / "benchmark_label_free_report.json"),
             "--out",
-            str(tmp_path / "results.md"),
+            str(mirror / "results.md"),
         ]
     )
-    written, published = ((p / "results.md").read_text().splitlines() for p in (tmp_path, docs))
+    written, published = ((p / "results.md").read_text().splitlines() for p in (mirror, docs))
     assert [line for line in written if not line.startswith("<!-- Written")] == [
         line for line in published if not line.startswith("<!-- Written")
     ]
