@@ -99,11 +99,12 @@ def save_run(
 
 @dataclass(frozen=True)
 class Origin:
-    """Where a run file came from: the file, the command that wrote it and the commit it ran at."""
+    """Where a run file came from: the file, the command that wrote it, the commit it ran at, its tasks."""
 
     source: Path
     command: str
     commit: str
+    tasks: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -152,7 +153,8 @@ class Run:
                 )
                 for m, v in methods.items()
             }
-        return cls((Origin(path, data["command"], data["commit"]),), data["first_seed"], labels, episodes)
+        origin = Origin(path, data["command"], data["commit"], tuple(data["tasks"]))
+        return cls((origin,), data["first_seed"], labels, episodes)
 
     def ccdp_column(self) -> str:
         """The label of the CCDP column, the same on every task (a table never mixes CCDP and a hybrid)."""
@@ -265,7 +267,9 @@ def provenance(run: Run, out: Path) -> str:
 
     if len(run.origins) == 1:
         return f"Made {made(run.origins[0])}."
-    return "Made task by task:\n\n" + "\n".join(f"- {made(origin)}" for origin in run.origins)
+    return "Made task by task:\n\n" + "\n".join(
+        f"- {', '.join(origin.tasks)}: {made(origin)}" for origin in run.origins
+    )
 
 
 def section(title: str, run: Run, out: Path) -> str:

@@ -94,6 +94,7 @@ def test_a_round_published_task_by_task_is_one_table_that_names_each_file(tmp_pa
     assert "Made task by task:" in written
     for task in ("DoorOpening-v0", "Bartender-v0"):  # linked from docs/results.md's folder
         assert f"--tasks x`; per-episode outcomes: [benchmark/{task}.json](benchmark/{task}.json)" in written
+        assert f"- {task}: at commit `" in written  # each file's line names its task
     merged = Run.load(folder / "DoorOpening-v0.json", folder / "Bartender-v0.json")
     assert table(merged).splitlines()[2:] == [table(door).splitlines()[2], table(bartender).splitlines()[2]]
     with pytest.raises(ValueError, match=r"repeats \['DoorOpening-v0'\]"):
