@@ -121,7 +121,7 @@ class Run:
         """A run from its run file, or from the files of one round that published each task on its own (the
         pipeline's --publish-each): they must share their first seed and name each task once."""
         parts = [cls._load_one(path) for path in paths]
-        seeds = {part.origins[0].source.name: part.first_seed for part in parts}
+        seeds = {str(part.origins[0].source): part.first_seed for part in parts}
         if len(set(seeds.values())) > 1:
             raise ValueError(f"run files of one table start at different seeds ({seeds}); pass one round's")
         labels, episodes = {}, {}
