@@ -139,7 +139,7 @@ def render_sizes(sizes: list[int], batch_size: int, steps: int, warmup: int) -> 
         )
         env.reset(seed=0)
         action = np.zeros(env.action_space.shape, dtype=np.float32)
-        step_ms = interleaved_medians({"env": lambda e=env: e.step(action)}, 50, 5)["env"]
+        step_ms = interleaved_medians({"env": lambda e=env, a=action: e.step(a)}, 50, 5)["env"]
         env.close()
         torch.manual_seed(0)
         policy = make_ccdp(size, history_length=0, vision_backbone_stages=3).train()
@@ -206,13 +206,13 @@ def table(results: dict) -> str:
     for name, ms in latency["median_ms"].items():
         lines.append(
             f"| planning latency (ms, median) | {name} | {ms:.1f} | {latency['ratio'][name]:.2f}x | "
-            f"{'<= %s' % LATENCY_TARGET if name == 'ccdp N=4' else ''} |"
+            f"{f'<= {LATENCY_TARGET}' if name == 'ccdp N=4' else ''} |"
         )
     train = results["train_step"]
     for name, ms in train["median_ms"].items():
         lines.append(
             f"| train step fwd+bwd+Adam (ms, median) | {name} | {ms:.0f} | {train['ratio'][name]:.2f}x | "
-            f"{'<= %s' % TRAIN_TARGET if name.startswith('ccdp') else ''} |"
+            f"{f'<= {TRAIN_TARGET}' if name.startswith('ccdp') else ''} |"
         )
     for size, r in results.get("render_sizes", {}).items():
         lines.append(

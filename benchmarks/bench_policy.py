@@ -56,18 +56,18 @@ from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 STATE, ENV, ACTION = "observation.state", "observation.environment_state", "action"
 FAILURE_COUNTS = (0, 1, 2, 4, 8)
 OUTCOME_ROWS, OPTIONS = 10000, 4
-SHARED = dict(  # the UNet and sampling settings both policies use
-    n_obs_steps=1,
-    horizon=16,
-    n_action_steps=8,
-    down_dims=(32, 64, 128),
-    diffusion_step_embed_dim=32,
-    kernel_size=5,
-    n_groups=8,
-    noise_scheduler_type="DDIM",
-    num_train_timesteps=100,
-    num_inference_steps=10,
-)
+SHARED = {  # the UNet and sampling settings both policies use
+    "n_obs_steps": 1,
+    "horizon": 16,
+    "n_action_steps": 8,
+    "down_dims": (32, 64, 128),
+    "diffusion_step_embed_dim": 32,
+    "kernel_size": 5,
+    "n_groups": 8,
+    "noise_scheduler_type": "DDIM",
+    "num_train_timesteps": 100,
+    "num_inference_steps": 10,
+}
 ENV_REPO_ID = "local/reaching2d_env"
 LATENCY_TARGET, TRAIN_TARGET = 1.5, 1.2
 
@@ -390,7 +390,7 @@ def table(results: dict) -> str:
         ratio = f"{train['ratio']:.2f}x" if name == "ccdp" else "1.00x"
         lines.append(
             f"| train step fwd+bwd+Adam (ms, median, batch {results['args']['batch_size']}) | {name} | "
-            f"{train['median_ms'][name]:.1f} | {ratio} | {'<= %s' % TRAIN_TARGET if name == 'ccdp' else ''} |"
+            f"{train['median_ms'][name]:.1f} | {ratio} | {f'<= {TRAIN_TARGET}' if name == 'ccdp' else ''} |"
         )
     if cli:
         for name in ("diffusion", "ccdp"):
@@ -399,7 +399,7 @@ def table(results: dict) -> str:
             lines.append(
                 f"| lerobot-train steps/s (update+data, {results['args']['cli_steps']} steps) | {name} | "
                 f"{r['steps_per_s']:.2f} (wall {r['wall_s']:.0f} s) | {ratio:.2f}x step time | "
-                f"{'<= %s' % TRAIN_TARGET if name == 'ccdp' else ''} |"
+                f"{f'<= {TRAIN_TARGET}' if name == 'ccdp' else ''} |"
             )
     verdict = [
         f"planning N=4: {lat['ratio_at_n4']:.2f}x "

@@ -102,9 +102,9 @@ def _fast_items(dataset: Any) -> bool:
     if held.items is False:
         return False
     names = dataset.hf_dataset.column_names
-    if len(held.columns) != len(names):  # read every column once; only numeric ones are held
-        if not all(_column(dataset, key) is not None for key in names):
-            held.items = False
+    # read every column once; only numeric ones are held
+    if len(held.columns) != len(names) and not all(_column(dataset, key) is not None for key in names):
+        held.items = False
     return held.items is not False
 
 

@@ -51,7 +51,7 @@ class CameraWindows:
         self.dataset = LeRobotDataset(
             meta.repo_id,
             root=meta.root,
-            delta_timestamps={key: window for key in cameras},
+            delta_timestamps=dict.fromkeys(cameras, window),
             video_backend=video_backend(),
         )
 

@@ -138,7 +138,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             )
         else:
             frame = spaces.Box(0, 255, shape=(observation_height, observation_width, 3), dtype=np.uint8)
-            observations["pixels"] = spaces.Dict({camera: frame for camera in self.cameras})
+            observations["pixels"] = spaces.Dict(dict.fromkeys(self.cameras, frame))
         observations["failure"] = spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)
         self.observation_space = spaces.Dict(observations)
         self.hidden_param = 0

@@ -292,7 +292,7 @@ class CCDPConfig(PreTrainedConfig):
                     f"`{f.name}` must be a finite number; got {value}. Set --policy.{f.name} to a "
                     "number (its default is in `lerobot-train --policy.type=ccdp --help`)."
                 )
-        at_least = {name: 1 for name in POSITIVE_FIELDS} | {name: 0 for name in NON_NEGATIVE_FIELDS}
+        at_least = dict.fromkeys(POSITIVE_FIELDS, 1) | dict.fromkeys(NON_NEGATIVE_FIELDS, 0)
         small = {
             name: getattr(self, name)
             for name, low in at_least.items()

@@ -82,7 +82,7 @@ class ConstantInputs(nn.Module):
             )
             if bool(moved.any()):
                 self._warned = True
-                names = [name for name, m in zip(self._names, moved) if m]
+                names = [name for name, m in zip(self._names, moved, strict=True) if m]
                 logger.warning(
                     "Input(s) %s never varied in the training data and now do: the policy holds them at "
                     "their training value, as it cannot have learned what they mean. Record demonstrations "

@@ -220,9 +220,8 @@ def test_a_lock_file_removed_between_opening_and_locking_it_is_not_held(root, mo
     monkeypatch.setattr(run_lock.fcntl, "flock", flock_after_the_file_was_replaced)
     with exclusive(out):
         assert lock.stat().st_ino == replaced[0]
-        with pytest.raises(PipelineRunning):
-            with exclusive(out):
-                pass
+        with pytest.raises(PipelineRunning), exclusive(out):
+            pass
     assert not lock.exists()
 
 
