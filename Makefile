@@ -64,8 +64,9 @@ benchmark-label-free: install
 		--publish-each docs/benchmark_label_free
 
 # docs/results.md and the README's results table, from the per-episode run files the benchmarks publish beside
-# their reports (lerobot_ccdp/benchmark/results.py).
+# each task's report (lerobot_ccdp/benchmark/results.py), one table per run in the tasks' order.
+ROUND_TASKS := DoorOpening-v0 ButtonSearch-v0 ObjectManipulation-v0 ObjectPacking-v0 Bartender-v0
 results: install
 	$(PY) -m lerobot_ccdp.benchmark.results --readme README.md \
-		--run "With option labels (make benchmark)" docs/benchmark_report.json \
-		--run "Without labels (make benchmark-label-free)" docs/benchmark_label_free_report.json
+		--run "With option labels (make benchmark)" $(ROUND_TASKS:%=docs/benchmark/%.json) \
+		--run "Without labels (make benchmark-label-free)" $(ROUND_TASKS:%=docs/benchmark_label_free/%.json)
