@@ -7,6 +7,7 @@ import pytest
 
 from lerobot_ccdp.benchmark.episodes import Episodes
 from lerobot_ccdp.benchmark.paired import paired_difference, success_rate
+from lerobot_ccdp.benchmark.pipeline import TASK_GROUPS
 from lerobot_ccdp.benchmark.results import (
     README_BEGIN,
     README_END,
@@ -172,14 +173,13 @@ def test_the_published_tables_are_what_make_results_writes(tmp_path):
     for run_file in docs.rglob("*.json"):
         (mirror / run_file.relative_to(docs)).parent.mkdir(parents=True, exist_ok=True)
         (mirror / run_file.relative_to(docs)).symlink_to(run_file)
-    tasks = ["DoorOpening-v0", "ButtonSearch-v0", "ObjectManipulation-v0", "ObjectPacking-v0", "Bartender-v0"]
     runs = {
         "With option labels (make benchmark)": "benchmark",
         "Without labels (make benchmark-label-free)": "benchmark_label_free",
     }
     args = ["--readme", str(readme), "--out", str(mirror / "results.md")]
     for title, folder in runs.items():
-        args += ["--run", title, *(str(mirror / folder / f"{task}.json") for task in tasks)]
+        args += ["--run", title, *(str(mirror / folder / f"{task}.json") for task in TASK_GROUPS["all"])]
     main(args)
     written, published = ((p / "results.md").read_text().splitlines() for p in (mirror, docs))
     assert [line for line in written if not line.startswith("<!-- Written")] == [
