@@ -152,6 +152,7 @@ def prepare_member(
     classifier: bool,
     set_denoiser: bool,
     set_states: int,
+    z_fourier_octaves: int = 0,
 ) -> dict[str, Path]:
     """Record member `seed`, train its base and, from it, the classifier head (with `classifier`) and the
     failure-set denoiser (with `set_denoiser`); return the heads' checkpoints by head name."""
@@ -205,15 +206,25 @@ def prepare_member(
             book,
         )[0]
     if set_denoiser:
-        heads["set_denoiser"] = train_set_denoiser(root, task, base, base_stamp, head_steps, set_states, book)
+        heads["set_denoiser"] = train_set_denoiser(
+            root, task, base, base_stamp, head_steps, set_states, book, z_fourier_octaves
+        )
     return heads
 
 
 def train_set_denoiser(
-    root: Path, task: ReachingTask, base: Path, base_stamp: str, steps: int, states: int, book: StampBook
+    root: Path,
+    task: ReachingTask,
+    base: Path,
+    base_stamp: str,
+    steps: int,
+    states: int,
+    book: StampBook,
+    z_fourier_octaves: int = 0,
 ) -> Path:
     """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE at `states` states), then
-    lerobot-train it on them."""
+    lerobot-train it on them; a `final_state` member's head reads its z in `z_fourier_octaves` Fourier
+    octaves (the Panda's label-free configs' setting; a one-hot label needs none)."""
     z = (
         {"failure_feature": "primitive", "num_primitives": len(task.goals)}
         if task.labelled
@@ -247,6 +258,7 @@ def train_set_denoiser(
             f"--steps={steps}",
             "--batch_size=64",
             f"--save_freq={steps}",
+            *([] if task.labelled else [f"--policy.z_fourier_octaves={z_fourier_octaves}"]),
         ],
         rows_stamp,
         book,
@@ -341,7 +353,7 @@ def measured_settings(args: argparse.Namespace) -> dict:
     """What a member was measured with, beyond the methods its results name: kept with its results, so that
     a `--report-only` over members measured elsewhere describes them, not its own command line's defaults."""
     keys = ("rows", "base_steps", "head_steps", "episodes", "classifier", "set_denoiser", "set_states")
-    return {key: getattr(args, key) for key in keys}
+    return {key: getattr(args, key) for key in keys} | {"z_fourier_octaves": args.z_fourier_octaves}
 
 
 def settings_line(results: dict[int, dict]) -> str:
@@ -353,7 +365,7 @@ def settings_line(results: dict[int, dict]) -> str:
         clause = (
             f"{s['rows']} chunks each, base {s['base_steps']} steps on {s['episodes']} demos, heads "
             f"{s['head_steps']} steps (classifier {s['classifier']}, set denoiser {s['set_denoiser']} on "
-            f"{s['set_states']} states)"
+            f"{s['set_states']} states{_octaves(s)})"
             if s
             else "settings not recorded in results.json (measured before they were kept)"
         )
@@ -361,6 +373,12 @@ def settings_line(results: dict[int, dict]) -> str:
     if len(clauses) == 1:
         return next(iter(clauses))
     return "; ".join(f"members {seeds}: {clause}" for clause, seeds in clauses.items())
+
+
+def _octaves(settings: dict) -> str:
+    """The label-free heads' Fourier octaves, where a member was measured with some."""
+    octaves = settings.get("z_fourier_octaves", 0)
+    return f", a final_state z in {octaves} Fourier octaves" if octaves else ""
 
 
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
@@ -429,6 +447,13 @@ def main() -> None:
         type=int,
         default=SET_RECIPE["n_states"],
         help="set denoiser: demonstrated states its rows are synthesised at (each with 16 base samples)",
+    )
+    parser.add_argument(
+        "--z-fourier-octaves",
+        type=int,
+        default=0,
+        help="set denoiser: Fourier octaves of a `final_state` member's z in the head's set embedding "
+        "(--policy.z_fourier_octaves of its recovery stage; labelled members keep their one-hot z)",
     )
     parser.add_argument(
         "--w-z",
@@ -529,6 +554,7 @@ def main() -> None:
             args.classifier,
             args.set_denoiser,
             args.set_states,
+            args.z_fourier_octaves,
         )
         root, repo = member_dataset(seed, args.out)
         demos = LeRobotDataset(repo, root=root)

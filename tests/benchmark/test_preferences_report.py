@@ -62,3 +62,22 @@ def test_the_header_describes_what_the_members_were_measured_with_not_the_report
     carried = {**measured, 102: member(102, positions=False)}  # measured before settings were kept
     line = bench.settings_line(carried)
     assert "members [100, 101]: 2048 chunks each" in line and "members [102]: settings not recorded" in line
+
+
+def test_the_header_names_the_label_free_heads_fourier_octaves_where_they_had_some() -> None:
+    settings = {
+        "rows": 2048,
+        "base_steps": 1000,
+        "head_steps": 12000,
+        "episodes": 100,
+        "classifier": False,
+        "set_denoiser": True,
+        "set_states": 2048,
+    }
+    measured = {
+        100: {**member(100, positions=False), "settings": {**settings, "z_fourier_octaves": 0}},
+        101: {**member(101, positions=False), "settings": {**settings, "z_fourier_octaves": 4}},
+    }
+    line = bench.settings_line(measured)
+    assert "members [101]: " in line and "a final_state z in 4 Fourier octaves" in line
+    assert "members [100]: " in line and line.count("Fourier") == 1
