@@ -15,6 +15,16 @@ bench = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(bench)
 
 NAMES = ("DP", "CCDP set denoiser")
+# What `measured_settings` kept for members measured before the Fourier octaves were recorded.
+SETTINGS = {
+    "rows": 2048,
+    "base_steps": 1000,
+    "head_steps": 12000,
+    "episodes": 100,
+    "classifier": False,
+    "set_denoiser": True,
+    "set_states": 2048,
+}
 
 
 def member(seed: int, positions: bool) -> dict:
@@ -47,16 +57,7 @@ def test_no_grid_when_no_member_kept_its_chunks(tmp_path: Path) -> None:
 
 
 def test_the_header_describes_what_the_members_were_measured_with_not_the_report_commands_defaults() -> None:
-    settings = {
-        "rows": 2048,
-        "base_steps": 1000,
-        "head_steps": 12000,
-        "episodes": 100,
-        "classifier": False,
-        "set_denoiser": True,
-        "set_states": 2048,
-    }
-    measured = {seed: {**member(seed, positions=False), "settings": settings} for seed in (100, 101)}
+    measured = {seed: {**member(seed, positions=False), "settings": SETTINGS} for seed in (100, 101)}
     line = bench.settings_line(measured)
     assert line.startswith("2048 chunks each") and "heads 12000 steps" in line and "on 2048 states" in line
     carried = {**measured, 102: member(102, positions=False)}  # measured before settings were kept
@@ -65,18 +66,9 @@ def test_the_header_describes_what_the_members_were_measured_with_not_the_report
 
 
 def test_the_header_names_the_label_free_heads_fourier_octaves_where_they_had_some() -> None:
-    settings = {
-        "rows": 2048,
-        "base_steps": 1000,
-        "head_steps": 12000,
-        "episodes": 100,
-        "classifier": False,
-        "set_denoiser": True,
-        "set_states": 2048,
-    }
     measured = {
-        100: {**member(100, positions=False), "settings": {**settings, "z_fourier_octaves": 0}},
-        101: {**member(101, positions=False), "settings": {**settings, "z_fourier_octaves": 4}},
+        100: {**member(100, positions=False), "settings": {**SETTINGS, "z_fourier_octaves": 0}},
+        101: {**member(101, positions=False), "settings": {**SETTINGS, "z_fourier_octaves": 4}},
     }
     line = bench.settings_line(measured)
     assert "members [101]: " in line and "a final_state z in 4 Fourier octaves" in line
