@@ -27,7 +27,8 @@ sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_m
 round) on the same base and seeds; each --w-z other than 1 adds the set denoiser at that failure weight on the
 --w-z-steps reverse steps from each --w-z-from on (0 the noisiest step; 0 steps: to the last). --set-states
 sets the rows' states (SET_RECIPE's 512), and --no-baselines leaves out DP and DP* (most of a member's
-measurement time) for a sweep of head settings.
+measurement time) for a sweep of head settings. --z-fourier-octaves gives a `final_state` member's head its z
+in Fourier features (the Panda's label-free setting; measured on the family and not kept: docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -352,8 +353,17 @@ def measured_members(out: Path) -> dict[int, dict]:
 def measured_settings(args: argparse.Namespace) -> dict:
     """What a member was measured with, beyond the methods its results name: kept with its results, so that
     a `--report-only` over members measured elsewhere describes them, not its own command line's defaults."""
-    keys = ("rows", "base_steps", "head_steps", "episodes", "classifier", "set_denoiser", "set_states")
-    return {key: getattr(args, key) for key in keys} | {"z_fourier_octaves": args.z_fourier_octaves}
+    keys = (
+        "rows",
+        "base_steps",
+        "head_steps",
+        "episodes",
+        "classifier",
+        "set_denoiser",
+        "set_states",
+        "z_fourier_octaves",
+    )
+    return {key: getattr(args, key) for key in keys}
 
 
 def settings_line(results: dict[int, dict]) -> str:
