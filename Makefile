@@ -64,8 +64,9 @@ benchmark-label-free: install
 		--publish-each docs/benchmark_label_free
 
 # docs/results.md and the README's results table, from the per-episode run files the benchmarks publish beside
-# each task's report (lerobot_ccdp/benchmark/results.py), one table per run in the order of `--tasks all`.
-ROUND_TASKS := DoorOpening-v0 ButtonSearch-v0 ObjectManipulation-v0 ObjectPacking-v0 Bartender-v0
+# each task's report (lerobot_ccdp/benchmark/results.py), one table per run in the order of `--tasks all` (read
+# from the pipeline when the recipe runs, after `install`).
+ROUND_TASKS = $(shell $(PY) -c "from lerobot_ccdp.benchmark.pipeline import TASK_GROUPS; print(*TASK_GROUPS['all'])")
 results: install
 	$(PY) -m lerobot_ccdp.benchmark.results --readme README.md \
 		--run "With option labels (make benchmark)" $(ROUND_TASKS:%=docs/benchmark/%.json) \
