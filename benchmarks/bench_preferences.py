@@ -16,8 +16,8 @@ and a Fig. 2-style panel grid `preferences.png` under --out (CCDP with the first
 Members run side by side each with its own --out are tabulated together with
 `--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs
 did not change are skipped (stamps, as in the pipeline). Settings are chosen on the development members
-100-103 (`--members 100 101 102 103`); members 0-11 were the classifier forms' test family (spent), 12-23 the
-set denoiser's (docs/benchmarks.md).
+100-103, 105 and 107 (`--members 100 101 102 103 105 107`); members 0-11 were the classifier forms'
+test family (spent), 12-23, 24-35 and 36-47 the set denoiser's rounds (docs/benchmarks.md).
 
 With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifier, unless
 --no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its
