@@ -14,10 +14,11 @@ of --redraws (sampling settings, set as lerobot-eval's --policy.w_z and --policy
 combination runs on the same checkpoint and seeds). Prints the table, writes `preferences.md`, `results.json`
 and a Fig. 2-style panel grid `preferences.png` under --out (CCDP with the first weight and redraw count).
 Members run side by side each with its own --out are tabulated together with
-`--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`. Stages whose inputs
-did not change are skipped (stamps, as in the pipeline). Settings are chosen on the development members
-100-103, 105 and 107 (`--members 100 101 102 103 105 107`); members 0-11 were the classifier forms'
-test family (spent), 12-23, 24-35 and 36-47 the set denoiser's rounds (docs/benchmarks.md).
+`--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`, and compared with the
+same members measured as another variant with `--against <its folders>` (differences paired member by
+member). Stages whose inputs did not change are skipped (stamps, as in the pipeline). Settings are chosen on
+the development members 100-103, 105 and 107 (`--members 100 101 102 103 105 107`); members 0-11 were the
+classifier forms' test family (spent), 12-23, 24-35 and 36-47 the set denoiser's rounds (docs/benchmarks.md).
 
 With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifier, unless
 --no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its
@@ -333,6 +334,38 @@ def family_summary(results: dict[int, dict], reference: str = "DP*") -> str:
     return "\n".join(lines)
 
 
+def variant_difference(results: dict[int, dict], against: dict[int, dict]) -> str:
+    """Markdown: per method measured in both and failure count, `results` minus `against` (the same members
+    measured as another variant, e.g. a head trained longer from the same base), failed share and preference
+    error paired member by member, with a 95% bootstrap interval over the members in both."""
+    seeds = sorted(set(results) & set(against))
+    if not seeds:
+        raise ValueError("--against holds none of the reported members: nothing to pair")
+    names = [n for n in results[seeds[0]]["methods"] if n in against[seeds[0]]["methods"]]
+    lines = [
+        f"Minus the variant, paired over members {seeds}:",
+        "",
+        "| method | failures | failed share | preference error |",
+        "|---|---|---|---|",
+    ]
+    for name in names:
+        for count in "12":
+            cells = [
+                _three(
+                    bootstrap_mean(
+                        [
+                            results[s]["methods"][name][count][metric]
+                            - against[s]["methods"][name][count][metric]
+                            for s in seeds
+                        ]
+                    )
+                )
+                for metric in TARGETS
+            ]
+            lines.append(f"| {name} | {count} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def _on_path(results: dict[int, dict], name: str, count: str) -> str:
     """The members' mean share of clean repeats (`failed_on_path_share`), blank where a member was measured
     before it was recorded."""
@@ -524,6 +557,14 @@ def main() -> None:
         "run side by side, each with its own --out) into --out's results",
     )
     parser.add_argument(
+        "--against",
+        type=Path,
+        nargs="+",
+        default=[],
+        help="the same members measured as another variant (their --out folders): adds the reported members' "
+        "figures minus theirs, paired member by member",
+    )
+    parser.add_argument(
         "--adopt",
         action="store_true",
         help="take over an --out made by a version of this script from before ownership markers",
@@ -583,6 +624,14 @@ def main() -> None:
         f"{table(chosen)}\n\nOver the {len(chosen)} members (95% bootstrap intervals over members):\n\n"
         f"{family_summary(chosen)}"
     )
+    if args.against:
+        against = {}
+        for folder in args.against:
+            against.update(measured_members(folder))
+        try:
+            text += f"\n\n{variant_difference(chosen, against)}"
+        except ValueError as error:
+            sys.exit(f"{error} (--against {' '.join(map(str, args.against))})")
     print(text)
     (args.out / "preferences.md").write_text(
         f"Failed share / preference error; members {args.members}, {settings_line(chosen)}.\n\n{text}\n"

@@ -7,6 +7,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "benchmarks" / "bench_preferences.py"
@@ -73,3 +74,27 @@ def test_the_header_names_the_label_free_heads_fourier_octaves_where_they_had_so
     line = bench.settings_line(measured)
     assert "members [101]: " in line and "a final_state z in 4 Fourier octaves" in line
     assert "members [100]: " in line and line.count("Fourier") == 1
+
+
+def test_against_a_variant_the_differences_are_paired_member_by_member() -> None:
+    """The reported members' preference error below the variant's by 0.02 (member 100) and 0.04 (101): the
+    difference is -0.03 with an interval over the two, and member 102, reported only, is left out."""
+    longer = {seed: member(seed, positions=False) for seed in (100, 101, 102)}
+    shorter = {seed: member(seed, positions=False) for seed in (100, 101)}
+    for seed, lower in ((100, 0.02), (101, 0.04)):
+        for count in "12":
+            longer[seed]["methods"]["CCDP set denoiser"][count]["preference_error"] = 0.04 - lower
+    text = bench.variant_difference(longer, shorter)
+    assert "paired over members [100, 101]" in text
+    rows = {
+        line.split(" | ")[0] + line.split(" | ")[1]: line
+        for line in text.splitlines()
+        if line.startswith("| ")
+    }
+    assert rows["| CCDP set denoiser1"].endswith("| 0.000 [0.000, 0.000] | -0.030 [-0.040, -0.020] |")
+    assert rows["| DP1"].endswith("| 0.000 [0.000, 0.000] | 0.000 [0.000, 0.000] |")
+
+
+def test_against_a_variant_with_none_of_the_members_is_refused() -> None:
+    with pytest.raises(ValueError, match="none of the reported members"):
+        bench.variant_difference({100: member(100, False)}, {101: member(101, False)})
