@@ -383,6 +383,14 @@ def measured_members(out: Path) -> dict[int, dict]:
     return {int(k): v for k, v in json.loads(path.read_text()).items()} if path.exists() else {}
 
 
+def measured_in(folders: list[Path]) -> dict[int, dict]:
+    """The members measured under each of `folders`, by seed (a later folder's member replaces one before)."""
+    members: dict[int, dict] = {}
+    for folder in folders:
+        members.update(measured_members(folder))
+    return members
+
+
 def measured_settings(args: argparse.Namespace) -> dict:
     """What a member was measured with, beyond the methods its results name: kept with its results, so that
     a `--report-only` over members measured elsewhere describes them, not its own command line's defaults."""
@@ -577,8 +585,7 @@ def main() -> None:
     results_path = args.out / "results.json"
     results = measured_members(args.out)
     if args.report_only:
-        for folder in args.merge:
-            results.update(measured_members(folder))
+        results.update(measured_in(args.merge))
         args.members = [seed for seed in args.members if seed in results]
         measured = {seed: sorted(results[seed]["methods"]) for seed in args.members}
         if len({tuple(names) for names in measured.values()}) > 1:
@@ -625,11 +632,8 @@ def main() -> None:
         f"{family_summary(chosen)}"
     )
     if args.against:
-        against = {}
-        for folder in args.against:
-            against.update(measured_members(folder))
         try:
-            text += f"\n\n{variant_difference(chosen, against)}"
+            text += f"\n\n{variant_difference(chosen, measured_in(args.against))}"
         except ValueError as error:
             sys.exit(f"{error} (--against {' '.join(map(str, args.against))})")
     print(text)
