@@ -34,6 +34,11 @@ first named head's first setting.
 differences against it, and how many test seeds would show success non-inferior to it (interval above
 -0.05, issue 50) if the difference and its spread held (`paired.seeds_for_non_inferiority`): the size a test
 round needs.
+
+`--baseline-run OTHER` pairs this run with another one (other demos, recipe or training seeds) that was tuned
+with the same grid on the same seeds: a third table gives each row's, and `--against`'s method's, paired
+success and repeats differences against the same evaluation in OTHER, seed by seed. It only reads OTHER's
+evaluations (`--report-only` there first if they are missing; nothing in OTHER is run or replaced).
 """
 
 from __future__ import annotations
@@ -179,7 +184,8 @@ def measured(
     out = run_dir(files, method, name, setting, seed)
     if not (out / "eval_info.json").is_file():
         raise SystemExit(
-            f"No evaluation of {method} with {label(setting)} under {out}; run without --report-only."
+            f"No evaluation of {method} with {label(setting)} under {out}; run this grid on --out "
+            f"{files.out.parent} without --report-only."
         )
     found = Episodes.from_eval_info(out / "eval_info.json")
     if len(found) != episodes:
@@ -198,6 +204,17 @@ def against(episodes: Episodes, reference: Episodes) -> str:
     return (
         f"{MethodMetrics.of(reference).success} | {paired_difference(episodes, reference, success_rate)} | "
         f"{paired_difference(episodes, reference, repeats_per_opportunity)} | {seeds:.0f}"
+    )
+
+
+def versus(here: Episodes, there: Episodes) -> str:
+    """The `--baseline-run` table's cells of one row: success and repeats in both runs and their paired
+    differences (same seeds, this run minus the other)."""
+    a, b = MethodMetrics.of(here), MethodMetrics.of(there)
+    return (
+        f"{a.success} | {b.success} | {paired_difference(here, there, success_rate)} | "
+        f"{a.repeats_per_opportunity} | {b.repeats_per_opportunity} | "
+        f"{paired_difference(here, there, repeats_per_opportunity)}"
     )
 
 
@@ -242,6 +259,12 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="the tasks' <task>_label_free settings and folders, of a make benchmark-label-free run",
     )
+    parser.add_argument(
+        "--baseline-run",
+        type=Path,
+        default=None,
+        help="another make benchmark run tuned with the same grid and seeds: pair each row with it by seed",
+    )
     parser.add_argument("--seed", type=int, default=1000, help="first development seed")
     parser.add_argument(
         "--episodes",
@@ -278,6 +301,12 @@ def main(argv: list[str] | None = None) -> None:
         )
         for t in args.tasks
     }
+    baselines = {
+        t: TaskFiles.locate(
+            t, REPO / "configs", REPO / "datasets_recipes", args.baseline_run, label_free=args.label_free
+        )
+        for t in (args.tasks if args.baseline_run else ())
+    }
     paths = {t: {name: checkpoint_path(f, checkpoints, name) for name in heads} for t, f in files.items()}
     missing = [str(path) for by_name in paths.values() for path in by_name.values() if not path.is_dir()]
     if missing:
@@ -296,10 +325,12 @@ def main(argv: list[str] | None = None) -> None:
                 "tune on development seeds."
             )
 
+    if args.baseline_run and args.baseline_run.resolve() == args.out.resolve():
+        raise SystemExit("--baseline-run is --out itself; name another run's folder.")
     if args.against == args.method:
         raise SystemExit(f"--against {args.against} is the method being tuned; name another (e.g. dp_star).")
     rows, scores, by_task = [], {row: [] for row in rows_of}, {row: [] for row in rows_of}
-    against_rows = []
+    against_rows, baseline_rows = [], []
     for task in args.tasks:
         episodes = {}
         if args.against:
@@ -328,6 +359,14 @@ def main(argv: list[str] | None = None) -> None:
             if args.against:
                 against_rows.append(f"| {task} | {row_label(row)} | {against(episodes[row], reference)} |")
                 print(against_rows[-1], flush=True)
+            if args.baseline_run:
+                other, _ = measured(baselines[task], args.method, name, setting, args.seed, args.episodes)
+                baseline_rows.append(
+                    f"| {task} | {args.method} {row_label(row)} | {versus(episodes[row], other)} |"
+                )
+        if args.baseline_run and args.against:
+            other, _ = measured(baselines[task], args.against, OWN, (), args.seed, args.episodes)
+            baseline_rows.append(f"| {task} | {args.against} (methods.json) | {versus(reference, other)} |")
     print(
         f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "
         f"{row_label(rows_of[0])}\n\n"
@@ -341,6 +380,12 @@ def main(argv: list[str] | None = None) -> None:
             f"{args.against}'s success | success - {args.against} | repeats - {args.against} | "
             f"test seeds for a lower bound >= -{NON_INFERIORITY} |\n|---|---|---|---|---|---|\n"
             + "\n".join(against_rows)
+        )
+    if args.baseline_run:
+        print(
+            f"\nAgainst the same evaluations of {args.baseline_run}, same seeds\n\n| task | method | "
+            "success here | success there | success - there | repeats here | repeats there | "
+            "repeats - there |\n|---|---|---|---|---|---|---|---|\n" + "\n".join(baseline_rows)
         )
 
     means = {r: np.nanmean(np.array(v, dtype=float), axis=0) for r, v in scores.items()}  # (success, repeats)

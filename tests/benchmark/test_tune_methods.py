@@ -119,3 +119,46 @@ def test_the_development_size_is_its_own_and_a_saved_evaluation_of_another_size_
         tune.main([*run, "--episodes", "60"])
     with pytest.raises(SystemExit, match="at least one episode"):
         tune.main([*run, "--episodes", "0"])
+
+
+def _metrics_eval_info(path: Path, found: Episodes) -> None:
+    """An eval_info.json holding `found`'s episodes."""
+    path.mkdir(parents=True)
+    metrics = {
+        "successes": found.success.tolist(),
+        "attempts": found.attempts.tolist(),
+        "repeated_failures": found.repeated_failures.tolist(),
+        "preference_matched": found.preference_matched.tolist(),
+        "attempts_after_failure": found.attempts_after_failure.tolist(),
+        "failures": found.failures.tolist(),
+    }
+    (path / "eval_info.json").write_text(json.dumps({"per_task": [{"metrics": metrics}]}))
+
+
+def test_a_baseline_run_pairs_each_row_and_the_reference_method_by_seed(tmp_path, capsys):
+    """Two runs (other demos, say) tuned with the same grid and seeds compare seed by seed: this run minus the
+    other, for the tuned method and for --against's; an evaluation missing there is named, not skipped."""
+    task = "DoorOpening-lite-v0"
+    run, base = tmp_path / "run", tmp_path / "base"
+    found = {}
+    for folder, ccdp_wins in ((run, 80), (base, 60)):
+        claim_output_folder(folder, tune.CREATED_BY)
+        files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", folder)
+        (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
+        _metrics_eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), episodes(ccdp_wins))
+        found[folder] = files
+    _metrics_eval_info(tune.run_dir(found[run], "dp_star", tune.OWN, (), 1000), episodes(70, repeats=10))
+    args = ["--out", str(run), "--tasks", task, "--method", "ccdp", "--grid", "w_z=5", "--report-only"]
+    with pytest.raises(SystemExit, match="No evaluation of dp_star .* run this grid on --out .*base"):
+        tune.main([*args, "--against", "dp_star", "--baseline-run", str(base)])
+    _metrics_eval_info(tune.run_dir(found[base], "dp_star", tune.OWN, (), 1000), episodes(70))
+    tune.main([*args, "--against", "dp_star", "--baseline-run", str(base)])
+    table = capsys.readouterr().out.split(f"Against the same evaluations of {base}")[1]
+    ccdp_row = next(line for line in table.splitlines() if "| ccdp w_z 5 |" in line).split(" | ")
+    dp_star_row = next(line for line in table.splitlines() if "dp_star (methods.json)" in line).split(" | ")
+    assert ccdp_row[2].startswith("0.80") and ccdp_row[3].startswith("0.60")
+    assert ccdp_row[4].startswith("0.20 [")
+    assert dp_star_row[4].startswith("0.00 [")  # 10 repeats over 200 attempts after a failure, here only:
+    assert dp_star_row[5].startswith("0.05") and dp_star_row[7].startswith("0.05 [")
+    with pytest.raises(SystemExit, match="is --out itself"):
+        tune.main([*args, "--baseline-run", str(run)])
