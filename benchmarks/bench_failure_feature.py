@@ -6,10 +6,9 @@
 
 For a `primitive` policy, runs lerobot-eval (in process, the task's eval settings) once per recovery mode and
 per source of the label: `first`, the demonstrated chunk nearest the attempt's first chunk, and `latest`, the
-one nearest the chunk executing when the env flagged the failure (the policy's rule, at its
-`failure_label_at`). Every recorded z is matched with the option the env says failed, per vector-env row and
-in order. Prints one markdown table: label accuracy, success rate and repeated-failure rate (with 95%
-intervals).
+one nearest the chunk executing when the env flagged the failure (the policy's rule). Every recorded z is
+matched with the option the env says failed, per vector-env row and in order. Prints one markdown table:
+label accuracy, success rate and repeated-failure rate (with 95% intervals).
 
 With `--shares`, it instead samples `--rows` first chunks from one start state of the task (no rollout) and
 prints the share of each option (label of the nearest demonstrated chunk) under DP, the recovery head alone
@@ -69,10 +68,9 @@ def label_audit(source: str) -> Iterator[collections.Counter]:
             if slot >= 0 and r in flagged:
                 pairs[(flagged.pop(r), int(buffer.z[r, slot].argmax()))] += 1
 
-    def labelled(feature, frame, attempt_chunk, latest_chunk, outcomes, latest_step=None):
-        if source == "first":
-            return of_failure(feature, frame, attempt_chunk, attempt_chunk, outcomes)
-        return of_failure(feature, frame, attempt_chunk, latest_chunk, outcomes, latest_step)
+    def labelled(feature, frame, attempt_chunk, latest_chunk, outcomes):
+        chunk = attempt_chunk if source == "first" else latest_chunk
+        return of_failure(feature, frame, attempt_chunk, chunk, outcomes)
 
     CCDPTaskEnv.step, CCDPPolicy._record_failures, FailureFeature.of_failure = (
         audited_step,

@@ -16,7 +16,6 @@ from lerobot_ccdp.compat.literal_choices import choices
 RecoveryMode = Literal["ccdp", "dp", "dp_star"]
 FailureFeatureKind = Literal["final_state", "action", "primitive"]
 FailureStateAt = Literal["attempt_end", "demonstrated_end"]
-FailureLabelAt = Literal["chunk", "step"]
 FailureSegments = Literal["labels", "drops", "pauses"]
 TrainingStage = Literal["base", "recovery"]
 RecoveryHead = Literal["unet", "classifier", "set_denoiser"]
@@ -24,7 +23,6 @@ ZReference = Literal["eps_a", "eps_z_null"]
 RECOVERY_MODES = choices(RecoveryMode)
 FAILURE_FEATURES = choices(FailureFeatureKind)
 FAILURE_STATES_AT = choices(FailureStateAt)
-FAILURE_LABELS_AT = choices(FailureLabelAt)
 FAILURE_SEGMENTS = choices(FailureSegments)
 TRAINING_STAGES = choices(TrainingStage)
 RECOVERY_HEADS = choices(RecoveryHead)
@@ -105,10 +103,6 @@ class CCDPConfig(PreTrainedConfig):
         failure_action_steps: action: which steps of the chunk form z (empty: all).
         failure_action_dims: action: which action dims at each step (empty: all).
         primitive_key: primitive: the dataset column holding the per-frame label.
-        failure_label_at: primitive: which label of the demonstrated chunk nearest the one executing at a
-            failure names it: "chunk" (its first frame's) or "step" (the one at the step executing when the
-            failure was flagged; a chunk that finishes one option and starts the next names the next). A
-            checkpoint whose outcome table predates per-step labels reads "chunk".
         num_primitives: primitive: how many labels exist.
         failure_signal_file: A file whose appearance or touch reports a failure of every row, for loops such
             as lerobot-record that pass no failure signal (policy/failure_signal.py). A setting of the machine
@@ -193,7 +187,6 @@ class CCDPConfig(PreTrainedConfig):
     failure_action_steps: list[int] = field(default_factory=list)
     failure_action_dims: list[int] = field(default_factory=list)
     primitive_key: str = "primitive"
-    failure_label_at: FailureLabelAt = "chunk"
     num_primitives: int = 0
     failure_signal_file: str | None = None
     z_fourier_octaves: int = 0
@@ -233,7 +226,6 @@ class CCDPConfig(PreTrainedConfig):
             ("recovery_mode", RECOVERY_MODES),
             ("failure_feature", FAILURE_FEATURES),
             ("failure_state_at", FAILURE_STATES_AT),
-            ("failure_label_at", FAILURE_LABELS_AT),
             ("failure_segments", FAILURE_SEGMENTS),
             ("training_stage", TRAINING_STAGES),
             ("recovery_head", RECOVERY_HEADS),

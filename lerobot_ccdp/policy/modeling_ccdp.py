@@ -293,11 +293,7 @@ class CCDPPolicy(PreTrainedPolicy):
                 )
                 rows = failed & memory.attempt_planned
             z = self.model.feature.of_failure(
-                memory.last_frame,
-                memory.attempt_chunk,
-                memory.latest_chunk,
-                self.model.outcomes,
-                memory.latest_step,
+                memory.last_frame, memory.attempt_chunk, memory.latest_chunk, self.model.outcomes
             )
         else:
             z_full = torch.zeros(memory.batch_size, self.config.failure_feature_dim, device=z.device)

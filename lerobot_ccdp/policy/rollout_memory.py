@@ -25,7 +25,6 @@ class RolloutMemory:
         self.plan_pos = torch.full((batch_size,), config.n_action_steps, dtype=torch.long, device=device)
         self.attempt_chunk = torch.zeros(batch_size, config.horizon, config.action_dim, device=device)
         self.latest_chunk = torch.zeros(batch_size, config.horizon, config.action_dim, device=device)
-        self.latest_start = torch.zeros(batch_size, dtype=torch.long, device=device)  # plan[0]'s step in it
         self.attempt_planned = torch.zeros(batch_size, dtype=torch.bool, device=device)
         self.started = torch.zeros(batch_size, dtype=torch.bool, device=device)
         self.restart_pending = torch.zeros(batch_size, dtype=torch.bool, device=device)
@@ -76,13 +75,7 @@ class RolloutMemory:
         fresh = ~self.attempt_planned[index]
         self.attempt_chunk[index[fresh]] = chunk[fresh]
         self.latest_chunk[index] = chunk
-        self.latest_start[index] = start
         self.attempt_planned[index] = True
-
-    @property
-    def latest_step(self) -> Tensor:
-        """The step of the latest chunk whose action was executed last, per row (B,)."""
-        return self.latest_start + (self.plan_pos - 1).clamp(min=0)
 
     @ordinary_tensors
     def pop_action(self) -> Tensor:

@@ -50,31 +50,19 @@ class FailureFeature:
         nearest = outcomes.nearest(chunk)
         if self.kind == "final_state":
             return outcomes.final_states[nearest]
-        return self.one_hot(outcomes.primitive(nearest))
+        return self.one_hot(outcomes.primitives[nearest])
 
     def of_failure(
-        self,
-        frame_at_failure: Tensor,
-        attempt_chunk: Tensor,
-        latest_chunk: Tensor,
-        outcomes: OutcomeIndex,
-        latest_step: Tensor | None = None,
+        self, frame_at_failure: Tensor, attempt_chunk: Tensor, latest_chunk: Tensor, outcomes: OutcomeIndex
     ) -> Tensor:
         """z_f of failed attempts: the state where the attempt ended (`final_state` at "attempt_end") or the
         final state of the demonstration it was following ("demonstrated_end"), the attempt's first chunk, the
         one that chose the option (`action`), or the label of the chunk executing when the failure was flagged
-        (`primitive`): the label of its nearest demonstrated chunk, at the step `latest_step` (B,) executing
-        then with `failure_label_at="step"`, else at its first step. A label is a property of the whole
-        attempt, and the latest chunk, near where the attempt failed, names it far more reliably than the
-        first, whose steps are mostly the approach that every option shares (ButtonSearch: 0.99 vs 0.75 of
-        failures given their true option, under DP*); a chunk that finishes one option and goes on to the next
-        begins with the finished one's label (the Bartender, after a fill), so its step's label names the
-        attempt that failed."""
+        (`primitive`). A label is a property of the whole attempt, and the latest chunk, near where the
+        attempt failed, names it far more reliably than the first, whose steps are mostly the approach that
+        every option shares (ButtonSearch: 0.99 vs 0.75 of failures given their true option, under DP*)."""
         if self.reads_failure_frame:
             return self.from_frame(frame_at_failure)
-        if self.kind == "primitive":
-            step = latest_step if self.config.failure_label_at == "step" else None
-            return self.one_hot(outcomes.primitive(outcomes.nearest(latest_chunk), step))
         return self.from_chunk(attempt_chunk if self.kind == "action" else latest_chunk, outcomes)
 
     @property

@@ -11,9 +11,8 @@ from torch import Tensor, nn
 
 
 class OutcomeIndex(nn.Module):
-    """Demonstrated chunks (M, horizon * action_dim) with their final states (M, z_dim) and primitives: the
-    label of every step (M, horizon), or of the first only (M,) in a checkpoint saved before per-step
-    labels."""
+    """Demonstrated chunks (M, horizon * action_dim) with their final states (M, z_dim) and primitives
+    (M,)."""
 
     def __init__(self):
         super().__init__()
@@ -27,17 +26,7 @@ class OutcomeIndex(nn.Module):
     def fill(self, chunks: Tensor, final_states: Tensor, primitives: Tensor) -> None:
         self.chunks = chunks.flatten(start_dim=1).float()
         self.final_states = final_states.float()
-        # Per-step labels in int16: a label per step of every chunk, small enough to keep in the checkpoint.
-        self.primitives = primitives.to(torch.int16 if primitives.ndim == 2 else torch.long)
-
-    def primitive(self, nearest: Tensor, step: Tensor | None = None) -> Tensor:
-        """The label of demonstrated chunks `nearest` (B,) at `step` (B,), each chunk's first step without
-        it or where the table holds no per-step labels."""
-        if self.primitives.ndim == 1:
-            return self.primitives[nearest]
-        if step is None:
-            return self.primitives[nearest, 0].long()
-        return self.primitives[nearest, step.clamp(0, self.primitives.shape[1] - 1)].long()
+        self.primitives = primitives.long()
 
     def nearest(self, chunk: Tensor) -> Tensor:
         """Index of the nearest demonstrated chunk for each chunk in (B, horizon, action_dim)."""
@@ -78,7 +67,7 @@ def options_after_failures(policy, batch: dict[str, Tensor], failed_options: lis
         policy.report_failure(z=policy.model.feature.one_hot(torch.full((rows,), option)))
     policy.select_action(batch)
     chunks = policy._memory.attempt_chunk
-    return chunks, policy.model.outcomes.primitive(policy.model.outcomes.nearest(chunks))
+    return chunks, policy.model.outcomes.primitives[policy.model.outcomes.nearest(chunks)]
 
 
 def demo_chunks(episode_index: np.ndarray, actions: np.ndarray, start: int, horizon: int) -> np.ndarray:

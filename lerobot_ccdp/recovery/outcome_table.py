@@ -18,8 +18,7 @@ OUTCOME_TABLE_SIZE = 20000
 def build_outcome_table(
     config: CCDPConfig, meta: LeRobotDatasetMetadata, stats: dict | None
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """(chunks, final-state z, primitive labels of each chunk's steps) of demonstrated frames, in the policy's
-    normalised space."""
+    """(chunks, final-state z, primitive labels) of demonstrated frames, in the policy's normalised space."""
     required = [ACTION, config.failure_state_key]
     if config.failure_feature == "primitive":
         required.append(config.primitive_key)
@@ -44,9 +43,8 @@ def build_outcome_table(
             f"Column {config.primitive_key!r} holds label {labels.max()}, but num_primitives is "
             f"{config.num_primitives}; set --policy.num_primitives={labels.max() + 1}."
         )
-    steps = demo_chunks(episodes, labels, 1 - config.n_obs_steps, config.horizon)  # (N, horizon)
     keep = np.sort(np.random.default_rng(0).permutation(len(chunks))[:OUTCOME_TABLE_SIZE])
-    return torch.from_numpy(chunks[keep]), torch.from_numpy(finals[keep]), torch.from_numpy(steps[keep])
+    return torch.from_numpy(chunks[keep]), torch.from_numpy(finals[keep]), torch.from_numpy(labels[keep])
 
 
 def read_columns(

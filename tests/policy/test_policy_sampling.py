@@ -354,48 +354,6 @@ def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_
     torch.testing.assert_close(z[:, 0], expected)
 
 
-@pytest.mark.parametrize(
-    ("label_at", "executed", "expected"), [("chunk", 4, 0), ("step", 4, 1), ("step", 3, 0)]
-)
-def test_a_failure_in_a_chunk_that_finished_one_option_takes_the_executing_steps_label(
-    monkeypatch, label_at, executed, expected
-):
-    """A chunk whose nearest demonstration finishes option 0 in its first three steps and goes on to option 1
-    fails at option 1 once its fourth step has run: `failure_label_at="step"` names option 1; the chunk's
-    first label (option 0, already done) names it under "chunk", and is right before the fourth step."""
-    policy = make_policy(
-        failure_feature="primitive",
-        primitive_key="primitive",
-        num_primitives=2,
-        n_action_steps=4,
-        failure_label_at=label_at,
-    )
-    demo = torch.full((1, HORIZON, ACTION_DIM), 0.5)
-    steps = torch.tensor([[0, 0, 0] + [1] * (HORIZON - 3)])
-    policy.model.outcomes.fill(demo, torch.zeros(1, 1), steps)
-    monkeypatch.setattr(policy, "_sample", lambda rows, noise: demo * 0.9)
-    obs = {"observation.state": torch.zeros(1, 2)}
-    for _ in range(executed):
-        policy.select_action(obs)
-    policy.select_action({**obs, "observation.failure": torch.tensor([[1.0]])})
-    z, mask = policy._failures.padded()
-    assert mask.all()
-    torch.testing.assert_close(z[:, 0], policy.model.feature.one_hot(torch.tensor([expected])))
-
-
-def test_a_table_of_first_step_labels_from_an_earlier_checkpoint_still_names_failures():
-    """Checkpoints saved before per-step labels hold one label per chunk: "step" reads that label."""
-    policy = make_policy(
-        failure_feature="primitive", primitive_key="primitive", num_primitives=2, failure_label_at="step"
-    )
-    demo = torch.full((1, HORIZON, ACTION_DIM), 0.5)
-    policy.model.outcomes.fill(demo, torch.zeros(1, 1), torch.tensor([1]))
-    z = policy.model.feature.of_failure(
-        torch.zeros(1, 2), demo, demo, policy.model.outcomes, torch.tensor([5])
-    )
-    torch.testing.assert_close(z, policy.model.feature.one_hot(torch.tensor([1])))
-
-
 def test_untrained_recovery_head_falls_back_to_dp_with_a_warning(caplog):
     policy = make_policy()
     obs = {"observation.state": torch.zeros(1, 2)}
