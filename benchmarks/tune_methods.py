@@ -327,6 +327,17 @@ def main(argv: list[str] | None = None) -> None:
 
     if args.baseline_run and args.baseline_run.resolve() == args.out.resolve():
         raise SystemExit("--baseline-run is --out itself; name another run's folder.")
+    # The other run's evaluations, read before any of this run's runs, so that a missing one is named first.
+    baseline = {
+        (task, row): measured(baselines[task], args.method, *row, args.seed, args.episodes)[0]
+        for task in baselines
+        for row in rows_of
+    }
+    if args.against:
+        baseline |= {
+            (task, None): measured(baselines[task], args.against, OWN, (), args.seed, args.episodes)[0]
+            for task in baselines
+        }
     if args.against == args.method:
         raise SystemExit(f"--against {args.against} is the method being tuned; name another (e.g. dp_star).")
     rows, scores, by_task = [], {row: [] for row in rows_of}, {row: [] for row in rows_of}
@@ -360,13 +371,14 @@ def main(argv: list[str] | None = None) -> None:
                 against_rows.append(f"| {task} | {row_label(row)} | {against(episodes[row], reference)} |")
                 print(against_rows[-1], flush=True)
             if args.baseline_run:
-                other, _ = measured(baselines[task], args.method, name, setting, args.seed, args.episodes)
                 baseline_rows.append(
-                    f"| {task} | {args.method} {row_label(row)} | {versus(episodes[row], other)} |"
+                    f"| {task} | {args.method} {row_label(row)} | "
+                    f"{versus(episodes[row], baseline[task, row])} |"
                 )
         if args.baseline_run and args.against:
-            other, _ = measured(baselines[task], args.against, OWN, (), args.seed, args.episodes)
-            baseline_rows.append(f"| {task} | {args.against} (methods.json) | {versus(reference, other)} |")
+            baseline_rows.append(
+                f"| {task} | {args.against} (methods.json) | {versus(reference, baseline[task, None])} |"
+            )
     print(
         f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "
         f"{row_label(rows_of[0])}\n\n"
