@@ -95,34 +95,8 @@ def test_seeds_for_non_inferiority_follow_the_difference_and_its_spread():
     assert cells[1].startswith("0.02 [") and cells[-1] == f"{expected:.0f}"
 
 
-def _eval_info(path: Path, n: int) -> None:
-    """An eval_info.json of `n` episodes, as lerobot-eval writes it with lerobot_ccdp's metrics."""
-    path.mkdir(parents=True)
-    metrics = {"successes": [True] * n, "attempts": [2] * n, "repeated_failures": [0] * n}
-    metrics |= {"preference_matched": [True] * n, "attempts_after_failure": [1.0] * n, "failures": [1] * n}
-    (path / "eval_info.json").write_text(json.dumps({"per_task": [{"metrics": metrics}]}))
-
-
-def test_the_development_size_is_its_own_and_a_saved_evaluation_of_another_size_is_refused(tmp_path, capsys):
-    """A round sized 600 in the eval config still tunes on 100 development seeds, and a saved evaluation of
-    another size is named rather than paired against one of 100."""
-    out = tmp_path / "run"
-    claim_output_folder(out, tune.CREATED_BY)
-    task = "DoorOpening-lite-v0"
-    files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", out)
-    (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
-    run = ["--out", str(out), "--tasks", task, "--method", "ccdp", "--grid", "w_z=5", "--report-only"]
-    _eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), 100)
-    tune.main(run)
-    assert "ccdp on seeds 1000-1099" in capsys.readouterr().out
-    with pytest.raises(SystemExit, match="holds 100 episodes, not --episodes 60"):
-        tune.main([*run, "--episodes", "60"])
-    with pytest.raises(SystemExit, match="at least one episode"):
-        tune.main([*run, "--episodes", "0"])
-
-
-def _metrics_eval_info(path: Path, found: Episodes) -> None:
-    """An eval_info.json holding `found`'s episodes."""
+def _eval_info(path: Path, found: Episodes) -> None:
+    """An eval_info.json holding `found`'s episodes, as lerobot-eval writes it with lerobot_ccdp's metrics."""
     path.mkdir(parents=True)
     metrics = {
         "successes": found.success.tolist(),
@@ -135,6 +109,24 @@ def _metrics_eval_info(path: Path, found: Episodes) -> None:
     (path / "eval_info.json").write_text(json.dumps({"per_task": [{"metrics": metrics}]}))
 
 
+def test_the_development_size_is_its_own_and_a_saved_evaluation_of_another_size_is_refused(tmp_path, capsys):
+    """A round sized 600 in the eval config still tunes on 100 development seeds, and a saved evaluation of
+    another size is named rather than paired against one of 100."""
+    out = tmp_path / "run"
+    claim_output_folder(out, tune.CREATED_BY)
+    task = "DoorOpening-lite-v0"
+    files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", out)
+    (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
+    run = ["--out", str(out), "--tasks", task, "--method", "ccdp", "--grid", "w_z=5", "--report-only"]
+    _eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), episodes(100))
+    tune.main(run)
+    assert "ccdp on seeds 1000-1099" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="holds 100 episodes, not --episodes 60"):
+        tune.main([*run, "--episodes", "60"])
+    with pytest.raises(SystemExit, match="at least one episode"):
+        tune.main([*run, "--episodes", "0"])
+
+
 def test_a_baseline_run_pairs_each_row_and_the_reference_method_by_seed(tmp_path, capsys):
     """Two runs (other demos, say) tuned with the same grid and seeds compare seed by seed: this run minus the
     other, for the tuned method and for --against's; an evaluation missing there is named, not skipped."""
@@ -145,13 +137,13 @@ def test_a_baseline_run_pairs_each_row_and_the_reference_method_by_seed(tmp_path
         claim_output_folder(folder, tune.CREATED_BY)
         files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", folder)
         (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
-        _metrics_eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), episodes(ccdp_wins))
+        _eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), episodes(ccdp_wins))
         found[folder] = files
-    _metrics_eval_info(tune.run_dir(found[run], "dp_star", tune.OWN, (), 1000), episodes(70, repeats=10))
+    _eval_info(tune.run_dir(found[run], "dp_star", tune.OWN, (), 1000), episodes(70, repeats=10))
     args = ["--out", str(run), "--tasks", task, "--method", "ccdp", "--grid", "w_z=5", "--report-only"]
     with pytest.raises(SystemExit, match="No evaluation of dp_star .* run this grid on --out .*base"):
         tune.main([*args, "--against", "dp_star", "--baseline-run", str(base)])
-    _metrics_eval_info(tune.run_dir(found[base], "dp_star", tune.OWN, (), 1000), episodes(70))
+    _eval_info(tune.run_dir(found[base], "dp_star", tune.OWN, (), 1000), episodes(70))
     tune.main([*args, "--against", "dp_star", "--baseline-run", str(base)])
     table = capsys.readouterr().out.split(f"Against the same evaluations of {base}")[1]
     ccdp_row = next(line for line in table.splitlines() if "| ccdp w_z 5 |" in line).split(" | ")
