@@ -31,6 +31,14 @@ class BartenderEnv(CCDPTaskEnv):
     with every cup empty in the other direction (with those, a base learnt to stop between two cups). Recipes
     set it for recording, where the start then tells cup 3's availability; evaluation keeps 0 (and then draws
     nothing more from the episode's seed).
+
+    after_fill_start: probability that an episode starts after its first fill: one available cup, drawn
+    uniformly, already full and the bottle held over it at the pour height, as after the expert's pour (the
+    episode then needs one fill more). From `home` the expert's first fill is the nearest available cup, so
+    the demonstrations reach cup k full only where every cup nearer home is unavailable, and each then shows
+    one way on (after cup 2 always cup 3); a policy that fills cup 2 first with cup 1 available saw nothing
+    else there and pours into cup 3 again after it failed (docs/benchmarks.md). A recording option like
+    `right_start` (it overrides it), 0 for evaluation.
     """
 
     name = "Bartender"
@@ -46,11 +54,13 @@ class BartenderEnv(CCDPTaskEnv):
     right_home = (0.37, -0.05, 0.15, 1.0)
     pour_z = 0.07  # end-effector height while pouring (below POUR_HEIGHT)
 
-    def __init__(self, *args, right_start: float = 0.0, **kwargs):
-        if not 0.0 <= right_start <= 1.0:
-            raise ValueError(f"right_start is a probability in [0, 1], got {right_start}")
+    def __init__(self, *args, right_start: float = 0.0, after_fill_start: float = 0.0, **kwargs):
+        for name, value in (("right_start", right_start), ("after_fill_start", after_fill_start)):
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name} is a probability in [0, 1], got {value}")
         super().__init__(*args, **kwargs)
         self.right_start = right_start
+        self.after_fill_start = after_fill_start
         self._drew_right = False
 
     def _start_pose(self) -> tuple[float, float, float, float]:
@@ -59,12 +69,21 @@ class BartenderEnv(CCDPTaskEnv):
 
     def _apply_hidden(self) -> None:
         """A right start drawn for an episode whose cup 3 is unavailable moves to `home` (same start
-        noise)."""
+        noise); an after-fill start (drawn only when `after_fill_start` > 0) fills an available cup and holds
+        the bottle over it."""
         if self._drew_right and not self.hidden_param >> RIGHT_CUP & 1:
             start = np.asarray(self.home, dtype=np.float64).copy()
             start[:3] += self._start_noise
             self.robot.place(start)
             self._grasp_bottle()
+        if self.after_fill_start > 0.0 and self.np_random.random() < self.after_fill_start:
+            cup = int(self.np_random.choice([i for i in range(len(CUPS_XY)) if self.hidden_param >> i & 1]))
+            # the episode's start noise, as where a pour ends varies
+            self.robot.place(np.array([*self._cups[cup] + self._start_noise[:2], self.pour_z, 1.0]))
+            self._grasp_bottle()
+            self._filled[cup] = True
+            self._show_drinks()
+            self._pouring_into, self._pour_steps = cup, -1  # this pour is over: leave the cup to pour again
 
     def _task_bodies_xml(self) -> str:
         glass, drink = "0.8 0.85 0.9 0.5", "0.9 0.6 0.1 1"

@@ -253,7 +253,8 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         self.robot.place(start)
         self._reset_task()
         # Drawn last, so the layout (and the first observation) never depends on it (beyond what a task's
-        # `_apply_hidden` does with it: only the Bartender's recording option `right_start`).
+        # `_apply_hidden` does with it: only the Bartender's recording options `right_start` and
+        # `after_fill_start`).
         forced = (options or {}).get("hidden_param")
         if forced is None:
             self.hidden_param = self._sample_hidden()

@@ -1,5 +1,7 @@
 """The scripted expert succeeds everywhere, in short smooth episodes; the oracle never repeats a failure."""
 
+import itertools
+
 import numpy as np
 import pytest
 from gymnasium.utils import seeding
@@ -87,3 +89,35 @@ def test_bartender_right_start_draws_nothing_when_off_and_rejects_a_bad_probabil
     assert {(True, True), (True, False), (False, True)} <= set(drawn)  # every case met at 0.5
     with pytest.raises(ValueError, match="right_start is a probability"):
         make("Bartender-lite-v0", right_start=1.5)
+
+
+@pytest.mark.parametrize("task", ["Bartender-lite-v0", "Bartender-v0"])
+def test_bartender_demos_after_a_first_fill_show_every_way_on_from_a_full_cup(task):
+    """`after_fill_start` starts an episode with an available cup full and the bottle held over it, so the
+    demos show the expert's way on from every cup (from home they reach cup 2 full only when cups 0 and 1 are
+    unavailable, and then always go on to cup 3). The episode needs one fill more; the bottle must leave the
+    full cup before it pours again."""
+    env = make(task, after_fill_start=1.0)
+    seconds = set()
+    for seed, hidden in itertools.product(range(3), env.unwrapped.hidden_values()):
+        episode = run_episode(env, Expert(env), seed=seed, hidden_param=hidden)
+        assert episode.success, f"hidden_param {hidden}: {episode.info}"
+        filled = np.flatnonzero(episode.observations[0]["environment_state"][8:12] > 0.5)
+        assert len(filled) == 1 and hidden >> int(filled[0]) & 1, f"hidden_param {hidden}"
+        cup_xy = episode.observations[0]["environment_state"][2 * filled[0] : 2 * filled[0] + 2]
+        assert np.linalg.norm(episode.observations[0]["agent_pos"][:2] - cup_xy) < 0.02
+        (second,) = set(episode.options)  # the option of every step
+        assert second != filled[0]
+        seconds.add((int(filled[0]), second))
+    assert {(2, 1), (2, 3)} <= seconds  # from cup 2 on to cup 1 where it is available, else cup 3
+
+
+def test_bartender_after_fill_start_draws_nothing_when_off_and_rejects_a_bad_probability():
+    default, off = make("Bartender-lite-v0"), make("Bartender-lite-v0", after_fill_start=0.0)
+    for seed in range(8):
+        first, second = default.reset(seed=seed)[0], off.reset(seed=seed)[0]
+        np.testing.assert_array_equal(first["agent_pos"], second["agent_pos"])
+        np.testing.assert_array_equal(first["environment_state"], second["environment_state"])
+        assert not first["environment_state"][8:12].any()
+    with pytest.raises(ValueError, match="after_fill_start is a probability"):
+        make("Bartender-lite-v0", after_fill_start=-0.1)
