@@ -49,14 +49,19 @@ def ccdp_label(settings: dict[str, Any]) -> str:
     return f"CCDP + {redraws} redraws (DP*'s lookup)" if redraws else METHOD_LABELS["ccdp"]
 
 
+_PUBLISHED = (":(top,exclude)docs", ":(top,exclude)README.md")
+
+
 def commit() -> str:
-    """The checked-out commit, marked when the tree has uncommitted changes ("unknown" outside git)."""
+    """The checked-out commit, marked when the tree has uncommitted changes ("unknown" outside git). The
+    documents runs publish into (docs/, the README) do not count: a run that published before another finished
+    changes no code the other ran."""
     try:
         rev = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", ":(top)", *_PUBLISHED],
             capture_output=True,
             text=True,
             check=True,
@@ -109,29 +114,29 @@ class Origin:
 
 @dataclass(frozen=True)
 class Run:
-    """One saved run: where it came from, and per task and method its label and episodes."""
+    """One saved run: where it came from, per task its first seed, and per task and method its label and
+    episodes."""
 
     origins: tuple[Origin, ...]
-    first_seed: int
+    first_seeds: dict[str, int]
     labels: dict[str, dict[str, str]]
     episodes: dict[str, dict[str, Episodes]]
 
     @classmethod
     def load(cls, *paths: Path) -> Run:
-        """A run from its run file, or from the files of one round that published each task on its own (the
-        pipeline's --publish-each): they must share their first seed and name each task once."""
+        """A run from its run file, or from files that published each task on its own (the pipeline's
+        --publish-each), each naming its tasks once. A task's latest round may start at other seeds than the
+        rest (the Bartender's from 6000): each task keeps its first seed, and `seeds` names its range."""
         parts = [cls._load_one(path) for path in paths]
-        seeds = {str(part.origins[0].source): part.first_seed for part in parts}
-        if len(set(seeds.values())) > 1:
-            raise ValueError(f"run files of one table start at different seeds ({seeds}); pass one round's")
-        labels, episodes = {}, {}
+        first_seeds, labels, episodes = {}, {}, {}
         for part in parts:
             repeated = sorted(set(part.episodes) & set(episodes))
             if repeated:
                 raise ValueError(f"{part.origins[0].source} repeats {repeated}, already in another run file")
+            first_seeds.update(part.first_seeds)
             labels.update(part.labels)
             episodes.update(part.episodes)
-        return cls(tuple(o for part in parts for o in part.origins), parts[0].first_seed, labels, episodes)
+        return cls(tuple(o for part in parts for o in part.origins), first_seeds, labels, episodes)
 
     @classmethod
     def _load_one(cls, path: Path) -> Run:
@@ -154,7 +159,7 @@ class Run:
                 for m, v in methods.items()
             }
         origin = Origin(path, data["command"], data["commit"], tuple(data["tasks"]))
-        return cls((origin,), data["first_seed"], labels, episodes)
+        return cls((origin,), dict.fromkeys(data["tasks"], data["first_seed"]), labels, episodes)
 
     def ccdp_column(self) -> str:
         """The label of the CCDP column, the same on every task (a table never mixes CCDP and a hybrid)."""
@@ -248,14 +253,17 @@ def claims_table(run: Run) -> str:
 
 
 def seeds(run: Run) -> str:
-    """The run's seeds: one range, or each task's where a round sized its tasks differently (episode i of
-    every task has seed first + i)."""
-    last = {task: max(len(e) for e in ms.values()) + run.first_seed - 1 for task, ms in run.episodes.items()}
-    if not last:
+    """The run's seeds: one range, or each task's where its tasks were sized differently or started at other
+    seeds (episode i of a task has seed first + i)."""
+    ranges = {
+        task: f"{run.first_seeds[task]}-{run.first_seeds[task] + max(len(e) for e in ms.values()) - 1}"
+        for task, ms in run.episodes.items()
+    }
+    if not ranges:
         return "none"
-    if len(set(last.values())) == 1:
-        return f"{run.first_seed}-{next(iter(last.values()))}"
-    return ", ".join(f"{task.removesuffix('-v0')} {run.first_seed}-{end}" for task, end in last.items())
+    if len(set(ranges.values())) == 1:
+        return next(iter(ranges.values()))
+    return ", ".join(f"{task.removesuffix('-v0')} {span}" for task, span in ranges.items())
 
 
 def provenance(run: Run, out: Path) -> str:

@@ -212,7 +212,7 @@ def test_report_table_chart_and_timings(pipeline_run):
 def test_results_tabulate_the_published_run_file(pipeline_run, tmp_path):
     out, _ = pipeline_run
     run = Run.load(out / "docs" / "benchmark.json")  # published beside the report
-    assert run.first_seed == EVAL_SEED and run.labels[TASK]["ccdp"] == "CCDP"
+    assert run.first_seeds == {TASK: EVAL_SEED} and run.labels[TASK]["ccdp"] == "CCDP"
     evaluated = {m: Episodes.from_eval_info(out / SLUG / "eval" / m / "eval_info.json") for m in METHODS}
     for method, episodes in evaluated.items():
         assert (run.episodes[TASK][method].success == episodes.success).all()

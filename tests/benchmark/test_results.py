@@ -1,5 +1,6 @@
 """docs/results.md from saved runs: round trip, the hybrid's name, the claims, refusals, what is published."""
 
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from lerobot_ccdp.benchmark.results import (
     Run,
     ccdp_label,
     claims_table,
+    commit,
     main,
     save_run,
     seeds,
@@ -47,7 +49,8 @@ def _saved(path, ccdp_labels: dict[str, str]) -> Run:
 
 def test_a_saved_run_loads_back_with_its_missing_values(tmp_path):
     run = _saved(tmp_path / "run.json", {"DoorOpening-v0": "CCDP", "ButtonSearch-v0": "CCDP"})
-    assert run.first_seed == 3000 and run.origins[0].command.endswith("--tasks x")
+    assert run.first_seeds == {"DoorOpening-v0": 3000, "ButtonSearch-v0": 3000}
+    assert run.origins[0].command.endswith("--tasks x")
     door = run.episodes["DoorOpening-v0"]["ccdp"]
     assert door.success.dtype == bool and list(door.failures) == [1, 1, 2, 0]
     assert np.isnan(run.episodes["ButtonSearch-v0"]["ccdp"].failures[2])  # NaN survives JSON as null
@@ -100,9 +103,11 @@ def test_a_round_published_task_by_task_is_one_table_that_names_each_file(tmp_pa
     assert table(merged).splitlines()[2:] == [table(door).splitlines()[2], table(bartender).splitlines()[2]]
     with pytest.raises(ValueError, match=r"repeats \['DoorOpening-v0'\]"):
         Run.load(folder / "DoorOpening-v0.json", folder / "DoorOpening-v0.json")
-    save_run(tmp_path / "other.json", door.episodes, door.labels, "pipeline", 5000)
-    with pytest.raises(ValueError, match="start at different seeds"):
-        Run.load(folder / "Bartender-v0.json", tmp_path / "other.json")
+    # a later round of one task keeps its own seeds, and the seed line names each task's range
+    save_run(tmp_path / "later.json", door.episodes, door.labels, "pipeline", 5000)
+    assert seeds(Run.load(folder / "Bartender-v0.json", tmp_path / "later.json")) == (
+        "Bartender 3000-3003, DoorOpening 5000-5003"
+    )
     with pytest.raises(SystemExit, match="2"):
         main(["--run", "Round", "--out", str(out)])  # a title without a run file
 
@@ -186,3 +191,21 @@ def test_the_published_tables_are_what_make_results_writes(tmp_path):
         line for line in published if not line.startswith("<!-- Written")
     ]
     assert readme.read_text() == (docs.parent / "README.md").read_text()
+
+
+def test_the_commit_is_marked_dirty_by_code_changes_only(tmp_path, monkeypatch):
+    """Two runs publishing into one tree: the first's docs must not mark the second's commit as changed."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "docs").mkdir()
+    for name in ("code.py", "README.md", "docs/report.md"):
+        (tmp_path / name).write_text("first\n")
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run(["git", "init", "-q"], check=True)
+    subprocess.run([*git, "add", "."], check=True)
+    subprocess.run([*git, "commit", "-qm", "first"], check=True)
+    clean = commit()
+    (tmp_path / "docs" / "report.md").write_text("published\n")
+    (tmp_path / "README.md").write_text("published\n")
+    assert commit() == clean and "uncommitted" not in clean
+    (tmp_path / "code.py").write_text("changed\n")
+    assert commit() == f"{clean} + uncommitted changes"
