@@ -587,6 +587,9 @@ def z_description(settings: dict[str, Any]) -> str:
             settings.get("failure_action_dims") or "all",
         )
         return f"action: steps {steps} of the attempt's first chunk, dims {dims}"
+    if settings["failure_feature"] == "primitive":
+        at = settings.get("failure_label_at", CCDPConfig.failure_label_at)
+        return "primitive" if at == "latest_chunk" else f"primitive, a failure's label read at {at}"
     if settings["failure_feature"] != "final_state":
         return settings["failure_feature"]
     dims = settings.get("failure_state_dims") or "all"

@@ -16,6 +16,7 @@ from lerobot_ccdp.compat.literal_choices import choices
 RecoveryMode = Literal["ccdp", "dp", "dp_star"]
 FailureFeatureKind = Literal["final_state", "action", "primitive"]
 FailureStateAt = Literal["attempt_end", "demonstrated_end"]
+FailureLabelAt = Literal["latest_chunk", "attempt_end"]
 FailureSegments = Literal["labels", "drops", "pauses"]
 TrainingStage = Literal["base", "recovery"]
 RecoveryHead = Literal["unet", "classifier", "set_denoiser"]
@@ -23,6 +24,7 @@ ZReference = Literal["eps_a", "eps_z_null"]
 RECOVERY_MODES = choices(RecoveryMode)
 FAILURE_FEATURES = choices(FailureFeatureKind)
 FAILURE_STATES_AT = choices(FailureStateAt)
+FAILURE_LABELS_AT = choices(FailureLabelAt)
 FAILURE_SEGMENTS = choices(FailureSegments)
 TRAINING_STAGES = choices(TrainingStage)
 RECOVERY_HEADS = choices(RecoveryHead)
@@ -103,6 +105,10 @@ class CCDPConfig(PreTrainedConfig):
         failure_action_steps: action: which steps of the chunk form z (empty: all).
         failure_action_dims: action: which action dims at each step (empty: all).
         primitive_key: primitive: the dataset column holding the per-frame label.
+        failure_label_at: primitive: which label names a failure: "latest_chunk" (that of the demonstrated
+            chunk nearest the chunk executing when the failure was flagged) or "attempt_end" (that of the
+            demonstrated option whose end, in `failure_state_key` / `failure_state_dims`, is nearest the state
+            where the attempt stopped: right where a chunk that finished one option fails the next one).
         num_primitives: primitive: how many labels exist.
         failure_signal_file: A file whose appearance or touch reports a failure of every row, for loops such
             as lerobot-record that pass no failure signal (policy/failure_signal.py). A setting of the machine
@@ -187,6 +193,7 @@ class CCDPConfig(PreTrainedConfig):
     failure_action_steps: list[int] = field(default_factory=list)
     failure_action_dims: list[int] = field(default_factory=list)
     primitive_key: str = "primitive"
+    failure_label_at: FailureLabelAt = "latest_chunk"
     num_primitives: int = 0
     failure_signal_file: str | None = None
     z_fourier_octaves: int = 0
@@ -226,6 +233,7 @@ class CCDPConfig(PreTrainedConfig):
             ("recovery_mode", RECOVERY_MODES),
             ("failure_feature", FAILURE_FEATURES),
             ("failure_state_at", FAILURE_STATES_AT),
+            ("failure_label_at", FAILURE_LABELS_AT),
             ("failure_segments", FAILURE_SEGMENTS),
             ("training_stage", TRAINING_STAGES),
             ("recovery_head", RECOVERY_HEADS),

@@ -60,7 +60,12 @@ class FailureFeature:
         one that chose the option (`action`), or the label of the chunk executing when the failure was flagged
         (`primitive`). A label is a property of the whole attempt, and the latest chunk, near where the
         attempt failed, names it far more reliably than the first, whose steps are mostly the approach that
-        every option shares (ButtonSearch: 0.99 vs 0.75 of failures given their true option, under DP*)."""
+        every option shares (ButtonSearch: 0.99 vs 0.75 of failures given their true option, under DP*).
+        With `failure_label_at="attempt_end"` the label is that of the demonstrated option ending nearest the
+        state where the attempt stopped: a chunk that finished one option and failed the next (the Bartender's
+        pour into the next cup) is named for the option it failed, not the one it began with."""
+        if self.kind == "primitive" and self.reads_failure_frame:
+            return self.one_hot(outcomes.primitives[outcomes.nearest_end(self.from_frame(frame_at_failure))])
         if self.reads_failure_frame:
             return self.from_frame(frame_at_failure)
         return self.from_chunk(attempt_chunk if self.kind == "action" else latest_chunk, outcomes)
@@ -69,7 +74,10 @@ class FailureFeature:
     def reads_failure_frame(self) -> bool:
         """Whether a failure's z comes from the observed state, so an attempt that planned no chunk has
         one."""
-        return self.kind == "final_state" and self.config.failure_state_at == "attempt_end"
+        cfg = self.config
+        if self.kind == "primitive":
+            return cfg.failure_label_at == "attempt_end"
+        return self.kind == "final_state" and cfg.failure_state_at == "attempt_end"
 
     def one_hot(self, labels: Tensor) -> Tensor:
         return F.one_hot(labels.long(), self.config.num_primitives).to(torch.float32)

@@ -32,19 +32,28 @@ class OutcomeIndex(nn.Module):
         """Index of the nearest demonstrated chunk for each chunk in (B, horizon, action_dim)."""
         return self._distances(chunk).argmin(dim=1)
 
+    def nearest_end(self, state: Tensor) -> Tensor:
+        """Index of the demonstrated frame whose option ends nearest each state (B, z_dim) (same dims as the
+        table's final states)."""
+        self._require_rows()
+        return torch.cdist(state.float(), self.final_states).argmin(dim=1)
+
     def rms_distance(self, chunk: Tensor) -> Tensor:
         """Root-mean-square gap per action element between each chunk (B, horizon, action_dim) and its nearest
         demonstrated chunk: how far the outcome borrowed from that chunk is from being the chunk's own."""
         return self._distances(chunk).min(dim=1).values / chunk[0].numel() ** 0.5
 
     def _distances(self, chunk: Tensor) -> Tensor:
+        self._require_rows()
+        return torch.cdist(chunk.flatten(start_dim=1), self.chunks)
+
+    def _require_rows(self) -> None:
         if len(self) == 0:
             raise RuntimeError(
                 "This policy holds no demonstrated outcomes, so a sampled chunk's final state or primitive "
                 "is unknown. Train the base stage from a dataset (lerobot-train builds the table), or use "
                 "--policy.failure_feature=action."
             )
-        return torch.cdist(chunk.flatten(start_dim=1), self.chunks)
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         # The table's size depends on the dataset it was built from: take the saved shapes.

@@ -568,6 +568,8 @@ def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_
         == "final_state: observation.state dims [1, 2], a failure's read at demonstrated_end"
     )
     assert z_description({"failure_feature": "primitive"}) == "primitive"
+    at_end = {"failure_feature": "primitive", "failure_label_at": "attempt_end"}
+    assert z_description(at_end) == "primitive, a failure's label read at attempt_end"
     action = {"failure_feature": "action", "failure_action_steps": [23], "failure_action_dims": [1, 2]}
     assert z_description(action) == "action: steps [23] of the attempt's first chunk, dims [1, 2]"
     dropped = {**settings, "failure_segments": "drops"}

@@ -354,6 +354,34 @@ def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_
     torch.testing.assert_close(z[:, 0], expected)
 
 
+def test_attempt_end_label_names_the_option_ending_where_the_attempt_stopped(monkeypatch):
+    """The Bartender's chunk that pours into cup 0 and goes on to an unavailable cup 1 fails there, still
+    looked up as option 0: with `failure_label_at="attempt_end"` the failure is named for the option whose
+    demonstrated end is nearest the state where it stopped (option 1), with the latest chunk's (option 0)
+    under the default."""
+    labels = {}
+    for label_at in ("latest_chunk", "attempt_end"):
+        policy = make_policy(
+            failure_feature="primitive",
+            primitive_key="primitive",
+            num_primitives=2,
+            failure_state_dims=[1],
+            failure_label_at=label_at,
+        )
+        towards = torch.stack(
+            [torch.full((HORIZON, ACTION_DIM), -1.0), torch.full((HORIZON, ACTION_DIM), 1.0)]
+        )
+        policy.model.outcomes.fill(towards, torch.tensor([[-0.8], [0.6]]), torch.tensor([0, 1]))
+        monkeypatch.setattr(policy, "_sample", lambda rows, noise, chunk=towards[:1] * 0.9: chunk)
+        policy.select_action({"observation.state": torch.tensor([[0.0, 0.5]])})  # stops near option 1's end
+        flagged = torch.tensor([[0.0, -0.5]])  # the restart's frame, near option 0's end: not read
+        policy.select_action({"observation.state": flagged, "observation.failure": torch.tensor([[1.0]])})
+        z, mask = policy._failures.padded()
+        assert mask.all()
+        labels[label_at] = int(z[0, 0].argmax())
+    assert labels == {"latest_chunk": 0, "attempt_end": 1}
+
+
 def test_untrained_recovery_head_falls_back_to_dp_with_a_warning(caplog):
     policy = make_policy()
     obs = {"observation.state": torch.zeros(1, 2)}
