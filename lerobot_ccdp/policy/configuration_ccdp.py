@@ -53,6 +53,10 @@ NON_NEGATIVE_FIELDS = (
 )
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
+# Set-denoiser datasets: the outcomes of every chunk sampled at a row's state (the policy's normalised z; no
+# policy feature names them, so the preprocessor passes them through) and how many of them are real.
+SIBLING_FEATURES_KEY = "observation.failure_feature_siblings"
+SIBLING_COUNT_KEY = "observation.failure_feature_sibling_count"
 # Observation key an env uses to flag a failed attempt (DESIGN section 5).
 FAILURE_FLAG_KEY = "observation.failure"
 
@@ -120,6 +124,10 @@ class CCDPConfig(PreTrainedConfig):
             configs do) or at the recovery stage beside --policy.path.
         delta_z: Squared distance in z under which an outcome repeats a failure (DP*'s rejection, the set
             denoiser's training sets, redraws).
+        stratum_weights: Set denoiser, recovery stage: weigh each kept row by 1 / (1 - p_s(F)), p_s(F) the
+            share of the base's chunks at the row's state whose outcome lies in its failure set, so that every
+            (state, failure set) counts alike and the rare sets that leave little of the base are learned as
+            well as the common ones (`failure_buffer.stratum_weights`). False: every kept row weighs 1.
         dp_star_candidates: DP*: candidates drawn per plan.
         dp_star_rounds: DP*: rounds of fresh candidates for a row whose candidates were all rejected, before
             it falls back to the candidate farthest from every failure (1: no redraw).
@@ -198,6 +206,7 @@ class CCDPConfig(PreTrainedConfig):
     failure_signal_file: str | None = None
     z_fourier_octaves: int = 0
     delta_z: float = 0.1
+    stratum_weights: bool = False
     dp_star_candidates: int = 16
     dp_star_rounds: int = 4
     ccdp_redraws: int = 0
@@ -262,6 +271,12 @@ class CCDPConfig(PreTrainedConfig):
                 f"`w_z_steps` ({self.w_z_steps}) and `w_z_from_step` ({self.w_z_from_step}) schedule the set "
                 f"denoiser's failure weight; the {self.recovery_head!r} head weighs every step alike. Remove "
                 "--policy.w_z_steps and --policy.w_z_from_step or use --policy.recovery_head=set_denoiser."
+            )
+        if self.stratum_weights and self.recovery_head != "set_denoiser":
+            raise ValueError(
+                f"`stratum_weights` weighs the set denoiser's training rows; the {self.recovery_head!r} head "
+                "has no failure-set strata. Remove --policy.stratum_weights or use "
+                "--policy.recovery_head=set_denoiser."
             )
         if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
             raise ValueError(

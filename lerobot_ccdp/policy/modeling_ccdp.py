@@ -27,7 +27,13 @@ from lerobot_ccdp.policy.checkpoint_files import (
     refuse_unfit_weights,
     saved_config,
 )
-from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
+from lerobot_ccdp.policy.configuration_ccdp import (
+    FAILURE_FEATURE_KEY,
+    FAILURE_FLAG_KEY,
+    SIBLING_COUNT_KEY,
+    SIBLING_FEATURES_KEY,
+    CCDPConfig,
+)
 from lerobot_ccdp.policy.denoisers import BaseDenoiser, make_recovery_denoiser
 from lerobot_ccdp.policy.failure_signal import FailureSignalFile
 from lerobot_ccdp.policy.image_encoder import ImageEncoder
@@ -51,7 +57,12 @@ from lerobot_ccdp.recovery.composition import (
     log_no_repeat,
     recovery_conditions,
 )
-from lerobot_ccdp.recovery.failure_buffer import FailureBuffer, distinct_failures, draw_failure_sets
+from lerobot_ccdp.recovery.failure_buffer import (
+    FailureBuffer,
+    distinct_failures,
+    draw_failure_sets,
+    stratum_weights,
+)
 from lerobot_ccdp.recovery.failure_features import FailureFeature
 from lerobot_ccdp.recovery.outcome_index import OutcomeIndex
 from lerobot_ccdp.recovery.outcome_table import build_outcome_table
@@ -484,8 +495,20 @@ class CCDPModel(nn.Module):
         noise, timesteps, noisy = self._noised(chunk)
         loss = F.mse_loss(self.recovery(noisy, timesteps, state, z_set, z_mask), noise, reduction="none")
         kept = (~repeats).to(loss.dtype)
-        loss = (loss.mean(dim=(1, 2)) * kept).sum() / kept.sum().clamp_min(1.0)
+        weight = kept * self._stratum_weights(batch, z_set, z_mask) if cfg.stratum_weights else kept
+        loss = (loss.mean(dim=(1, 2)) * weight).sum() / weight.sum().clamp_min(1.0)
         return loss, {"kept_rows": float(kept.mean())}
+
+    def _stratum_weights(self, batch: dict[str, Tensor], z_set: Tensor, z_mask: Tensor) -> Tensor:
+        """`failure_buffer.stratum_weights` from the sibling outcomes the synthesis wrote beside each row."""
+        siblings, count = batch.get(SIBLING_FEATURES_KEY), batch.get(SIBLING_COUNT_KEY)
+        if siblings is None or count is None or siblings.ndim != 3:
+            raise ValueError(
+                f"--policy.stratum_weights=true reads each row's sibling outcomes "
+                f"({SIBLING_FEATURES_KEY!r}, {SIBLING_COUNT_KEY!r}), which this dataset lacks: make it anew "
+                "with lerobot-ccdp-synthesize from this checkpoint, or set --policy.stratum_weights=false."
+            )
+        return stratum_weights(z_set, z_mask, siblings, count.reshape(-1), self.config.delta_z)
 
     def _recovery_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config

@@ -69,5 +69,26 @@ def draw_failure_sets(z: Tensor, size: int, delta_z: float) -> tuple[Tensor, Ten
     others = (torch.arange(b, device=z.device)[:, None] + torch.randint(1, b, (b, size), device=z.device)) % b
     z_set = z[others]
     z_mask = torch.arange(size, device=z.device)[None] < torch.randint(1, size + 1, (b, 1), device=z.device)
-    repeats = ((((z_set - z[:, None]) ** 2).sum(dim=-1) <= delta_z) & z_mask).any(dim=1)
-    return z_set, z_mask, repeats
+    return z_set, z_mask, in_failure_set(z[:, None], z_set, z_mask, delta_z)[:, 0]
+
+
+def in_failure_set(z: Tensor, z_set: Tensor, z_mask: Tensor, delta_z: float) -> Tensor:
+    """(R, M): whether each of the outcomes z (R, M, z_dim) lies within `delta_z` (squared distance) of a
+    failure of its row's set (z_set (R, N, z_dim), mask (R, N)): a repeat, as DP*'s rejection counts one."""
+    close = ((z[:, :, None] - z_set[:, None]) ** 2).sum(dim=-1) <= delta_z  # (R, M, N)
+    return (close & z_mask[:, None]).any(dim=-1)
+
+
+def stratum_weights(z_set: Tensor, z_mask: Tensor, siblings: Tensor, count: Tensor, delta_z: float) -> Tensor:
+    """1 / (1 - p_s(F)) per row (R,): p_s(F) is the share of the base's chunks sampled at the row's state
+    (`siblings` (R, K, z_dim), the first `count` (R,) of them real, the row's own among them) whose outcome
+    lies in the row's failure set F. The set denoiser keeps a row drawn from p_s with F ~ q when its outcome
+    is outside F, so a stratum (s, F) weighs q(F) (1 - p_s(F)) in its loss: the states where F holds most of
+    the base's mass, where recovery matters most, are the ones it sees least. Weighting each kept row by
+    1 / (1 - p_s(F)) gives every stratum q(F) and leaves each stratum's target (p_s outside F) as it is. A
+    row kept has its own outcome outside F, so 1 - p_s(F) >= 1 / count; a row with no siblings (a
+    demonstrated chunk) weighs 1."""
+    real = torch.arange(siblings.shape[1], device=count.device)[None] < count[:, None]
+    in_f = (in_failure_set(siblings, z_set, z_mask, delta_z) & real).sum(dim=1)
+    p = in_f / count.clamp_min(1)
+    return 1.0 / (1.0 - p).clamp_min(1.0 / siblings.shape[1])

@@ -16,6 +16,10 @@ satisfy eq. (5) against it. Every row holds one pair:
     observation.state / .environment_state   the state of the recovery chunk (last frame of its window)
     pair_source                  where the recovery chunk comes from: 0 synthesised, 1 demonstrated
 
+A set-denoiser dataset (`recovery_head=set_denoiser`) holds the base's own samples, each its own row, and
+beside each the outcomes of every chunk sampled at its state (`observation.failure_feature_siblings`,
+normalised z, with `..._sibling_count`), from which the recovery stage may weigh its rows (`stratum_weights`).
+
 The dataset carries the checkpoint's normalisation stats (lerobot-train normalises with the training
 dataset's stats, so recovery training sees actions exactly as the base did) and a copy of the recipe with
 the source dataset and checkpoint in `meta/ccdp_recovery_recipe.yaml`. It is written atomically.
@@ -58,7 +62,12 @@ from lerobot_ccdp.datasets.configs import SynthesizeConfig, parse_cli
 from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
 from lerobot_ccdp.datasets.staging import check_disjoint, check_output_root, staged_dataset_root
 from lerobot_ccdp.policy.checkpoint_files import checkpoint_loading
-from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
+from lerobot_ccdp.policy.configuration_ccdp import (
+    FAILURE_FEATURE_KEY,
+    SIBLING_COUNT_KEY,
+    SIBLING_FEATURES_KEY,
+    CCDPConfig,
+)
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch, unnormalize_batch
 from lerobot_ccdp.recovery.demo_segments import segment_ends
@@ -87,6 +96,7 @@ class Samples:
     chunks: Tensor  # (R, horizon, A)
     z: Tensor  # (R, z_dim)
     source: Tensor  # (R,): SYNTHESISED or FROM_DEMOS
+    state_id: Tensor  # (R,): which drawn demo state a synthesised chunk was sampled at; -1 for a demo chunk
 
     @staticmethod
     def cat(parts: list[Samples]) -> Samples:
@@ -258,7 +268,9 @@ def synthesised_samples(
     among = torch.arange(len(demos.windows)) if among is None else among
     picks = among[torch.randint(0, len(among), (recipe.n_states,), generator=generator)]
     parts = []
-    for batch in tqdm(picks.split(recipe.batch_states), desc="Sampling chunks (eq. 7)", disable=not progress):
+    drawn = torch.arange(recipe.n_states).split(recipe.batch_states)
+    for ids in tqdm(drawn, desc="Sampling chunks (eq. 7)", disable=not progress):
+        batch, state_id = picks[ids], ids.repeat_interleave(k)
         x_s = demos.windows[batch].repeat_interleave(k, dim=0)  # (b * k, n_obs, D)
         x = x_s + recipe.sigma * torch.randn(x_s.shape, generator=generator)  # eq. (6)
         condition = x if images is None else torch.cat([x, images(batch).repeat_interleave(k, dim=0)], dim=-1)
@@ -268,9 +280,9 @@ def synthesised_samples(
         chunks = policy.model.sample_exploratory(condition, recipe.w_s, noise)
         if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
             near = policy.model.outcomes.rms_distance(chunks) <= recipe.outcome_radius
-            x, chunks = x[near.cpu()], chunks[near]
+            x, chunks, state_id = x[near.cpu()], chunks[near], state_id[near.cpu()]
         z = policy.model.feature.from_chunk(chunks, policy.model.outcomes)
-        parts.append(Samples(x, chunks.cpu(), z.cpu(), torch.full((len(x),), SYNTHESISED)))
+        parts.append(Samples(x, chunks.cpu(), z.cpu(), torch.full((len(x),), SYNTHESISED), state_id))
     return Samples.cat(parts)
 
 
@@ -302,7 +314,9 @@ def demo_samples(
     pick = among[torch.randperm(len(among), generator=generator)[: recipe.demo_frames]]
     chunks = demos.chunks[pick]
     z = policy.model.feature.from_chunk(chunks.to(policy.config.device), policy.model.outcomes).cpu()
-    return Samples(demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS))
+    return Samples(
+        demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS), torch.full((len(pick),), -1)
+    )
 
 
 def recovery_pairs(
@@ -330,6 +344,23 @@ def own_outcome_rows(pool: Samples) -> tuple[Tensor, Tensor]:
     failure set; the same (failure, recovery) indices as `recovery_pairs`."""
     rows = torch.arange(len(pool))
     return rows, rows
+
+
+def sibling_outcomes(pool: Samples, chunks_per_state: int) -> tuple[Tensor, Tensor]:
+    """For `recovery_head=set_denoiser`: each pool sample's siblings, the outcomes z of every chunk sampled at
+    the same drawn state (itself included), (R, chunks_per_state, z_dim) zero-padded, and how many are real
+    (R,). They estimate the base's share of each failure set at that state (`failure_buffer.stratum_weights`).
+    A demonstrated chunk has none."""
+    synthesised = pool.state_id >= 0
+    ids = pool.state_id[synthesised]
+    table = torch.zeros(int(ids.max()) + 1 if len(ids) else 0, chunks_per_state, pool.z.shape[1])
+    count = torch.bincount(ids, minlength=len(table))
+    first = torch.cumsum(count, dim=0) - count  # pool samples of one state are contiguous, in drawing order
+    table[ids, torch.arange(len(ids)) - first[ids]] = pool.z[synthesised]
+    siblings = torch.zeros(len(pool), chunks_per_state, pool.z.shape[1])
+    counts = torch.zeros(len(pool), dtype=torch.long)
+    siblings[synthesised], counts[synthesised] = table[ids], count[ids]
+    return siblings, counts
 
 
 def synthesize_recovery_dataset(
@@ -391,6 +422,7 @@ def synthesize_recovery_dataset(
     failure, recovery = (
         own_outcome_rows(pool) if among is not None else recovery_pairs(pool, recipe, generator)
     )
+    siblings = sibling_outcomes(pool, recipe.chunks_per_state) if among is not None else None
     if len(failure) == 0:
         raise ValueError(
             f"No pair satisfies eq. (5) with delta_z={recipe.delta_z}, delta_x={recipe.delta_x}: the "
@@ -411,7 +443,7 @@ def synthesize_recovery_dataset(
         "sampling_seconds": round(sampling_seconds, 2),
     }
     with staged_dataset_root(out_root, overwrite) as path:
-        _write(path, out_repo_id, config, stats, pool, failure, recovery, meta)
+        _write(path, out_repo_id, config, stats, pool, failure, recovery, meta, siblings)
         result["seconds"] = round(time.perf_counter() - started, 2)
         record = {
             "recovery": asdict(recipe),
@@ -439,8 +471,10 @@ def _write(
     failure: Tensor,
     recovery: Tensor,
     meta: LeRobotDatasetMetadata,
+    siblings: tuple[Tensor, Tensor] | None = None,
 ) -> None:
-    """One dataset row per (failure, recovery) pair, in raw units, with the checkpoint's stats."""
+    """One dataset row per (failure, recovery) pair, in raw units, with the checkpoint's stats; and the
+    recovery chunk's sibling outcomes (`sibling_outcomes`, the policy's normalised z) when given."""
     keys = [OBS_STATE] + ([OBS_ENV_STATE] if config.env_state_feature else [])
     sizes = [config.input_features[k].shape[0] for k in keys]
     raw = unnormalize_batch(
@@ -462,7 +496,13 @@ def _write(
         FAILURE_FEATURE_KEY: {"dtype": "float32", "shape": (config.failure_feature_dim,), "names": None},
         PAIR_SOURCE: {"dtype": "int64", "shape": (1,), "names": None},
     }
-    columns = {k: raw[k].numpy().astype(np.int64 if k == PAIR_SOURCE else np.float32) for k in features}
+    if siblings is not None:
+        raw[SIBLING_FEATURES_KEY], raw[SIBLING_COUNT_KEY] = siblings[0][recovery], siblings[1][recovery, None]
+        shape = tuple(siblings[0].shape[1:])
+        features[SIBLING_FEATURES_KEY] = {"dtype": "float32", "shape": shape, "names": None}
+        features[SIBLING_COUNT_KEY] = {"dtype": "int64", "shape": (1,), "names": None}
+    integer = (PAIR_SOURCE, SIBLING_COUNT_KEY)
+    columns = {k: raw[k].numpy().astype(np.int64 if k in integer else np.float32) for k in features}
     task = f"recover from a failure: {meta.tasks.index[0]}" if len(meta.tasks) else "recover from a failure"
     dataset = LeRobotDataset.create(repo_id, fps=meta.fps, features=features, root=path, use_videos=False)
     try:

@@ -4,8 +4,10 @@ the settings it cannot serve."""
 
 import pytest
 import torch
+from torch import Tensor
 
-from lerobot_ccdp.recovery.failure_buffer import draw_failure_sets
+from lerobot_ccdp.policy.configuration_ccdp import SIBLING_COUNT_KEY, SIBLING_FEATURES_KEY
+from lerobot_ccdp.recovery.failure_buffer import draw_failure_sets, stratum_weights
 
 from fixtures.policy_factory import make_policy
 
@@ -51,6 +53,42 @@ def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set():
     loss, info = policy.forward(batch)
     assert info["kept_rows"] == 0.0 and loss.item() == 0.0
     assert bool(policy.model.recovery_trained)  # the first step copied the base into the head
+
+
+def test_stratum_weights_give_each_state_and_failure_set_the_weight_of_its_set_alone():
+    """1 / (1 - p_s(F)), p_s(F) the share of a row's siblings (the chunks sampled at its state) inside F; the
+    padding beyond a row's sibling count is not a sibling, and a row without siblings weighs 1."""
+    e = torch.eye(3)
+    siblings = torch.stack([e[[0, 0, 0, 1]], e[[0, 0, 0, 1]], e[[1, 2, 0, 0]], torch.zeros(4, 3)])
+    count = torch.tensor([4, 4, 2, 0])
+    z_set = torch.stack([e[[0, 2]], e[[0, 2]], e[[1, 0]], e[[0, 0]]])
+    z_mask = torch.tensor([[True, False], [True, True], [False, True], [True, True]])
+    # F = {0}: 3 of 4 in F; F = {0, 2}: the same; F = {0} with 2 real siblings (1, 2): none; no siblings
+    weights = stratum_weights(z_set, z_mask, siblings, count, delta_z=0.5)
+    torch.testing.assert_close(weights, torch.tensor([4.0, 4, 1, 1]))
+
+
+def test_stratum_weights_change_the_loss_only_where_a_failure_set_covers_some_of_the_base():
+    """The same draws with and without `stratum_weights`: equal when every sibling lies outside every failure
+    set (weight 1), different when the siblings share the rows' outcomes; a dataset without siblings is
+    refused with the fix."""
+    policy = make_policy(**{**SETTINGS, "training_stage": "recovery", "stratum_weights": True}).train()
+    policy.model.outcomes.fill(torch.randn(3, 16 * 2), torch.zeros(3, 2), torch.arange(3))
+    rows = {"observation.state": torch.randn(32, 2), "action": torch.randn(32, 16, 2)}
+
+    def loss(weighted: bool, siblings: Tensor) -> float:
+        policy.config.stratum_weights = weighted
+        torch.manual_seed(0)
+        batch = {**rows, SIBLING_FEATURES_KEY: siblings, SIBLING_COUNT_KEY: torch.full((32, 1), 4)}
+        return policy.forward(batch)[0].item()
+
+    outside = torch.zeros(32, 4, 3)  # z = 0 lies 1 from every one-hot failure: never within delta_z
+    assert loss(True, outside) == pytest.approx(loss(False, outside))
+    spread = torch.eye(3)[[0, 1, 2, 0]].expand(32, 4, 3)  # each failure set holds 1/4 to 3/4 of them
+    assert loss(True, spread) != pytest.approx(loss(False, spread))
+    with pytest.raises(ValueError, match="stratum_weights=true reads each row's sibling outcomes"):
+        policy.config.stratum_weights = True
+        policy.forward(rows)
 
 
 def count_calls(module: torch.nn.Module) -> list[int]:

@@ -14,7 +14,12 @@ from torch import Tensor
 
 from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
 from lerobot_ccdp.envs import TASKS
-from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
+from lerobot_ccdp.policy.configuration_ccdp import (
+    FAILURE_FEATURE_KEY,
+    SIBLING_COUNT_KEY,
+    SIBLING_FEATURES_KEY,
+    CCDPConfig,
+)
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch
 from lerobot_ccdp.recovery import synthesize
@@ -121,10 +126,11 @@ def _synthesize_reaching(recipe: RecoveryRecipe, reaching_root: Path, checkpoint
     )
 
 
-def _train_recovery_stage(checkpoint: Path, root: Path, out: Path, steps: int) -> None:
+def _train_recovery_stage(checkpoint: Path, root: Path, out: Path, steps: int, *overrides: str) -> None:
     """lerobot-train's recovery stage from `checkpoint` on the rows at `root`, as a user runs it."""
     run_cli(
         "lerobot-train",
+        *overrides,
         f"--policy.path={checkpoint}",
         "--policy.training_stage=recovery",
         "--dataset.repo_id=local/recovery",
@@ -340,8 +346,16 @@ def test_set_denoiser_rows_are_chunks_sampled_at_demonstrated_states_and_train_t
         normalized[FAILURE_FEATURE_KEY],
         policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes),
     )
+    # Beside each sampled row, the z of the 6 chunks sampled at its state, its own among them; none beside a
+    # demonstrated chunk.
+    columns = rows.hf_dataset.with_format("torch")[:]
+    siblings, count = columns[SIBLING_FEATURES_KEY], columns[SIBLING_COUNT_KEY].reshape(-1)
+    sampled = 16 * 6
+    assert count[:sampled].eq(6).all() and count[sampled:].eq(0).all() and siblings[sampled:].eq(0).all()
+    per_state = normalized[FAILURE_FEATURE_KEY][:sampled].reshape(16, 1, 6, 4).expand(16, 6, 6, 4)
+    torch.testing.assert_close(siblings[:sampled], per_state.reshape(sampled, 6, 4), atol=1e-4, rtol=1e-4)
     out = tmp_path / "set_run"
-    _train_recovery_stage(checkpoint, root, out, steps=10)
+    _train_recovery_stage(checkpoint, root, out, 10, "--policy.stratum_weights=true")
     before = load_file(checkpoint / "model.safetensors")
     after = load_file(out / "checkpoints" / "last" / "pretrained_model" / "model.safetensors")
     assert bool(after["model.recovery_trained"])
