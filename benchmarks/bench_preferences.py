@@ -27,7 +27,8 @@ lerobot-train trains the failure-set denoiser on them for --head-steps, and "CCD
 sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1
 round) on the same base and seeds; each --w-z other than 1 adds the set denoiser at that failure weight on the
 --w-z-steps reverse steps from each --w-z-from on (0 the noisiest step; 0 steps: to the last). --set-states
-sets the rows' states (SET_RECIPE's 512), and --no-baselines leaves out DP and DP* (most of a member's
+sets the rows' states (SET_RECIPE's 512), --stratum-weights weighs the head's rows per (state, failure set)
+(`--policy.stratum_weights`), and --no-baselines leaves out DP and DP* (most of a member's
 measurement time) for a sweep of head settings. --z-fourier-octaves gives a `final_state` member's head its z
 in Fourier features (the Panda's label-free setting; measured on the family and not kept: docs/benchmarks.md).
 """
@@ -155,6 +156,7 @@ def prepare_member(
     set_denoiser: bool,
     set_states: int,
     z_fourier_octaves: int = 0,
+    stratum_weights: bool = False,
 ) -> dict[str, Path]:
     """Record member `seed`, train its base and, from it, the classifier head (with `classifier`) and the
     failure-set denoiser (with `set_denoiser`); return the heads' checkpoints by head name."""
@@ -209,7 +211,7 @@ def prepare_member(
         )[0]
     if set_denoiser:
         heads["set_denoiser"] = train_set_denoiser(
-            root, task, base, base_stamp, head_steps, set_states, book, z_fourier_octaves
+            root, task, base, base_stamp, head_steps, set_states, book, z_fourier_octaves, stratum_weights
         )
     return heads
 
@@ -223,10 +225,12 @@ def train_set_denoiser(
     states: int,
     book: StampBook,
     z_fourier_octaves: int = 0,
+    stratum_weights: bool = False,
 ) -> Path:
     """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE at `states` states), then
-    lerobot-train it on them; a `final_state` member's head reads its z in `z_fourier_octaves` Fourier
-    octaves (the Panda's label-free configs' setting; a one-hot label needs none)."""
+    lerobot-train it on them, its rows weighted per (state, failure set) with `stratum_weights`; a
+    `final_state` member's head reads its z in `z_fourier_octaves` Fourier octaves (the Panda's label-free
+    configs' setting; a one-hot label needs none)."""
     z = (
         {"failure_feature": "primitive", "num_primitives": len(task.goals)}
         if task.labelled
@@ -261,6 +265,7 @@ def train_set_denoiser(
             "--batch_size=64",
             f"--save_freq={steps}",
             *([] if task.labelled else [f"--policy.z_fourier_octaves={z_fourier_octaves}"]),
+            *(["--policy.stratum_weights=true"] if stratum_weights else []),
         ],
         rows_stamp,
         book,
@@ -403,6 +408,7 @@ def measured_settings(args: argparse.Namespace) -> dict:
         "set_denoiser",
         "set_states",
         "z_fourier_octaves",
+        "stratum_weights",
     )
     return {key: getattr(args, key) for key in keys}
 
@@ -416,7 +422,7 @@ def settings_line(results: dict[int, dict]) -> str:
         clause = (
             f"{s['rows']} chunks each, base {s['base_steps']} steps on {s['episodes']} demos, heads "
             f"{s['head_steps']} steps (classifier {s['classifier']}, set denoiser {s['set_denoiser']} on "
-            f"{s['set_states']} states{_octaves(s)})"
+            f"{s['set_states']} states{_octaves(s)}{_stratum_weights(s)})"
             if s
             else "settings not recorded in results.json (measured before they were kept)"
         )
@@ -430,6 +436,11 @@ def _octaves(settings: dict) -> str:
     """The label-free heads' Fourier octaves, where a member was measured with some."""
     octaves = settings.get("z_fourier_octaves", 0)
     return f", a final_state z in {octaves} Fourier octaves" if octaves else ""
+
+
+def _stratum_weights(settings: dict) -> str:
+    """The set denoiser's rows weighed per (state, failure set), where a member was measured so."""
+    return ", rows weighed per (state, failure set)" if settings.get("stratum_weights") else ""
 
 
 def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
@@ -505,6 +516,11 @@ def main() -> None:
         default=0,
         help="set denoiser: Fourier octaves of a `final_state` member's z in the head's set embedding "
         "(--policy.z_fourier_octaves of its recovery stage; labelled members keep their one-hot z)",
+    )
+    parser.add_argument(
+        "--stratum-weights",
+        action="store_true",
+        help="set denoiser: weigh its training rows per (state, failure set) (--policy.stratum_weights)",
     )
     parser.add_argument(
         "--w-z",
@@ -613,6 +629,7 @@ def main() -> None:
             args.set_denoiser,
             args.set_states,
             args.z_fourier_octaves,
+            args.stratum_weights,
         )
         root, repo = member_dataset(seed, args.out)
         demos = LeRobotDataset(repo, root=root)

@@ -76,6 +76,15 @@ def test_the_header_names_the_label_free_heads_fourier_octaves_where_they_had_so
     assert "members [100]: " in line and line.count("Fourier") == 1
 
 
+def test_the_header_names_the_heads_trained_with_stratum_weights() -> None:
+    measured = {
+        100: {**member(100, positions=False), "settings": SETTINGS},
+        101: {**member(101, positions=False), "settings": {**SETTINGS, "stratum_weights": True}},
+    }
+    line = bench.settings_line(measured)
+    assert "members [101]: " in line and line.count("rows weighed per (state, failure set)") == 1
+
+
 def test_against_a_variant_the_differences_are_paired_member_by_member() -> None:
     """The reported members' preference error below the variant's by 0.02 (member 100) and 0.04 (101): the
     difference is -0.03 with an interval over the two, and member 102, reported only, is left out."""
