@@ -44,9 +44,12 @@ quickstart: install
 # The paper's comparison: the five tasks with contact physics on the Franka Panda, DP / DP* / CCDP and the no-repeat
 # oracle; outputs in outputs/benchmark, each task's report in docs/benchmark/<task>.md as soon as the task is done
 # (a round takes hours: `make benchmark TASKS="Bartender-v0"` runs the tasks a stopped round has left).
+# JOBS=2 runs a task's evaluations two at a time, one torch thread each (faster on 2 cores: docs/benchmarks.md).
 TASKS ?= all
+JOBS ?= 1
 benchmark: install
-	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks $(TASKS) --out outputs/benchmark --publish-each docs/benchmark
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks $(TASKS) --out outputs/benchmark --publish-each docs/benchmark \
+		--jobs $(JOBS)
 
 # The same comparison on the geometric versions of the five tasks (`<Task>-lite-v0`, docs/tasks.md).
 benchmark-lite: install
@@ -61,7 +64,7 @@ benchmark-pixels: install
 # configs/<task>_label_free/ and datasets_recipes/<task>_label_free.yaml.
 benchmark-label-free: install
 	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks $(TASKS) --out outputs/label_free \
-		--publish-each docs/benchmark_label_free
+		--publish-each docs/benchmark_label_free --jobs $(JOBS)
 
 # docs/results.md and the README's results table, from the per-episode run files the benchmarks publish beside
 # each task's report (lerobot_ccdp/benchmark/results.py), one table per run in the order of `--tasks all` (read

@@ -29,7 +29,10 @@ import shlex
 import shutil
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -249,8 +252,17 @@ class TaskFiles:
 class TaskRun:
     """Runs one task's stages, skipping those whose output exists, and times each stage."""
 
-    def __init__(self, files: TaskFiles, eval_seed: int | None = None, eval_episodes: int | None = None):
+    def __init__(
+        self,
+        files: TaskFiles,
+        eval_seed: int | None = None,
+        eval_episodes: int | None = None,
+        jobs: int = 1,
+    ):
         self.files = files
+        # Evaluations run `jobs` at a time, each on its share of the cores (`run_at_once`).
+        self.jobs = jobs
+        self._book_lock = threading.Lock()
         self.eval_seed = files.eval_config().get("seed", 1000) if eval_seed is None else eval_seed
         # None: the eval config's number, which no command then names (its stamps stay those of the config)
         self.eval_episodes = eval_episodes
@@ -310,21 +322,14 @@ class TaskRun:
             "--policy.training_stage=recovery",
             upstream=recovery_upstream,
         )
-        for method in methods:
-            out = f.eval_dir(method)
-            self._stage(
-                f"eval_{method}",
-                out / "eval_info.json",
-                f.eval_command(
-                    recovery, method, self.eval_seed, out, f.method_flags(method), episodes=self.eval_episodes
-                ),
-                upstream=recovery_stamp,
-                clear=out,
-            )
-        for method in (m for m in methods if m in VIDEO_METHODS):
-            out = f.video_dir(method)
-            self._stage(
-                f"videos_{method}",
+        stages = [(f"eval_{m}", m, f.eval_dir(m), False) for m in methods] + [
+            (f"videos_{m}", m, f.video_dir(m), True) for m in methods if m in VIDEO_METHODS
+        ]
+        threads = max(1, (os.cpu_count() or 1) // self.jobs) if self.jobs > 1 else None
+        evaluations = [
+            functools.partial(
+                self._stage,
+                stage,
                 out / "eval_info.json",
                 f.eval_command(
                     recovery,
@@ -332,12 +337,16 @@ class TaskRun:
                     self.eval_seed,
                     out,
                     f.method_flags(method),
-                    videos=True,
+                    videos=videos,
                     episodes=self.eval_episodes,
                 ),
                 upstream=recovery_stamp,
                 clear=out,
+                threads=threads,
             )
+            for stage, method, out, videos in stages
+        ]
+        run_at_once(self.jobs, evaluations)
         return self.episodes(methods) if methods else {}
 
     def episodes(self, methods: list[str]) -> dict[str, Episodes]:
@@ -387,11 +396,20 @@ class TaskRun:
         )
         return checkpoint, stamp_value
 
-    def _stage(self, name: str, output: Path, command: list[str], upstream: str | None, clear: Path) -> str:
+    def _stage(
+        self,
+        name: str,
+        output: Path,
+        command: list[str],
+        upstream: str | None,
+        clear: Path,
+        threads: int | None = None,
+    ) -> str:
         """Run `command` unless `output` exists and was made from the same inputs; return the stage's stamp.
 
         `clear` (the stage's own output folder, stale or half-written) is removed before the command runs;
-        it must lie inside the task's folder, which lies in the --out this pipeline owns."""
+        it must lie inside the task's folder, which lies in the --out this pipeline owns. `threads` sets the
+        command's torch threads (OMP_NUM_THREADS), for stages that run side by side."""
         task_out = self.files.out.resolve()
         if clear.resolve() == task_out or not clear.resolve().is_relative_to(task_out):
             raise PipelineError(
@@ -413,7 +431,7 @@ class TaskRun:
         print(f"[{self.files.task}] {name}: {shlex.join(command)}", flush=True)
         start = time.perf_counter()
         returncode = run_with_progress(
-            [str(BIN / command[0]), *command[1:]], log, f"[{self.files.task}] {name}"
+            [str(BIN / command[0]), *command[1:]], log, f"[{self.files.task}] {name}", threads=threads
         )
         if returncode != 0 or not output.exists():
             tail = log.read_text()[-4000:]
@@ -421,9 +439,10 @@ class TaskRun:
                 f"{self.files.task} {name} failed (exit {returncode}, expected {output}): "
                 f"{shlex.join(command)}\n--- end of {log} ---\n{tail}"
             )
-        self.timings[name] = round(time.perf_counter() - start, 1)
-        (self.files.out / "timings.json").write_text(json.dumps(self.timings, indent=2))
-        self.stamps.record(name, current)
+        with self._book_lock:  # stages side by side share the task's timings and stamps files
+            self.timings[name] = round(time.perf_counter() - start, 1)
+            (self.files.out / "timings.json").write_text(json.dumps(self.timings, indent=2))
+            self.stamps.record(name, current)
         print(f"[{self.files.task}] {name}: {self.timings[name]:.0f} s", flush=True)
         return current
 
@@ -456,10 +475,57 @@ class TaskRun:
         return times
 
 
-def run_with_progress(command: list[str], log: Path, label: str, every: float = 15.0) -> int:
+def run_at_once(jobs: int, calls: list[Callable[[], Any]]) -> None:
+    """Run `calls` (independent stages), `jobs` at a time, in order. After a failure no further call starts,
+    and the failure is raised once the calls already running have ended; an interrupt (Ctrl-C) kills the
+    running stages' commands first, as one stage's own interrupt does (`run_with_progress`)."""
+    failed = threading.Event()
+
+    def guarded(call: Callable[[], Any]) -> None:
+        if failed.is_set():
+            return
+        try:
+            call()
+        except BaseException:
+            failed.set()
+            raise
+
+    if jobs == 1:
+        for call in calls:
+            call()
+        return
+    pool = ThreadPoolExecutor(max_workers=jobs)
+    futures = [pool.submit(guarded, call) for call in calls]
+    try:
+        wait(futures, return_when=FIRST_EXCEPTION)
+    except BaseException:
+        failed.set()
+        with _RUNNING_LOCK:
+            for process in _RUNNING:
+                process.kill()
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    for future in futures:
+        if not future.cancelled() and future.exception() is not None:
+            raise future.exception()
+
+
+# The stage commands running now, for `run_at_once` to kill on an interrupt.
+_RUNNING: set[subprocess.Popen] = set()
+_RUNNING_LOCK = threading.Lock()
+
+
+def run_with_progress(
+    command: list[str], log: Path, label: str, every: float = 15.0, threads: int | None = None
+) -> int:
     """Run `command` with its output in `log`, printing its latest progress-bar state every `every` seconds
-    (a training stage is otherwise silent on the console for minutes); return its exit code."""
+    (a training stage is otherwise silent on the console for minutes); return its exit code. `threads`, if
+    given, caps the command's torch threads: several at once on few cores would otherwise oversubscribe them
+    (2 cores: a training at 5 s/step beside two others, 0.25 s/step with one thread each)."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    if threads is not None:
+        env.update(OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
     with log.open("w") as handle:
         process = subprocess.Popen(
             command,
@@ -468,18 +534,24 @@ def run_with_progress(command: list[str], log: Path, label: str, every: float = 
             env=env,
             preexec_fn=functools.partial(die_with_parent, os.getpid()),  # noqa: PLW1509 (no locks)
         )
+        with _RUNNING_LOCK:
+            _RUNNING.add(process)
         shown = ""
-        while True:
-            try:
-                return process.wait(timeout=every)
-            except subprocess.TimeoutExpired:
-                progress = latest_progress(log)
-                if progress and progress != shown:
-                    print(f"{label}: {progress}", flush=True)
-                    shown = progress
-            except BaseException:
-                process.kill()  # an interrupted pipeline leaves no training running into its folder
-                raise
+        try:
+            while True:
+                try:
+                    return process.wait(timeout=every)
+                except subprocess.TimeoutExpired:
+                    progress = latest_progress(log)
+                    if progress and progress != shown:
+                        print(f"{label}: {progress}", flush=True)
+                        shown = progress
+                except BaseException:
+                    process.kill()  # an interrupted pipeline leaves no training running into its folder
+                    raise
+        finally:
+            with _RUNNING_LOCK:
+                _RUNNING.discard(process)
 
 
 def latest_progress(log: Path) -> str:
@@ -675,7 +747,7 @@ def run_tasks(
     claim_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)
     runs, episodes = [], {}
     for f in files:
-        run = TaskRun(f, args.eval_seed, args.eval_episodes)
+        run = TaskRun(f, args.eval_seed, args.eval_episodes, args.jobs)
         episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
         runs.append(run)
         if episodes[f.task]:
@@ -779,6 +851,14 @@ def main(argv: list[str] | None = None) -> None:
         help="write the report from the evaluations already in --out, running no stage",
     )
     parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="evaluations of a task run side by side, each with cores / jobs torch threads (the simulation "
+        "runs on one core per evaluation, so on 2 cores 2 evaluations at once finish sooner than one after "
+        "the other; docs/benchmarks.md, Speed)",
+    )
+    parser.add_argument(
         "--train-only",
         action="store_true",
         help="record, train and synthesise, evaluate nothing and write no report (e.g. to tune a "
@@ -792,6 +872,8 @@ def main(argv: list[str] | None = None) -> None:
         TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type, args.label_free)
         for t in tasks
     ]
+    if args.jobs < 1:
+        parser.error(f"--jobs {args.jobs}: run at least one evaluation at a time")
     if args.eval_episodes is not None and args.eval_episodes < 1:
         parser.error(f"--eval-episodes {args.eval_episodes}: evaluate at least one episode per method")
     if args.fresh and args.report_only:
