@@ -391,3 +391,14 @@ def test_set_denoiser_states_are_drawn_half_at_option_starts_and_half_along_the_
     )
     frames = synthesize.set_denoiser_frames(demos)
     assert torch.bincount(frames, minlength=10).tolist() == [6, 1, 1, 1, 1, 6, 1, 1, 1, 1]
+
+
+def test_siblings_are_the_outcomes_sampled_at_the_same_state_however_many_outcome_radius_kept():
+    """State 0 kept 3 of its 4 chunks, state 1 one, state 2 two; demonstrated chunks (state -1) have none."""
+    z = torch.arange(8.0)[:, None]
+    state_id = torch.tensor([0, 0, 0, 1, 2, 2, -1, -1])
+    pool = synthesize.Samples(torch.zeros(8, 1, 2), torch.zeros(8, 4, 2), z, (state_id < 0).long(), state_id)
+    siblings, count = synthesize.sibling_outcomes(pool, chunks_per_state=4)
+    assert count.tolist() == [3, 3, 3, 1, 2, 2, 0, 0]
+    assert siblings[1, :, 0].tolist() == [0, 1, 2, 0] and siblings[3, :, 0].tolist() == [3, 0, 0, 0]
+    assert siblings[5, :, 0].tolist() == [4, 5, 0, 0] and siblings[6:].eq(0).all()
