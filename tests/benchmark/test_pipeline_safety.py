@@ -41,7 +41,7 @@ class FakeStages:
         self.commands: list[list[str]] = []
         self.exit_code = 0
 
-    def __call__(self, command: list[str], log: Path, label: str) -> int:
+    def __call__(self, command: list[str], log: Path, label: str, threads: int | None = None) -> int:
         self.commands.append(command)
         log.write_text("faked\n")
         if self.exit_code == 0:
