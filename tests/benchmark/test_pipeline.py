@@ -287,6 +287,9 @@ def test_train_only_stops_before_the_evaluations_and_the_report(settings, pipeli
         (out / "oracle.json.kept").rename(out / SLUG / "oracle.json")
 
 
+# About 80 s each on a slower 2-core machine; in the default suite the stamps' rule is
+# test_stamps_follow_settings_files_and_upstream_stages and the faked stages of test_pipeline_safety.py.
+@pytest.mark.slow
 def test_a_changed_config_reruns_its_stage_and_those_after_it(settings, pipeline_run):
     out, _ = pipeline_run
     configs, _ = settings
@@ -307,6 +310,7 @@ def test_a_changed_config_reruns_its_stage_and_those_after_it(settings, pipeline
     assert step["step"] == 12
 
 
+@pytest.mark.slow
 def test_a_method_setting_reruns_only_that_method_with_its_flags(settings, pipeline_run):
     out, _ = pipeline_run
     configs, recipes = settings
