@@ -45,7 +45,7 @@ quickstart: install
 # The paper's comparison: the five tasks with contact physics on the Franka Panda, DP / DP* / CCDP and the no-repeat
 # oracle; outputs in outputs/benchmark, each task's report in docs/benchmark/<task>.md as soon as the task is done
 # (a round takes hours: `make benchmark TASKS="Bartender-v0"` runs the tasks a stopped round has left).
-# JOBS=2 runs a task's evaluations two at a time, one torch thread each (faster on 2 cores: docs/benchmarks.md).
+# JOBS=2 runs a task's evaluations two at a time, one torch thread each (pipeline --jobs).
 TASKS ?= all
 JOBS ?= 1
 benchmark: install

@@ -854,9 +854,9 @@ def main(argv: list[str] | None = None) -> None:
         "--jobs",
         type=int,
         default=1,
-        help="evaluations of a task run side by side, each with cores / jobs torch threads (the simulation "
-        "runs on one core per evaluation, so on 2 cores 2 evaluations at once finish sooner than one after "
-        "the other; docs/benchmarks.md, Speed)",
+        help="evaluations of a task run side by side, each with cores / jobs torch threads: an evaluation's "
+        "simulation runs on one core, which leaves the other idle while it steps (not yet timed against one "
+        "at a time: docs/benchmarks.md, Speed)",
     )
     parser.add_argument(
         "--train-only",
