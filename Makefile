@@ -1,5 +1,4 @@
-# Every target builds its own virtual environment, so a fresh machine needs only python3.11. --no-compile: Python
-# compiles the modules a run imports as it first imports them, not the 17,000 files of every dependency at install.
+# Every target builds its own virtual environment, so a fresh machine needs only python3.11.
 PYTHON ?= python3.11
 VENV ?= .venv
 PY := $(VENV)/bin/python
@@ -11,7 +10,7 @@ export MUJOCO_GL ?= egl
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q --no-compile -e '.[test]'
+	$(PY) -m pip install -q -e '.[test]'
 	touch $@
 
 install: $(VENV)/.installed
