@@ -452,6 +452,7 @@ def test_a_second_pipeline_on_the_same_folder_is_refused(settings, tmp_path):
         )
 
 
+@pytest.mark.slow  # about 45 s: a training killed and run again
 def test_a_killed_pipeline_leaves_no_stage_running_and_a_rerun_resumes(settings, pipeline_run):
     out, _ = pipeline_run
     configs, recipes = settings

@@ -4,6 +4,8 @@ process)."""
 import subprocess
 import sys
 
+import pytest
+
 CHECK = """
 from lerobot.utils.import_utils import register_third_party_plugins
 from lerobot.configs.policies import PreTrainedConfig
@@ -21,6 +23,9 @@ def test_plugin_discovery_registers_ccdp_in_a_fresh_process():
     assert result.stdout.strip().endswith("CCDPPolicy")
 
 
+# A process start (about 20 s on the slower machine); lerobot-train --policy.type=ccdp runs in
+# tests/fixtures/reaching.py.
+@pytest.mark.slow
 def test_lerobot_train_parses_policy_type_ccdp():
     from fixtures.reaching import BIN
 

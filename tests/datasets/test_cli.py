@@ -71,6 +71,7 @@ def test_help_lists_every_field_with_its_default(config_class, recipe_class, cap
             assert entries[flag].startswith("required:"), (flag, entries[flag])
 
 
+@pytest.mark.slow  # a process start per command (about 20 s in all on the slower machine)
 def test_the_installed_commands_answer_help():
     for command in ("lerobot-ccdp-record", "lerobot-ccdp-synthesize"):
         assert "--config_path" in run_cli(command, "--help").stdout

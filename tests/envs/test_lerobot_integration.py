@@ -99,6 +99,7 @@ def _train_and_eval(task: str, tmp_path):
     assert np.isfinite(info["overall"]["avg_sum_reward"])
 
 
+@pytest.mark.slow  # about 50 s; ccdp's own lerobot-eval runs in tests/benchmark/test_pipeline.py
 def test_lerobot_train_diffusion_and_eval_door_opening(tmp_path):
     _train_and_eval("DoorOpening-lite-v0", tmp_path)
 

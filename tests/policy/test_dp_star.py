@@ -4,6 +4,7 @@ DP* rejects by the failure feature (here the primitive of the nearest demonstrat
 sampled chunk's goal from where it ends instead, so a labeller that mislabels chunks cannot pass it.
 """
 
+import pytest
 import torch
 from lerobot.policies.factory import make_pre_post_processors
 
@@ -20,9 +21,11 @@ def goal_shares(policy, pre, post, failed: list[int]) -> torch.Tensor:
     return shares_per_goal(goals)
 
 
-def test_dp_star_rejects_the_failed_option_that_dp_repeats(trained_checkpoint):
-    policy = CCDPPolicy.from_pretrained(trained_checkpoint).eval()
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(trained_checkpoint))
+# On a policy trained 1000 steps (`skilled_checkpoint`); the scripted draws below stay in the default suite.
+@pytest.mark.slow
+def test_dp_star_rejects_the_failed_option_that_dp_repeats(skilled_checkpoint):
+    policy = CCDPPolicy.from_pretrained(skilled_checkpoint).eval()
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(skilled_checkpoint))
     policy.config.recovery_mode = "dp"
     dp = goal_shares(policy, pre, post, failed=[0])
     policy.config.recovery_mode = "dp_star"

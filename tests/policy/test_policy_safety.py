@@ -206,6 +206,7 @@ def _run(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow  # a lerobot-train process (about 20 s on the slower machine)
 def test_lerobot_train_refuses_a_dataset_shorter_than_a_chunk(reaching_root, tmp_path):
     """Its 32-frame episodes leave no window for a 48-step chunk: lerobot-train used to wait for a batch
     forever."""
@@ -241,6 +242,7 @@ def test_the_recovery_stage_without_a_base_is_refused_as_lerobot_train_builds_it
         lerobot_make_policy(config, ds_meta=LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root))
 
 
+@pytest.mark.slow  # a lerobot-train process (about 20 s on the slower machine)
 def test_a_config_error_is_the_last_line_of_lerobot_train(reaching_root, tmp_path):
     result = _run(*train_args(reaching_root, tmp_path / "out", 10, "--policy.w_z=nan"))
     assert result.returncode != 0
