@@ -16,6 +16,7 @@ STAGES = {"ObjectPacking": 2, "Bartender": 2}  # by task name, lite and physics 
 # The physics tasks behind `slow` (up to 29 s a test on a slower 2-core machine, where CI nears its limit);
 # their lite twins stay in the default suite.
 PHYSICS_SLOW = [t if is_lite(t) else pytest.param(t, marks=pytest.mark.slow) for t in TASKS]
+BARTENDERS = ["Bartender-lite-v0", pytest.param("Bartender-v0", marks=pytest.mark.slow)]
 
 
 # 25 seeds of a physics task take up to 11 s on the faster machine (CI log).
@@ -48,7 +49,7 @@ def test_expert_and_oracle_succeed_for_every_hidden_parameter(task):
         assert oracle.info["failures"] < env.unwrapped.n_options
 
 
-@pytest.mark.parametrize("task", ["Bartender-lite-v0", pytest.param("Bartender-v0", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("task", BARTENDERS)
 def test_bartender_demos_from_the_right_fill_cup_3_first_and_succeed(task):
     """`right_start` is how the recipe's demos show cup 3 full: from `home` the expert never fills it first.
     Only an episode whose cup 3 is available starts right, so no demo crosses the empty cups leftwards."""
@@ -91,7 +92,7 @@ def test_bartender_right_start_draws_nothing_when_off_and_rejects_a_bad_probabil
         make("Bartender-lite-v0", right_start=1.5)
 
 
-@pytest.mark.parametrize("task", ["Bartender-lite-v0", pytest.param("Bartender-v0", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("task", BARTENDERS)
 def test_bartender_demos_after_a_first_fill_show_every_way_on_from_a_full_cup(task):
     """`after_fill_start` starts an episode with an available cup full and the bottle held over it, so the
     demos show the expert's way on from every cup (from home they reach cup 2 full only when cups 0 and 1 are
