@@ -3,7 +3,6 @@ better: a higher mean that the development seeds cannot tell from noise is a tie
 comparison)."""
 
 import importlib.util
-import json
 from pathlib import Path
 
 import numpy as np
@@ -12,28 +11,14 @@ import pytest
 from lerobot_ccdp.benchmark.episodes import Episodes
 from lerobot_ccdp.datasets.ownership import claim_output_folder
 
+from fixtures.eval_runs import N, episodes, write_eval_info
+
 REPO = Path(__file__).resolve().parents[2]
 spec = importlib.util.spec_from_file_location("tune_methods", REPO / "benchmarks" / "tune_methods.py")
 tune = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(tune)
 
-N = 100
 FIRST, OTHER = ("recovery", (("w_z", 3),)), ("recovery", (("w_z", 1),))
-
-
-def episodes(successes: int, repeats: int = 0, shift: int = 0) -> Episodes:
-    """N episodes: `successes` consecutive ones from episode `shift` on solved, each with two attempts after a
-    failure, the last `repeats` with one repeated failure."""
-    success = (np.arange(N) - shift) % N < successes
-    repeated = (np.arange(N) >= N - repeats).astype(int)
-    return Episodes(
-        success=success,
-        attempts=np.full(N, 3),
-        repeated_failures=repeated,
-        preference_matched=success,
-        attempts_after_failure=np.full(N, 2.0),
-        failures=np.ones(N),
-    )
 
 
 def test_a_higher_mean_success_within_noise_keeps_the_first_setting():
@@ -95,20 +80,6 @@ def test_seeds_for_non_inferiority_follow_the_difference_and_its_spread():
     assert cells[1].startswith("0.02 [") and cells[-1] == f"{expected:.0f}"
 
 
-def _eval_info(path: Path, found: Episodes) -> None:
-    """An eval_info.json holding `found`'s episodes, as lerobot-eval writes it with lerobot_ccdp's metrics."""
-    path.mkdir(parents=True)
-    metrics = {
-        "successes": found.success.tolist(),
-        "attempts": found.attempts.tolist(),
-        "repeated_failures": found.repeated_failures.tolist(),
-        "preference_matched": found.preference_matched.tolist(),
-        "attempts_after_failure": found.attempts_after_failure.tolist(),
-        "failures": found.failures.tolist(),
-    }
-    (path / "eval_info.json").write_text(json.dumps({"per_task": [{"metrics": metrics}]}))
-
-
 def test_the_development_size_is_its_own_and_a_saved_evaluation_of_another_size_is_refused(tmp_path, capsys):
     """A round sized 600 in the eval config still tunes on 100 development seeds, and a saved evaluation of
     another size is named rather than paired against one of 100."""
@@ -118,7 +89,7 @@ def test_the_development_size_is_its_own_and_a_saved_evaluation_of_another_size_
     files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", out)
     (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
     run = ["--out", str(out), "--tasks", task, "--method", "ccdp", "--grid", "w_z=5", "--report-only"]
-    _eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), episodes(100))
+    write_eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), episodes(100))
     tune.main(run)
     assert "ccdp on seeds 1000-1099" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="holds 100 episodes, not --episodes 60"):
@@ -137,13 +108,13 @@ def test_a_baseline_run_pairs_each_row_and_the_reference_method_by_seed(tmp_path
         claim_output_folder(folder, tune.CREATED_BY)
         files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", folder)
         (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
-        _eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), episodes(ccdp_wins))
+        write_eval_info(tune.run_dir(files, "ccdp", tune.OWN, (("w_z", 5),), 1000), episodes(ccdp_wins))
         found[folder] = files
-    _eval_info(tune.run_dir(found[run], "dp_star", tune.OWN, (), 1000), episodes(70, repeats=10))
+    write_eval_info(tune.run_dir(found[run], "dp_star", tune.OWN, (), 1000), episodes(70, repeats=10))
     args = ["--out", str(run), "--tasks", task, "--method", "ccdp", "--grid", "w_z=5", "--report-only"]
     with pytest.raises(SystemExit, match="No evaluation of dp_star .* run this grid on --out .*base"):
         tune.main([*args, "--against", "dp_star", "--baseline-run", str(base)])
-    _eval_info(tune.run_dir(found[base], "dp_star", tune.OWN, (), 1000), episodes(70))
+    write_eval_info(tune.run_dir(found[base], "dp_star", tune.OWN, (), 1000), episodes(70))
     tune.main([*args, "--against", "dp_star", "--baseline-run", str(base)])
     table = capsys.readouterr().out.split(f"Against the same evaluations of {base}")[1]
     ccdp_row = next(line for line in table.splitlines() if "| ccdp w_z 5 |" in line).split(" | ")

@@ -1,0 +1,76 @@
+"""Pool paired comparisons over several trainings: is a training change better across training seeds?
+
+    .venv/bin/python benchmarks/pool_pairs.py \
+        --pair <run>/bartender/tune_ccdp/<A>_seed1000 <run>/bartender/tune_ccdp/<B>_seed1000 \
+        --pair <C folder> <D folder> [...]
+
+Each --pair names two evaluations of the same seeds (folders holding lerobot-eval's `eval_info.json`, as
+`tune_methods.py` writes them): a reference (one training) and a variant (the same training changed in one
+setting, say `--policy.stratum_weights=true`). Prints each pair's paired difference, variant minus reference,
+of success and of repeats per attempt after a failure, then the same over every pair's episodes pooled: a
+pair stays paired by seed, and the pooled interval resamples the episodes of all pairs together, as
+`tune_methods.py` pools tasks. One training decides little (its seed moves the figures as much as a setting
+does); pooled pairs of trainings from different seeds say whether the change holds across them.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from lerobot_ccdp.benchmark.comparison import MethodMetrics
+from lerobot_ccdp.benchmark.episodes import Episodes
+from lerobot_ccdp.benchmark.paired import paired_difference, repeats_per_opportunity, success_rate
+
+
+def load(folder: Path) -> Episodes:
+    path = folder / "eval_info.json"
+    if not path.is_file():
+        raise SystemExit(f"No eval_info.json in {folder}: name a folder an evaluation wrote.")
+    return Episodes.from_eval_info(path)
+
+
+def row(name: str, reference: Episodes, variant: Episodes) -> str:
+    """One table row: both sides' success and repeats and the variant's paired differences."""
+    a, b = MethodMetrics.of(reference), MethodMetrics.of(variant)
+    return (
+        f"| {name} | {len(reference)} | {a.success} | {b.success} | "
+        f"{paired_difference(variant, reference, success_rate)} | {a.repeats_per_opportunity} | "
+        f"{b.repeats_per_opportunity} | {paired_difference(variant, reference, repeats_per_opportunity)} |"
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--pair",
+        nargs=2,
+        action="append",
+        required=True,
+        type=Path,
+        metavar=("REFERENCE", "VARIANT"),
+        help="two evaluation folders of the same seeds",
+    )
+    args = parser.parse_args(argv)
+    pairs = [(load(a), load(b)) for a, b in args.pair]
+    for (a, b), (ref, var) in zip(args.pair, pairs, strict=True):
+        if len(ref) != len(var):
+            raise SystemExit(
+                f"{a} holds {len(ref)} episodes and {b} {len(var)}: pair evaluations of the same seeds."
+            )
+    print(
+        "| pair | episodes | success: reference | variant | variant - reference | repeats: reference "
+        "| variant | variant - reference |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for (a, b), (ref, var) in zip(args.pair, pairs, strict=True):
+        print(row(f"{a.name} / {b.name}", ref, var))
+    if len(pairs) > 1:
+        pooled = [Episodes.concatenate(list(side)) for side in zip(*pairs, strict=True)]
+        print(row("pooled", *pooled))
+
+
+if __name__ == "__main__":
+    main()
