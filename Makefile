@@ -20,7 +20,7 @@ lint: install
 	$(VENV)/bin/ruff format --check lerobot_ccdp tests benchmarks lerobot_policy_ccdp.py
 
 test: install
-	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=30
+	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=0 --durations-min=5
 
 test-slow: install
 	$(PY) -m pytest -q -m slow
