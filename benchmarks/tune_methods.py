@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from lerobot_ccdp.benchmark.comparison import LOST_HEADER, MethodMetrics
+from lerobot_ccdp.benchmark.comparison import LOST_HEADER, MethodMetrics, paired_cells
 from lerobot_ccdp.benchmark.episodes import Episodes, LostEpisodes
 from lerobot_ccdp.benchmark.paired import (
     paired_difference,
@@ -204,17 +204,6 @@ def against(episodes: Episodes, reference: Episodes) -> str:
     return (
         f"{MethodMetrics.of(reference).success} | {paired_difference(episodes, reference, success_rate)} | "
         f"{paired_difference(episodes, reference, repeats_per_opportunity)} | {seeds:.0f}"
-    )
-
-
-def versus(here: Episodes, there: Episodes) -> str:
-    """The `--baseline-run` table's cells of one row: success and repeats in both runs and their paired
-    differences (same seeds, this run minus the other)."""
-    a, b = MethodMetrics.of(here), MethodMetrics.of(there)
-    return (
-        f"{a.success} | {b.success} | {paired_difference(here, there, success_rate)} | "
-        f"{a.repeats_per_opportunity} | {b.repeats_per_opportunity} | "
-        f"{paired_difference(here, there, repeats_per_opportunity)}"
     )
 
 
@@ -373,11 +362,12 @@ def main(argv: list[str] | None = None) -> None:
             if args.baseline_run:
                 baseline_rows.append(
                     f"| {task} | {args.method} {row_label(row)} | "
-                    f"{versus(episodes[row], baseline[task, row])} |"
+                    f"{paired_cells(episodes[row], baseline[task, row])} |"
                 )
         if args.baseline_run and args.against:
             baseline_rows.append(
-                f"| {task} | {args.against} (methods.json) | {versus(reference, baseline[task, None])} |"
+                f"| {task} | {args.against} (methods.json) | "
+                f"{paired_cells(reference, baseline[task, None])} |"
             )
     print(
         f"\n{args.method} on seeds {args.seed}-{last}; differences are paired (same seeds) against "

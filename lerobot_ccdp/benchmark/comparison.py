@@ -25,7 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_ccdp.benchmark.episodes import Episodes, Estimate, LostEpisodes, solved_before_any_failure
-from lerobot_ccdp.benchmark.paired import cluster_bootstrap, repeats_per_attempt, repeats_per_opportunity
+from lerobot_ccdp.benchmark.paired import (
+    cluster_bootstrap,
+    paired_difference,
+    repeats_per_attempt,
+    repeats_per_opportunity,
+    success_rate,
+)
 from lerobot_ccdp.envs.tasks import task_family
 
 METHOD_LABELS = {
@@ -101,6 +107,17 @@ class MethodMetrics:
 
     def as_dict(self) -> dict[str, dict[str, float]]:
         return {name: vars(getattr(self, name)) for name in METRIC_LABELS}
+
+
+def paired_cells(here: Episodes, there: Episodes) -> str:
+    """Table cells comparing two evaluations of the same seeds: success here and there and its paired
+    difference (here minus there), then the same for repeats per attempt after a failure."""
+    a, b = MethodMetrics.of(here), MethodMetrics.of(there)
+    return (
+        f"{a.success} | {b.success} | {paired_difference(here, there, success_rate)} | "
+        f"{a.repeats_per_opportunity} | {b.repeats_per_opportunity} | "
+        f"{paired_difference(here, there, repeats_per_opportunity)}"
+    )
 
 
 Results = dict[str, dict[str, MethodMetrics]]  # task -> method -> metrics
