@@ -1,7 +1,6 @@
 """Configuration of the CCDP policy: LeRobot's diffusion settings plus the composition of eq. (4)."""
 
-import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -9,9 +8,10 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 from lerobot.optim.optimizers import AdamConfig
 from lerobot.optim.schedulers import DiffuserSchedulerConfig
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_ccdp.compat.literal_choices import choices
+from lerobot_ccdp.policy.config_checks import check_features, check_settings
 
 RecoveryMode = Literal["ccdp", "dp", "dp_star"]
 FailureFeatureKind = Literal["final_state", "action", "primitive"]
@@ -29,28 +29,6 @@ FAILURE_SEGMENTS = choices(FailureSegments)
 TRAINING_STAGES = choices(TrainingStage)
 RECOVERY_HEADS = choices(RecoveryHead)
 Z_REFERENCES = choices(ZReference)
-# Counts and sizes that must be >= 1, and those that must be >= 0 (`_check_numbers`).
-POSITIVE_FIELDS = (
-    "n_obs_steps",
-    "horizon",
-    "n_action_steps",
-    "num_train_timesteps",
-    "num_inference_steps",
-    "w_z_steps",
-    "kernel_size",
-    "diffusion_step_embed_dim",
-    "spatial_softmax_num_keypoints",
-    "dp_star_candidates",
-    "dp_star_rounds",
-)
-NON_NEGATIVE_FIELDS = (
-    "delta_z",
-    "history_length",
-    "ccdp_redraws",
-    "scheduler_warmup_steps",
-    "w_z_from_step",
-    "z_fourier_octaves",
-)
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
 # Set-denoiser datasets: the outcomes of every chunk sampled at a row's state (the policy's normalised z; no
@@ -222,77 +200,7 @@ class CCDPConfig(PreTrainedConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        self._check_numbers()
-        if self.prediction_type != "epsilon":
-            raise ValueError(
-                f"CCDP composes noise estimates (eq. 4), so `prediction_type` must be 'epsilon'; got "
-                f"{self.prediction_type!r}. Remove --policy.prediction_type or set it to epsilon."
-            )
-        for name in ("w_s", "w_h", "w_z"):
-            if getattr(self, name) < 0:
-                raise ValueError(
-                    f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(self, name)}."
-                )
-        if self.w_h > 0 and self.history_length == 0:
-            raise ValueError(
-                "`w_h` > 0 weighs the history term of eq. (4), which needs a history condition: set "
-                "--policy.history_length to 1 or more, or --policy.w_h=0."
-            )
-        for name, allowed in (
-            ("recovery_mode", RECOVERY_MODES),
-            ("failure_feature", FAILURE_FEATURES),
-            ("failure_state_at", FAILURE_STATES_AT),
-            ("failure_label_at", FAILURE_LABELS_AT),
-            ("failure_segments", FAILURE_SEGMENTS),
-            ("training_stage", TRAINING_STAGES),
-            ("recovery_head", RECOVERY_HEADS),
-            ("z_reference", Z_REFERENCES),
-        ):
-            self._check_choice(name, allowed)
-        self._check_choice("noise_scheduler_type", ("DDPM", "DDIM"))
-        self._check_vision()
-        if self.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
-            raise ValueError(
-                f"`failure_state_key` must be {OBS_STATE!r} or {OBS_ENV_STATE!r}; got "
-                f"{self.failure_state_key!r}."
-            )
-        if self.failure_feature == "primitive" and self.num_primitives < 2:
-            raise ValueError(
-                "failure_feature='primitive' needs `num_primitives` >= 2 (the number of distinct labels in "
-                f"the dataset column {self.primitive_key!r}); got {self.num_primitives}."
-            )
-        bad_steps = [s for s in self.failure_action_steps if not 0 <= s < self.horizon]
-        if bad_steps:
-            raise ValueError(
-                f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {self.horizon})."
-            )
-        if (self.w_z_steps is not None or self.w_z_from_step) and self.recovery_head != "set_denoiser":
-            raise ValueError(
-                f"`w_z_steps` ({self.w_z_steps}) and `w_z_from_step` ({self.w_z_from_step}) schedule the set "
-                f"denoiser's failure weight; the {self.recovery_head!r} head weighs every step alike. Remove "
-                "--policy.w_z_steps and --policy.w_z_from_step or use --policy.recovery_head=set_denoiser."
-            )
-        if self.stratum_weights and self.recovery_head != "set_denoiser":
-            raise ValueError(
-                f"`stratum_weights` weighs the set denoiser's training rows; the {self.recovery_head!r} head "
-                "has no failure-set strata. Remove --policy.stratum_weights or use "
-                "--policy.recovery_head=set_denoiser."
-            )
-        if self.recovery_head == "set_denoiser" and self.n_obs_steps != 1:
-            raise ValueError(
-                f"recovery_head='set_denoiser' trains on one-frame rows of a synthesised dataset: it needs "
-                f"n_obs_steps=1; got {self.n_obs_steps}. Use --policy.recovery_head=unet."
-            )
-        if self.horizon % 2 ** len(self.down_dims) != 0:
-            raise ValueError(
-                f"`horizon` ({self.horizon}) must be a multiple of 2**len(down_dims) = "
-                f"{2 ** len(self.down_dims)}."
-            )
-        if self.n_action_steps > self.horizon - self.n_obs_steps + 1:
-            raise ValueError(
-                f"`n_action_steps` ({self.n_action_steps}) must be <= horizon - n_obs_steps + 1 "
-                f"({self.horizon - self.n_obs_steps + 1})."
-            )
+        check_settings(self)
 
     def _save_pretrained(self, save_directory: Path) -> None:
         """Save without `failure_signal_file`: a path on this machine is no part of the model, and a
@@ -303,126 +211,15 @@ class CCDPConfig(PreTrainedConfig):
         finally:
             self.failure_signal_file = signal
 
-    def _check_numbers(self) -> None:
-        """Every number finite, and the sizes of a chunk positive: NaN passes every `<` check (a NaN weight
-        gave NaN actions that lerobot-eval scored as failed episodes, a NaN delta_z a DP* that never rejects),
-        and n_action_steps 0 trains, then fails at the first action."""
-        for f in fields(self):
-            value = getattr(self, f.name)
-            values = value if isinstance(value, (list, tuple)) else [value]
-            if any(isinstance(v, float) and not math.isfinite(v) for v in values):
-                raise ValueError(
-                    f"`{f.name}` must be a finite number; got {value}. Set --policy.{f.name} to a "
-                    "number (its default is in `lerobot-train --policy.type=ccdp --help`)."
-                )
-        at_least = dict.fromkeys(POSITIVE_FIELDS, 1) | dict.fromkeys(NON_NEGATIVE_FIELDS, 0)
-        small = {
-            name: getattr(self, name)
-            for name, low in at_least.items()
-            if getattr(self, name) is not None and getattr(self, name) < low
-        }
-        small |= {"down_dims": self.down_dims} if not self.down_dims or min(self.down_dims) < 1 else {}
-        if small:
-            raise ValueError(
-                f"{', '.join(f'`{k}`' for k in small)} must be >= 1 ({', '.join(NON_NEGATIVE_FIELDS)} >= 0, "
-                f"`down_dims` non-empty); got {small}."
-            )
-        if self.num_inference_steps is not None and self.num_inference_steps > self.num_train_timesteps:
-            raise ValueError(
-                f"`num_inference_steps` ({self.num_inference_steps}) cannot exceed `num_train_timesteps` "
-                f"({self.num_train_timesteps}): the reverse diffusion visits training timesteps."
-            )
-        steps = self.num_inference_steps or self.num_train_timesteps
-        if self.w_z_from_step + (self.w_z_steps or 1) > steps:
-            raise ValueError(
-                f"`w_z_from_step` ({self.w_z_from_step}) + `w_z_steps` ({self.w_z_steps}) reach past the "
-                f"{steps} reverse steps (numbered 0 to {steps - 1}): lower either."
-            )
-
-    def _check_vision(self) -> None:
-        """The checks LeRobot's DiffusionConfig makes of the same fields, and its crop derivation."""
-        if not self.vision_backbone.startswith("resnet"):
-            raise ValueError(
-                "`vision_backbone` must be a torchvision ResNet (e.g. resnet18); got "
-                f"{self.vision_backbone!r}."
-            )
-        if self.resize_shape is not None and (len(self.resize_shape) != 2 or min(self.resize_shape) <= 0):
-            raise ValueError(f"`resize_shape` must be a pair of positive integers; got {self.resize_shape}.")
-        if self.vision_backbone_stages not in (1, 2, 3, 4):
-            raise ValueError(
-                "`vision_backbone_stages` must be 1 to 4 (a ResNet has 4); got "
-                f"{self.vision_backbone_stages}."
-            )
-        if not 0 < self.crop_ratio <= 1.0:
-            raise ValueError(f"`crop_ratio` must be in (0, 1]; got {self.crop_ratio}.")
-        if self.resize_shape is not None:
-            ratio = self.crop_ratio
-            self.crop_shape = None if ratio == 1.0 else tuple(int(d * ratio) for d in self.resize_shape)
-        if self.crop_shape is not None and min(self.crop_shape) <= 0:
-            raise ValueError(f"`crop_shape` must have positive dimensions; got {self.crop_shape}.")
-        if self.use_group_norm and self.pretrained_backbone_weights:
-            raise ValueError(
-                "Pretrained backbone weights were trained with BatchNorm: set --policy.use_group_norm=false "
-                "to use them (replacing BatchNorm by GroupNorm would discard what they learnt)."
-            )
-
-    def _check_choice(self, name: str, allowed: tuple[str, ...]) -> None:
-        if getattr(self, name) not in allowed:
-            raise ValueError(f"Unknown `{name}` {getattr(self, name)!r}; choose one of {list(allowed)}.")
-
     def validate_features(self) -> None:
         """Check the dataset/env features against what the policy needs, and declare the z input."""
-        if self.robot_state_feature is None:
-            raise ValueError(
-                f"CCDP needs {OBS_STATE!r} among the input features; the dataset or env has "
-                f"{sorted(self.input_features)}. Record the robot state as {OBS_STATE!r}."
-            )
-        self._validate_images()
-        if self.image_features and self.recovery_head == "set_denoiser":
-            raise ValueError(
-                "recovery_head='set_denoiser' conditions on the state of synthesised rows, which carry no "
-                "camera images yet: use --policy.recovery_head=unet with cameras."
-            )
-        if self.action_feature is None:
-            raise ValueError(f"CCDP needs an {ACTION!r} output feature; the dataset has none.")
+        check_features(self)
         if len(self.action_feature.shape) == 2:
             # Recovery datasets store one chunk per frame: (horizon, action_dim). The policy acts per step.
             self.output_features[ACTION] = PolicyFeature(FeatureType.ACTION, self.action_feature.shape[-1:])
-        if self.failure_feature == "final_state":
-            source = self.input_features.get(self.failure_state_key)
-            if source is None:
-                raise ValueError(
-                    f"failure_feature='final_state' reads {self.failure_state_key!r}, which the dataset "
-                    f"lacks; choose --policy.failure_state_key among {sorted(self.input_features)}."
-                )
-            bad = [d for d in self.failure_state_dims if not 0 <= d < source.shape[0]]
-            if bad:
-                raise ValueError(
-                    f"`failure_state_dims` {bad} do not exist in {self.failure_state_key!r} "
-                    f"(shape {tuple(source.shape)})."
-                )
-        action_dim = self.action_feature.shape[-1]
-        bad = [d for d in self.failure_action_dims if not 0 <= d < action_dim]
-        if self.failure_feature == "action" and bad:
-            raise ValueError(f"`failure_action_dims` {bad} do not exist in the {action_dim}-dim action.")
         self.input_features[FAILURE_FEATURE_KEY] = PolicyFeature(
             FeatureType.STATE, (self.failure_feature_dim,)
         )
-
-    def _validate_images(self) -> None:
-        """Every camera has the same (C, H, W) shape (one encoder shape, as in LeRobot) and fits the crop."""
-        shapes = {key: tuple(ft.shape) for key, ft in self.image_features.items()}
-        if len(set(shapes.values())) > 1:
-            raise ValueError(
-                f"All cameras must have the same shape (one encoder input size); got {shapes}. Record them "
-                "at one size, or set --policy.resize_shape=[H,W] to resize every camera to it."
-            )
-        if shapes and self.crop_shape is not None and self.resize_shape is None:
-            _, height, width = next(iter(shapes.values()))
-            if self.crop_shape[0] > height or self.crop_shape[1] > width:
-                raise ValueError(
-                    f"`crop_shape` {self.crop_shape} does not fit in the camera images {shapes}."
-                )
 
     @property
     def state_dim(self) -> int:
