@@ -21,6 +21,8 @@ FailureSegments = Literal["labels", "drops", "pauses"]
 TrainingStage = Literal["base", "recovery"]
 RecoveryHead = Literal["unet", "classifier", "set_denoiser"]
 ZReference = Literal["eps_a", "eps_z_null"]
+# Each Literal's values; `choices` also gives draccus a decoder for it (compat/literal_choices.py), which
+# every field of these types needs. `config_checks` reads the allowed values from the fields' types.
 RECOVERY_MODES = choices(RecoveryMode)
 FAILURE_FEATURES = choices(FailureFeatureKind)
 FAILURE_STATES_AT = choices(FailureStateAt)
