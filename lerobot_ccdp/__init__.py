@@ -1,6 +1,7 @@
 """CCDP for LeRobot: importing this package registers the `ccdp` policy type and the `ccdp` env type."""
 
 from lerobot_ccdp.compat.cli_errors import install_error_surfacing
+from lerobot_ccdp.compat.config_help import install_source_cache
 from lerobot_ccdp.compat.eval_metrics import install_episode_metrics
 from lerobot_ccdp.compat.failure_passthrough import install_failure_passthrough
 from lerobot_ccdp.compat.frame_columns import install_frame_columns
@@ -11,6 +12,7 @@ from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 # before anything imports mujoco (no import above does: tests/compat/test_plugin_import.py)
 choose_headless_gl()
 install_error_surfacing()
+install_source_cache()
 install_failure_passthrough()
 install_episode_metrics(import_eval=False)
 install_frame_columns()

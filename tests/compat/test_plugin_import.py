@@ -1,5 +1,6 @@
 """LeRobot imports the plugin for every CLI: that import registers `ccdp` but loads no MuJoCo, task or
-lerobot-eval."""
+lerobot-eval (lerobot-record or lerobot-teleoperate on a robot should not pay for, or be patched by,
+lerobot-eval)."""
 
 import json
 import subprocess
