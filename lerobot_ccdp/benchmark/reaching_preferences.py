@@ -40,7 +40,7 @@ class ExactStartClassifier(torch.nn.Module):
 
     def __init__(self, policy: CCDPPolicy, preprocessor, dataset: LeRobotDataset):
         super().__init__()
-        data = dataset.hf_dataset.with_format("numpy")
+        data = dataset.hf_dataset.select_columns(["action", "frame_index"]).with_format("numpy")[:]
         actions = np.stack(data["action"]).astype(np.float32)
         starts = np.flatnonzero(np.asarray(data["frame_index"]).reshape(-1) == 0)
         horizon = policy.config.horizon
