@@ -58,10 +58,11 @@ def read_columns(
             f"{sorted(meta.features)}). Record it with the needed features, or change the policy's failure "
             "feature settings."
         )
-    keys = list(dict.fromkeys([*required, *(k for k in optional if k in meta.features), "episode_index"]))
+    keys = list(dict.fromkeys([*required, *(k for k in optional if k in meta.features)]))
+    read = list(dict.fromkeys([*keys, "episode_index"]))
     # one batch read of these columns only: row by row, `datasets` formats every frame on its own
-    dataset = LeRobotDataset(meta.repo_id, root=meta.root)
-    data = dataset.hf_dataset.select_columns(keys).with_format("numpy")[:]
+    hf = LeRobotDataset(meta.repo_id, root=meta.root).hf_dataset
+    data = hf.select_columns(read).with_format("numpy")[:]
     out = {k: np.stack(data[k]).astype(np.float32) for k in keys}
     out["episode_index"] = np.asarray(data["episode_index"]).reshape(-1)
     return out
