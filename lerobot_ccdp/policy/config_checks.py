@@ -1,10 +1,9 @@
 """The checks of a `CCDPConfig`: its settings when it is made, the dataset's features when LeRobot validates
 them.
 
-They live outside the config's class for speed: every time LeRobot builds a config (each `from_pretrained`,
-each CLI), draccus reads each field's help from the class's source with `inspect.getsource`, which on Python
-3.11 parses the whole module and tokenizes the class once per field. With these checks inside the class that
-was about 2 s per loaded checkpoint on a slow 2-core machine.
+They live outside the config's class so that the class reads as its fields and their help. They first moved
+for speed (draccus re-read the class's source once per field on every config load); that cost is now taken
+away for every config class by `lerobot_ccdp/compat/config_help.py`.
 """
 
 from __future__ import annotations
