@@ -26,7 +26,8 @@ rows (SET_RECIPE: chunks the base samples at demonstrated states, half of them t
 lerobot-train trains the failure-set denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one
 sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1
 round) on the same base and seeds; each --w-z other than 1 adds the set denoiser at that failure weight on the
---w-z-steps reverse steps from each --w-z-from on (0 the noisiest step; 0 steps: to the last). --set-states
+--w-z-steps reverse steps from each --w-z-from on (0 the noisiest step; 0 steps: to the last), and each
+--guard-steps other than 0 the same forms with the head's guard on that many last steps. --set-states
 sets the rows' states (SET_RECIPE's 512), --stratum-weights weighs the head's rows per (state, failure set)
 (`--policy.stratum_weights`), and --no-baselines leaves out DP and DP* (most of a member's
 measurement time) for a sweep of head settings. --z-fourier-octaves gives a `final_state` member's head its z
@@ -76,12 +77,14 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     baselines = BASELINES if first and sampling.baselines else {}
     if head == "set_denoiser":  # one sample per plan
         forms = {
-            set_denoiser_name(w, k, start): Method(
-                "ccdp", {"w_z": w, "w_z_steps": k or None, "w_z_from_step": start}
+            set_denoiser_name(w, k, start, guard): Method(
+                "ccdp",
+                {"w_z": w, "w_z_steps": k or None, "w_z_from_step": start, "failure_guard_steps": guard},
             )
             for w in sampling.w_z
             for start in (sampling.w_z_from if w != 1.0 else [0])
             for k in (sampling.w_z_steps if w != 1.0 else [0])
+            for guard in sampling.guard_steps
         }
         return {**baselines, **MATCHED, **forms}
     ccdp = {
@@ -94,16 +97,18 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
-def set_denoiser_name(w_z: float, steps: int, start: int = 0) -> str:
+def set_denoiser_name(w_z: float, steps: int, start: int = 0, guard: int = 0) -> str:
     """The table's name of the set denoiser at weight `w_z` on `steps` reverse steps from step `start` on (0:
-    to the last), 1 elsewhere; "CCDP set denoiser" at w_z = 1, the form of the round on members 12-23."""
+    to the last), 1 elsewhere, its guard on the last `guard` steps; "CCDP set denoiser" at w_z = 1 without
+    the guard, the form of the round on members 12-23."""
+    guarded = f" guard last {guard}" if guard else ""
     if w_z == 1.0:
-        return "CCDP set denoiser"
+        return f"CCDP set denoiser{guarded}"
     if not start:
         where = f" first {steps} steps" if steps else ""
     else:
         where = f" steps {start}-{start + steps - 1}" if steps else f" from step {start}"
-    return f"CCDP set denoiser w_z={w_z:g}{where}"
+    return f"CCDP set denoiser w_z={w_z:g}{where}{guarded}"
 
 
 def ccdp_name(w_z: float, redraws: int) -> str:
@@ -546,6 +551,14 @@ def main() -> None:
         help="set denoiser: the first reverse step (0 the noisiest) of each --w-z-steps window",
     )
     parser.add_argument(
+        "--guard-steps",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="set denoiser: each form also with its guard on the last this many reverse steps "
+        "(--policy.failure_guard_steps; 0: no guard)",
+    )
+    parser.add_argument(
         "--no-classifier",
         dest="classifier",
         action="store_false",
@@ -607,8 +620,8 @@ def main() -> None:
         if len({tuple(names) for names in measured.values()}) > 1:
             sys.exit(
                 f"The members were measured with different methods ({measured}): tabulate together only "
-                "members run with the same --w-z, --w-z-steps, --w-z-from, --redraws and --no-baselines, or "
-                "rerun the rest with them."
+                "members run with the same --w-z, --w-z-steps, --w-z-from, --guard-steps, --redraws and "
+                "--no-baselines, or rerun the rest with them."
             )
         results_path.write_text(json.dumps(results))
     for seed in [] if args.report_only else args.members:
@@ -659,7 +672,7 @@ def main() -> None:
     )
     shown = ccdp_name(args.w_z[0], args.redraws[0])
     if shown not in next(iter(chosen.values()))["methods"]:  # members measured with --no-classifier
-        shown = set_denoiser_name(args.w_z[0], args.w_z_steps[0], args.w_z_from[0])
+        shown = set_denoiser_name(args.w_z[0], args.w_z_steps[0], args.w_z_from[0], args.guard_steps[0])
     panel_grid(chosen, args.out / "preferences.png", shown)
 
 

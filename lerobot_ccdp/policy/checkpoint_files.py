@@ -231,10 +231,15 @@ def _named_on_command_line(value: str) -> bool:
     return f"--failure_signal_file={value}" in overrides
 
 
+# The set denoiser's guard (`denoisers.FailureSetDenoiser.guard`) and its `guard_trained` flag.
+GUARD_PREFIX = "model.recovery.guard"
+
+
 def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, **hub: Any) -> None:
     """Refuse a checkpoint whose saved weights do not match the policy's `state` dict. LeRobot loads
     non-strictly and would leave such weights at their random start. Only an untrained recovery head may
-    differ: a base checkpoint can start the recovery stage with another head (`--policy.recovery_head`)."""
+    differ: a base checkpoint can start the recovery stage with another head (`--policy.recovery_head`); and a
+    set denoiser saved before its guard existed loads without one."""
     with safe_open(_checkpoint_file(path, SAFETENSORS_SINGLE_FILE, **hub), framework="pt") as saved:
         saved_keys = set(saved.keys())
     missing, unexpected = sorted(set(state) - saved_keys), sorted(saved_keys - set(state))
@@ -242,6 +247,10 @@ def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, 
         missing, unexpected = (
             [k for k in keys if not k.startswith("model.recovery.")] for keys in (missing, unexpected)
         )
+    if not any(k.startswith(GUARD_PREFIX) for k in saved_keys):
+        # A set denoiser saved before its guard existed: the guard stays untrained (`guard_trained` False)
+        # and sampling refuses `failure_guard_steps` > 0 with the fix.
+        missing = [k for k in missing if not k.startswith(GUARD_PREFIX)]
     if missing or unexpected:
         raise ValueError(
             f"The weights in {path} do not fit the ccdp policy its config describes: "

@@ -37,6 +37,7 @@ NON_NEGATIVE_FIELDS = (
     "ccdp_redraws",
     "scheduler_warmup_steps",
     "w_z_from_step",
+    "failure_guard_steps",
     "z_fourier_octaves",
 )
 NOISE_SCHEDULERS = ("DDPM", "DDIM")
@@ -81,6 +82,12 @@ def check_settings(config: CCDPConfig) -> None:
             f"`w_z_steps` ({config.w_z_steps}) and `w_z_from_step` ({config.w_z_from_step}) schedule the set "
             f"denoiser's failure weight; the {config.recovery_head!r} head weighs every step alike. Remove "
             "--policy.w_z_steps and --policy.w_z_from_step or use --policy.recovery_head=set_denoiser."
+        )
+    if config.failure_guard_steps and config.recovery_head != "set_denoiser":
+        raise ValueError(
+            f"`failure_guard_steps` ({config.failure_guard_steps}) guides the set denoiser's last reverse "
+            f"steps with its guard; the {config.recovery_head!r} head has none. Remove "
+            "--policy.failure_guard_steps or use --policy.recovery_head=set_denoiser."
         )
     if config.stratum_weights and config.recovery_head != "set_denoiser":
         raise ValueError(
@@ -139,6 +146,11 @@ def _check_numbers(config: CCDPConfig) -> None:
         raise ValueError(
             f"`w_z_from_step` ({config.w_z_from_step}) + `w_z_steps` ({config.w_z_steps}) reach past the "
             f"{steps} reverse steps (numbered 0 to {steps - 1}): lower either."
+        )
+    if config.failure_guard_steps > steps:
+        raise ValueError(
+            f"`failure_guard_steps` ({config.failure_guard_steps}) exceeds the {steps} reverse steps: "
+            "lower it."
         )
 
 

@@ -63,6 +63,11 @@ class CCDPConfig(PreTrainedConfig):
             `w_z_from_step` on. Each guided step costs a base call.
         w_z_from_step: Set denoiser: the first reverse step (0 the noisiest, where a sample picks its option)
             that uses `w_z`.
+        failure_guard_steps: Set denoiser: in the last `failure_guard_steps` reverse steps, guide eps_{s,F}
+            away from F with its guard, a failure-set classifier trained beside it on the same rows (0: no
+            guard). Near zero noise P(a_0 outside F | a_t) is nearly 0 or 1, so the guard moves only the
+            samples the set denoiser let onto a failed option and leaves the proportions of the others. Each
+            guarded step costs one classifier forward and backward.
         z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
             "eps_z_null" (the recovery head with z dropped, trained on the same rows). `unet` head only.
         history_length: States and actions before the observation window that form the history condition
@@ -168,6 +173,7 @@ class CCDPConfig(PreTrainedConfig):
     w_z: float = 1.0
     w_z_steps: int | None = None
     w_z_from_step: int = 0
+    failure_guard_steps: int = 0
     z_reference: ZReference = "eps_z_null"
     history_length: int = 0
     recovery_mode: RecoveryMode = "ccdp"

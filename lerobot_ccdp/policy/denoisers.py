@@ -125,6 +125,10 @@ class FailureSetDenoiser(nn.Module):
     drawn independently of each row and the rows whose own outcome lies in F left out
     (`CCDPModel._set_denoiser_loss`): p(a | s, F) is then proportional to p_s(a | s) 1[z(a) outside F], the
     base's own proportions over the options left, learnt by one network that sampling calls once per step.
+
+    `guard` is a `FailureSetClassifier` trained beside it on the same rows and failure sets; sampling may
+    follow its gradient in the last reverse steps (`failure_guard_steps`) to move what the denoiser let onto a
+    failed option. `guard_trained` stays False in a checkpoint saved before the guard existed.
     """
 
     def __init__(self, config: CCDPConfig):
@@ -136,6 +140,8 @@ class FailureSetDenoiser(nn.Module):
         self.unet = with_small_batch_convolutions(
             DiffusionConditionalUnet1d(config, global_cond_dim=base_cond_dim + width)
         )
+        self.guard = FailureSetClassifier(config)
+        self.register_buffer("guard_trained", torch.zeros((), dtype=torch.bool))
 
     def forward(self, noisy: Tensor, timestep: Tensor, state: Tensor, z: Tensor, z_mask: Tensor) -> Tensor:
         """noisy (R, horizon, A); timestep (R,); state (R, state_cond_dim); z (R, N, z_dim) with z_mask

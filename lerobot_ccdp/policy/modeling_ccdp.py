@@ -448,8 +448,7 @@ class CCDPModel(nn.Module):
         FAILURE_SET_TRAIN_SIZE z drawn from other rows (so F is independent of the row's own chunk) and is a
         repeat when its own z lies within delta_z of a failure in F; the classifier learns P(repeat | a_t, s)
         with the base's noise schedule.
-        The state is dropped as in the base: where it already names the option, a state-conditioned row says
-        little about F, while state-free rows tie F to the chunks it excludes, in the same network."""
+        The state is dropped as in the base (`_classifier_loss`)."""
         cfg = self.config
         state, _, chunk, _ = self._windows(batch)
         b, n = chunk.shape[0], FAILURE_SET_TRAIN_SIZE
@@ -461,10 +460,8 @@ class CCDPModel(nn.Module):
         z_set, z_mask, repeats = draw_failure_sets(
             self.feature.from_chunk(chunk, self.outcomes), n, cfg.delta_z
         )
-        keep_s = (torch.rand(b, 1, device=chunk.device) >= P_DROP_STATE).to(chunk.dtype)
         _, timesteps, noisy = self._noised(chunk)
-        logits = self.recovery(noisy, timesteps, state, z_set, z_mask, keep_s)
-        return F.binary_cross_entropy_with_logits(logits, repeats.to(logits.dtype)), {}
+        return _classifier_loss(self.recovery, noisy, timesteps, state, z_set, z_mask, repeats), {}
 
     def _set_denoiser_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """eps_{s,F} on the rows of a set-denoiser dataset: chunks the base samples at option starts and along
@@ -473,7 +470,8 @@ class CCDPModel(nn.Module):
         the row's own chunk); rows whose own z lies within delta_z of a failure in F are left out. The rows
         kept are p_s(a | s) q(F) 1[z(a) outside F], whose conditional given (s, F) is p_s restricted to the
         options outside F in the base's proportions: DP*'s rejection, distilled. The first step copies the
-        base into the head (`FailureSetDenoiser.start_from`)."""
+        base into the head (`FailureSetDenoiser.start_from`). The head's guard learns P(repeat | a_t, s, F) on
+        the same noisy rows and failure sets, every row included, as the classifier head does."""
         cfg = self.config
         state, chunk = self.frames(batch), batch[ACTION]
         if state.ndim != 2 or chunk.ndim != 3 or chunk.shape[1] != cfg.horizon:
@@ -497,7 +495,9 @@ class CCDPModel(nn.Module):
         kept = (~repeats).to(loss.dtype)
         weight = kept * self._stratum_weights(batch, z_set, z_mask) if cfg.stratum_weights else kept
         loss = (loss.mean(dim=(1, 2)) * weight).sum() / weight.sum().clamp_min(1.0)
-        return loss, {"kept_rows": float(kept.mean())}
+        guard_loss = _classifier_loss(self.recovery.guard, noisy, timesteps, state, z_set, z_mask, repeats)
+        self.recovery.guard_trained.fill_(True)
+        return loss + guard_loss, {"kept_rows": float(kept.mean()), "guard_loss": guard_loss.item()}
 
     def _stratum_weights(self, batch: dict[str, Tensor], z_set: Tensor, z_mask: Tensor) -> Tensor:
         """`failure_buffer.stratum_weights` from the sibling outcomes the synthesis wrote beside each row."""
@@ -632,7 +632,7 @@ class CCDPModel(nn.Module):
                 step = torch.full((int(failed.sum()),), t, dtype=torch.long, device=sample.device)
                 gradient = torch.zeros_like(sample)
                 gradient[failed] = self._no_repeat_gradient(
-                    sample[failed], step, state[failed], z[failed], z_mask[failed]
+                    self.recovery, sample[failed], step, state[failed], z[failed], z_mask[failed]
                 )
                 alpha_bar = self.noise_scheduler.alphas_cumprod[t].to(sample.device)
                 composed = guide_away_from_failures(composed, gradient, alpha_bar, weights.w_z)
@@ -650,8 +650,16 @@ class CCDPModel(nn.Module):
         timesteps: list[int],
     ):
         """`compose_with_failure_set` for the rows with failures (eps_{s,F} in one recovery call, plus the
-        base terms whose coefficient is not zero at that step's weights: none at w_s = w_z = 1, w_h = 0) and
-        the base composition for the other rows as a function of (noisy sample, timestep)."""
+        base terms whose coefficient is not zero at that step's weights: none at w_s = w_z = 1, w_h = 0),
+        guided by the head's guard in the last `failure_guard_steps` steps (`guide_away_from_failures` at
+        weight 1), and the base composition for the other rows as a function of (noisy sample, timestep)."""
+        guarded = set(timesteps[len(timesteps) - self.config.failure_guard_steps :])
+        if guarded and not bool(self.recovery.guard_trained):
+            raise ValueError(
+                f"--policy.failure_guard_steps={self.config.failure_guard_steps} follows the set denoiser's "
+                "guard, which this checkpoint never trained (saved before the guard existed): set "
+                "--policy.failure_guard_steps=0, or train the recovery stage again."
+            )
         failed = z_mask.any(dim=1)
         no_failures = z[:, :0], z_mask[:, :0]
         plain_rest = self._composed_estimate(
@@ -674,6 +682,12 @@ class CCDPModel(nn.Module):
                 "sF": self.recovery(noisy, step, state_failed, z_failed, mask_failed)
             }
             eps[failed] = compose_with_failure_set(step_weights[t], estimates)
+            if t in guarded:
+                gradient = self._no_repeat_gradient(
+                    self.recovery.guard, noisy, step, state_failed, z_failed, mask_failed
+                )
+                alpha_bar = self.noise_scheduler.alphas_cumprod[t].to(sample.device)
+                eps[failed] = guide_away_from_failures(eps[failed], gradient, alpha_bar, 1.0)
             return eps
 
         return estimate
@@ -693,16 +707,16 @@ class CCDPModel(nn.Module):
         return eps[: r * n].view(r, n, *chunk), (eps[r * n :] if null_row else None)
 
     def _no_repeat_gradient(
-        self, sample: Tensor, step: Tensor, state: Tensor, z: Tensor, z_mask: Tensor
+        self, classifier: nn.Module, sample: Tensor, step: Tensor, state: Tensor, z: Tensor, z_mask: Tensor
     ) -> Tensor:
-        """grad_{a_t} log P(a_0 outside F | a_t, s) from the classifier head. LeRobot samples under
-        torch.inference_mode(), where no gradient exists: the inputs are copied into ordinary tensors
-        first."""
+        """grad_{a_t} log P(a_0 outside F | a_t, s) from a failure-set classifier (the classifier head or the
+        set denoiser's guard). LeRobot samples under torch.inference_mode(), where no gradient exists: the
+        inputs are copied into ordinary tensors first."""
         with torch.inference_mode(False), torch.enable_grad():
             noisy = sample.clone().requires_grad_(True)
             step, state, z, z_mask = step.clone(), state.clone(), z.clone(), z_mask.clone()
             rows, n = z_mask.shape  # one classifier call for every (row, failure) pair
-            logits = self.recovery(
+            logits = classifier(
                 noisy.repeat_interleave(n, dim=0),
                 step.repeat_interleave(n, dim=0),
                 state.repeat_interleave(n, dim=0),
@@ -721,3 +735,20 @@ class CCDPModel(nn.Module):
         """Observation frames (B, [T,] frame_dim) as the networks see them
         (`observations.observation_frames`)."""
         return observation_frames(self.config, self.images, batch, self.constant_inputs)
+
+
+def _classifier_loss(
+    classifier: nn.Module,
+    noisy: Tensor,
+    timesteps: Tensor,
+    state: Tensor,
+    z_set: Tensor,
+    z_mask: Tensor,
+    repeats: Tensor,
+) -> Tensor:
+    """Binary cross-entropy of a failure-set classifier's logit of "this row repeats a failure of F" on noisy
+    rows. The state is dropped as in the base: where it already names the option, a state-conditioned row says
+    little about F, while state-free rows tie F to the chunks it excludes, in the same network."""
+    keep_s = (torch.rand(noisy.shape[0], 1, device=noisy.device) >= P_DROP_STATE).to(noisy.dtype)
+    logits = classifier(noisy, timesteps, state, z_set, z_mask, keep_s)
+    return F.binary_cross_entropy_with_logits(logits, repeats.to(logits.dtype))

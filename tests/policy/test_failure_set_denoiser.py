@@ -51,8 +51,21 @@ def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set():
     policy.model.outcomes.fill(torch.zeros(4, 16 * 2), torch.zeros(4, 2), torch.zeros(4, dtype=torch.long))
     batch = {"observation.state": torch.randn(8, 2), "action": torch.randn(8, 16, 2)}  # synthesised rows
     loss, info = policy.forward(batch)
-    assert info["kept_rows"] == 0.0 and loss.item() == 0.0
+    assert info["kept_rows"] == 0.0 and loss.item() == pytest.approx(info["guard_loss"])  # the guard's alone
     assert bool(policy.model.recovery_trained)  # the first step copied the base into the head
+
+
+def test_the_guard_learns_from_every_row_beside_the_set_denoiser():
+    """The guard's loss is the classifier's on the same rows and failure sets, kept or not: with one option
+    every row repeats its failure set, so its loss alone moves the guard, which is then marked trained."""
+    torch.manual_seed(0)
+    policy = make_policy(**{**SETTINGS, "training_stage": "recovery"}).train()
+    policy.model.outcomes.fill(torch.zeros(4, 16 * 2), torch.zeros(4, 2), torch.zeros(4, dtype=torch.long))
+    assert not bool(policy.model.recovery.guard_trained)
+    loss, info = policy.forward({"observation.state": torch.randn(8, 2), "action": torch.randn(8, 16, 2)})
+    loss.backward()
+    assert info["guard_loss"] > 0 and bool(policy.model.recovery.guard_trained)
+    assert policy.model.recovery.guard.logit.weight.grad.abs().sum() > 0
 
 
 def test_stratum_weights_give_each_state_and_failure_set_the_weight_of_its_set_alone():
@@ -156,6 +169,69 @@ def test_w_z_guides_only_its_window_of_steps_and_the_set_denoiser_alone_serves_t
     torch.testing.assert_close(plan, sample)
 
 
+def test_the_guard_guides_only_the_last_steps_by_its_classifier_gradient():
+    """`failure_guard_steps` 3 of 10: the guard runs on the failed rows at the last three reverse steps only,
+    where eps_{s,F} - sqrt(1 - alpha_bar) grad log (1 - P(repeat | a_t)) replaces eps_{s,F}; the plan equals
+    the one sampled step by step by hand."""
+    policy = make_policy(**SETTINGS, failure_guard_steps=3)
+    model = policy.model
+    model.recovery_trained.fill_(True)
+    model.recovery.guard_trained.fill_(True)
+    state, history = torch.zeros(2, 2), torch.zeros(2, 0)
+    z, z_mask = torch.eye(3)[torch.tensor([[0], [1]])], torch.ones(2, 1, dtype=torch.bool)
+    guard_rows = count_calls(model.recovery.guard)
+    start = torch.randn(2, 16, 2)
+    torch.manual_seed(1)
+    with torch.inference_mode():
+        plan = model.denoise(start.clone(), state, history, z, z_mask)
+    assert guard_rows == [2] * 3
+
+    torch.manual_seed(1)
+    sample = start.clone()
+    for index, t in enumerate(model.noise_scheduler.timesteps[:10]):
+        step = torch.full((2,), int(t))
+        with torch.no_grad():
+            eps = model.recovery(sample, step, state, z, z_mask)
+        if index >= 7:
+            noisy = sample.clone().requires_grad_(True)
+            logit = model.recovery.guard(noisy, step, state, z, z_mask)
+            (gradient,) = torch.autograd.grad((1 - torch.sigmoid(logit)).log().sum(), noisy)
+            eps = eps - (1 - model.noise_scheduler.alphas_cumprod[int(t)]).sqrt() * gradient
+        sample = model.noise_scheduler.step(eps, t, sample).prev_sample.detach()
+    torch.testing.assert_close(plan, sample)
+
+
+def test_a_set_denoiser_saved_before_its_guard_loads_and_refuses_only_the_guard(reaching_root, tmp_path):
+    """A trained set-denoiser checkpoint without the guard's weights (saved before the guard existed) loads
+    and samples as before; asking it for guarded steps names the fix."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from safetensors.torch import load_file, save_file
+
+    from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+
+    from fixtures.policy_factory import untrained_checkpoint
+
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "head", **{**SETTINGS, "num_primitives": 4})
+    weights = load_file(checkpoint / "model.safetensors")
+    weights["model.recovery_trained"] = torch.ones((), dtype=torch.bool)
+    without_guard = {k: v for k, v in weights.items() if not k.startswith("model.recovery.guard")}
+    save_file(without_guard, checkpoint / "model.safetensors")
+    policy = CCDPPolicy.from_pretrained(checkpoint)
+    assert bool(policy.model.recovery_trained) and not bool(policy.model.recovery.guard_trained)
+    batch = {"observation.state": torch.zeros(1, 2)}
+    with torch.inference_mode():
+        policy.select_action(batch)
+        policy.report_failure(z=torch.eye(4)[[0]])
+        policy.predict_action_chunk(batch)
+    config = PreTrainedConfig.from_pretrained(checkpoint)
+    config.failure_guard_steps = 2
+    guarded = CCDPPolicy.from_pretrained(checkpoint, config=config)
+    with torch.inference_mode(), pytest.raises(ValueError, match="--policy.failure_guard_steps=0"):
+        guarded.select_action(batch)
+        guarded.report_failure(z=torch.eye(4)[[0]])
+        guarded.predict_action_chunk(batch)
+
+
 def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
     with pytest.raises(ValueError, match="n_obs_steps=1"):
         make_policy(**SETTINGS, n_obs_steps=2, n_action_steps=8)
@@ -168,6 +244,10 @@ def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
             make_policy(**SETTINGS, w_z=2.0, **window)
     with pytest.raises(ValueError, match="reach past the 10 reverse steps"):
         make_policy(**SETTINGS, w_z=2.0, w_z_steps=3, w_z_from_step=8)
+    with pytest.raises(ValueError, match="--policy.recovery_head=set_denoiser"):
+        make_policy(**{**SETTINGS, "recovery_head": "classifier"}, failure_guard_steps=2)
+    with pytest.raises(ValueError, match="exceeds the 10 reverse steps"):
+        make_policy(**SETTINGS, failure_guard_steps=11)
 
 
 def test_fourier_octaves_feed_the_set_embedding_z_with_its_sines_and_cosines():
