@@ -586,12 +586,14 @@ def time_breakdown(runs: list[TaskRun]) -> str:
     return "\n".join(lines)
 
 
-def w_z_window(count: int | None, start: int) -> str:
-    """The set denoiser's reverse steps at w_z (`w_z_steps`, `w_z_from_step`), as the forms table says it."""
+def w_z_window(count: int | None, start: int, guard: int = 0) -> str:
+    """The set denoiser's reverse steps at w_z (`w_z_steps`, `w_z_from_step`) and those its guard guides
+    (`failure_guard_steps`), as the forms table says them."""
+    guarded = f"; its guard on the last {guard} steps" if guard else ""
     if start:
         last = "the last" if count is None else start + count - 1
-        return f" on reverse steps {start} to {last} (0 the noisiest), 1 elsewhere"
-    return "" if count is None else f" on the first {count} steps, 1 after"
+        return f" on reverse steps {start} to {last} (0 the noisiest), 1 elsewhere{guarded}"
+    return ("" if count is None else f" on the first {count} steps, 1 after") + guarded
 
 
 def method_forms(runs: list[TaskRun]) -> str:
@@ -628,7 +630,9 @@ def method_forms(runs: list[TaskRun]) -> str:
                 f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by the failure-set denoiser eps_(s,F), "
                 f"w_z {ccdp['w_z']:g}"
             )
-            form += w_z_window(ccdp.get("w_z_steps"), ccdp.get("w_z_from_step", 0))
+            form += w_z_window(
+                ccdp.get("w_z_steps"), ccdp.get("w_z_from_step", 0), ccdp.get("failure_guard_steps", 0)
+            )
             synthesis = (
                 f"chunks sampled half at option starts, half along the demos: sigma {recipe.sigma:g}, "
                 f"w_s {recipe.w_s:g}, "

@@ -582,8 +582,10 @@ def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_
     assert z_description({**settings, "z_fourier_octaves": 4}).endswith("demonstrated_end, 4 Fourier octaves")
 
 
-def test_the_forms_table_names_the_set_denoisers_window_of_guided_steps():
+def test_the_forms_table_names_the_set_denoisers_window_of_guided_steps_and_its_guard():
     assert w_z_window(None, 0) == ""
     assert w_z_window(3, 0) == " on the first 3 steps, 1 after"
     assert w_z_window(3, 4) == " on reverse steps 4 to 6 (0 the noisiest), 1 elsewhere"
     assert w_z_window(None, 8) == " on reverse steps 8 to the last (0 the noisiest), 1 elsewhere"
+    assert w_z_window(None, 0, 4) == "; its guard on the last 4 steps"
+    assert w_z_window(3, 5, 2).endswith("1 elsewhere; its guard on the last 2 steps")
