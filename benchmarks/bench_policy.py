@@ -2,7 +2,7 @@
 
     HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
         [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|classifier|set_denoiser]
-        [--plan-batch 1] [--horizon 16] [--w-z 1] [--w-z-steps K]
+        [--plan-batch 1] [--horizon 16] [--w-z 1] [--w-z-steps K] [--guard-steps K]
         [--out outputs/bench_policy.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
@@ -145,6 +145,7 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Nam
         horizon=args.horizon,
         w_z=args.w_z,
         w_z_steps=args.w_z_steps,
+        failure_guard_steps=args.guard_steps,
     )
     rows = args.plan_batch
     obs = {STATE: torch.randn(rows, 2), ENV: torch.randn(rows, env_dim)}
@@ -160,6 +161,8 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Nam
     def with_failures(policy: CCDPPolicy, n: int) -> CCDPPolicy:
         policy.load_state_dict(state_dict)
         policy.model.recovery_trained.fill_(True)
+        if args.guard_steps:
+            policy.model.recovery.guard_trained.fill_(True)
         policy.eval().reset()
         policy.select_action(dict(obs))
         for _ in range(n):
@@ -441,6 +444,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--w-z", type=float, default=1.0, help="CCDP's failure weight")
     parser.add_argument(
         "--w-z-steps", type=int, default=None, help="set denoiser: steps that use --w-z (default: all)"
+    )
+    parser.add_argument(
+        "--guard-steps", type=int, default=0, help="set denoiser: last steps its guard guides (default: none)"
     )
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--recovery-head", choices=RECOVERY_HEADS, default="unet", help="recovery head")

@@ -107,3 +107,14 @@ def test_against_a_variant_the_differences_are_paired_member_by_member() -> None
 def test_against_a_variant_with_none_of_the_members_is_refused() -> None:
     with pytest.raises(ValueError, match="none of the reported members"):
         bench.variant_difference({100: member(100, False)}, {101: member(101, False)})
+
+
+def test_each_guard_setting_adds_the_set_denoisers_forms_with_the_guard_on_that_many_last_steps() -> None:
+    sampling = bench.argparse.Namespace(
+        w_z=[1.0, 2.0], w_z_steps=[3], w_z_from=[5], guard_steps=[0, 4], baselines=False
+    )
+    forms = bench.methods("set_denoiser", True, sampling, demos=None)
+    assert forms["CCDP set denoiser guard last 4"].fields["failure_guard_steps"] == 4
+    assert forms["CCDP set denoiser w_z=2 steps 5-7"].fields["failure_guard_steps"] == 0
+    assert forms["CCDP set denoiser w_z=2 steps 5-7 guard last 4"].fields["w_z_from_step"] == 5
+    assert len(forms) == 5  # DP* at CCDP's cost and the four forms
