@@ -4,13 +4,15 @@
         --pair <run>/bartender/tune_ccdp/<A>_seed1000 <run>/bartender/tune_ccdp/<B>_seed1000 \
         --pair <C folder> <D folder> [...]
 
-Each --pair names two evaluations of the same seeds (folders holding lerobot-eval's `eval_info.json`, as
-`tune_methods.py` writes them): a reference (one training) and a variant (the same training changed in one
-setting, say `--policy.stratum_weights=true`). Prints each pair's paired difference, variant minus reference,
-of success and of repeats per attempt after a failure, then the same over every pair's episodes pooled: a
-pair stays paired by seed, and the pooled interval resamples the episodes of all pairs together, as
-`tune_methods.py` pools tasks. One training decides little (its seed moves the figures as much as a setting
-does); pooled pairs of trainings from different seeds say whether the change holds across them.
+Each --pair names two evaluations of the same seeds: folders holding lerobot-eval's `eval_info.json`, as
+`tune_methods.py` writes them, or `FILE.json:<task>/tune_<method>/<folder>`, one evaluation of a record that
+`tune_methods.py --publish FILE.json` wrote (e.g. under docs/development/). One is a reference (one training),
+the other a variant (the same training changed in one setting, say `--policy.stratum_weights=true`). Prints
+each pair's paired difference, variant minus reference, of success and of repeats per attempt after a failure,
+then the same over every pair's episodes pooled: a pair stays paired by seed, and the pooled interval
+resamples the episodes of all pairs together, as `tune_methods.py` pools tasks. One training decides little
+(its seed moves the figures as much as a setting does); pooled pairs of trainings from different seeds say
+whether the change holds across them.
 """
 
 from __future__ import annotations
@@ -20,12 +22,25 @@ from pathlib import Path
 
 from lerobot_ccdp.benchmark.comparison import paired_cells
 from lerobot_ccdp.benchmark.episodes import Episodes
+from lerobot_ccdp.benchmark.results import Run
 
 
-def load(folder: Path) -> Episodes:
-    path = folder / "eval_info.json"
+def load(name: Path) -> Episodes:
+    """One evaluation: a folder holding its eval_info.json, or `FILE.json:<task>/<key>` of a record."""
+    record, sep, key = str(name).partition(".json:")
+    if sep:
+        task, _, evaluation = key.partition("/")
+        try:
+            found = Run.load(Path(record + ".json")).episodes
+        except (OSError, ValueError) as error:
+            raise SystemExit(f"Cannot read the record {record}.json: {error}") from error
+        if evaluation not in found.get(task, {}):
+            known = [f"{t}/{k}" for t, by in found.items() for k in by]
+            raise SystemExit(f"No evaluation {key!r} in {record}.json; it holds {known}.")
+        return found[task][evaluation]
+    path = name / "eval_info.json"
     if not path.is_file():
-        raise SystemExit(f"No eval_info.json in {folder}: name a folder an evaluation wrote.")
+        raise SystemExit(f"No eval_info.json in {name}: name a folder an evaluation wrote.")
     return Episodes.from_eval_info(path)
 
 

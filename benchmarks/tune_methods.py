@@ -35,6 +35,11 @@ differences against it, and how many test seeds would show success non-inferior 
 -0.05, issue 50) if the difference and its spread held (`paired.seeds_for_non_inferiority`): the size a test
 round needs.
 
+`--publish FILE` also writes every evaluation's per-episode outcomes (in `lerobot_ccdp.benchmark.results`'
+run format, keyed `<task>` then `tune_<method>/<evaluation folder>`, with the command and commit) to FILE, for
+example under docs/development/, so development evidence outlives the machine whose outputs/ made it and
+`benchmarks/pool_pairs.py` can pair evaluations from it (`FILE:<task>/tune_<method>/<folder>`).
+
 `--baseline-run OTHER` pairs this run with another one (other demos, recipe or training seeds) that was tuned
 with the same grid on the same seeds: a third table gives each row's, and `--against`'s method's, paired
 success and repeats differences against the same evaluation in OTHER, seed by seed. It only reads OTHER's
@@ -46,8 +51,10 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import shlex
 import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -71,6 +78,7 @@ from lerobot_ccdp.benchmark.pipeline import (
     TaskFiles,
     expand_tasks,
 )
+from lerobot_ccdp.benchmark.results import save_run
 from lerobot_ccdp.benchmark.targets import NON_INFERIORITY
 from lerobot_ccdp.datasets.ownership import MARKER, owner
 
@@ -197,6 +205,27 @@ def measured(
     return found, float(seconds.read_text()) if seconds.is_file() else np.nan
 
 
+def publish(
+    path: Path,
+    found: dict[str, dict[Path, Episodes]],
+    labels: dict[str, dict[Path, str]],
+    seed: int,
+    argv: list[str],
+) -> None:
+    """Write every evaluation's episodes to `path` under `<task>` and `tune_<method>/<folder>`: a record that
+    does not live in outputs/, with the command and commit that made it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    key = {t: {folder: f"{folder.parent.name}/{folder.name}" for folder in by} for t, by in found.items()}
+    save_run(
+        path,
+        {task: {key[task][folder]: e for folder, e in by.items()} for task, by in found.items()},
+        {task: {key[task][folder]: name for folder, name in by.items()} for task, by in labels.items()},
+        shlex.join(["benchmarks/tune_methods.py", *argv]),
+        seed,
+    )
+    print(f"wrote {path}")
+
+
 def against(episodes: Episodes, reference: Episodes) -> str:
     """The `--against` table's cells of one row: the reference's success, the paired differences of success
     and repeats, and the test seeds that would show non-inferiority."""
@@ -263,6 +292,13 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--write", action="store_true", help="store the pick in configs/<task>/methods.json")
     parser.add_argument(
+        "--publish",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="also write every evaluation's per-episode outcomes to FILE (e.g. docs/development/<run>.json)",
+    )
+    parser.add_argument(
         "--report-only",
         action="store_true",
         help="tabulate the evaluations of an earlier run of this grid under --out, running none",
@@ -271,6 +307,8 @@ def main(argv: list[str] | None = None) -> None:
     args.tasks = expand_tasks(args.tasks)
     if args.episodes < 1:
         raise SystemExit(f"--episodes {args.episodes}: evaluate at least one episode.")
+    if args.publish and args.publish.exists():  # checked before anything runs; a record is never replaced
+        raise SystemExit(f"--publish {args.publish} exists; name a new file (a record is never replaced).")
     if owner(args.out.resolve()) != CREATED_BY:  # its evaluations are written, and replaced, inside --out
         raise SystemExit(
             f"--out {args.out} is not an output folder of the pipeline (no {MARKER} of it there). Name a "
@@ -331,12 +369,17 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(f"--against {args.against} is the method being tuned; name another (e.g. dp_star).")
     rows, scores, by_task = [], {row: [] for row in rows_of}, {row: [] for row in rows_of}
     against_rows, baseline_rows = [], []
+    # every evaluation's folder, episodes and row name, for --publish
+    found: dict[str, dict[Path, Episodes]] = {t: {} for t in args.tasks}
+    names: dict[str, dict[Path, str]] = {t: {} for t in args.tasks}
     for task in args.tasks:
         episodes = {}
         if args.against:
             if not args.report_only:
                 evaluate(files[task], args.against, paths[task][OWN], OWN, (), args.seed, args.episodes)
             reference, _ = measured(files[task], args.against, OWN, (), args.seed, args.episodes)
+            folder = run_dir(files[task], args.against, OWN, (), args.seed)
+            found[task][folder], names[task][folder] = reference, f"{args.against} (methods.json)"
         for row in rows_of:
             name, setting = row
             if not args.report_only:
@@ -345,6 +388,8 @@ def main(argv: list[str] | None = None) -> None:
                 files[task], args.method, name, setting, args.seed, args.episodes
             )
             by_task[row].append(episodes[row])
+            folder = run_dir(files[task], args.method, name, setting, args.seed)
+            found[task][folder], names[task][folder] = episodes[row], f"{args.method} {row_label(row)}"
             metrics = MethodMetrics.of(episodes[row])
             scores[row].append((metrics.success.value, metrics.repeats_per_opportunity.value))
             first = episodes[rows_of[0]]
@@ -389,6 +434,8 @@ def main(argv: list[str] | None = None) -> None:
             "success here | success there | success - there | repeats here | repeats there | "
             "repeats - there |\n|---|---|---|---|---|---|---|---|\n" + "\n".join(baseline_rows)
         )
+    if args.publish:
+        publish(args.publish, found, names, args.seed, sys.argv[1:] if argv is None else argv)
 
     means = {r: np.nanmean(np.array(v, dtype=float), axis=0) for r, v in scores.items()}  # (success, repeats)
     for row, (success, repeats) in means.items():

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from lerobot_ccdp.datasets.ownership import claim_output_folder
+
 from fixtures.eval_runs import episodes, write_eval_info
 
 REPO = Path(__file__).resolve().parents[2]
@@ -50,3 +52,36 @@ def test_pairs_of_other_seeds_or_no_evaluation_are_named(tmp_path):
     write_eval_info(tmp_path / "b", episodes(50).subset(episodes(50).success))
     with pytest.raises(SystemExit, match="holds 100 episodes and .*b 50: pair evaluations of the same seeds"):
         pool.main(["--pair", str(tmp_path / "a"), str(tmp_path / "b")])
+
+
+def test_a_published_record_pairs_as_its_folders_did_and_is_never_replaced(tmp_path, capsys):
+    """`tune_methods.py --publish` keeps a grid's episodes outside outputs/: pool_pairs reads an evaluation
+    from the record exactly as from its folder, and an existing record is refused before anything runs."""
+    spec = importlib.util.spec_from_file_location("tune_methods", REPO / "benchmarks" / "tune_methods.py")
+    tune = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tune)
+    out, task = tmp_path / "run", "DoorOpening-lite-v0"
+    claim_output_folder(out, tune.CREATED_BY)
+    files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", out)
+    (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
+    folders = {}
+    for w_z, found in ((5, episodes(70, repeats=30)), (1, episodes(80, repeats=10))):
+        folders[w_z] = tune.run_dir(files, "ccdp", tune.OWN, (("w_z", w_z),), 1000)
+        write_eval_info(folders[w_z], found)
+    write_eval_info(tune.run_dir(files, "dp_star", tune.OWN, (), 1000), episodes(60))
+    record = tmp_path / "docs" / "development" / "run.json"
+    grid = ["--out", str(out), "--tasks", task, "--method", "ccdp", "--grid", "w_z=5,1", "--report-only"]
+    tune.main([*grid, "--against", "dp_star", "--publish", str(record)])
+    keys = {w_z: f"{record}:{task}/tune_ccdp/{folders[w_z].name}" for w_z in folders}
+    capsys.readouterr()
+    pool.main(["--pair", str(folders[5]), str(folders[1])])
+    from_folders = capsys.readouterr().out.splitlines()[-1].split(" | ")[1:]
+    dp_star = f"{record}:{task}/tune_dp_star/frozen_seed1000"
+    pool.main(["--pair", keys[5], keys[1], "--pair", dp_star, keys[1]])
+    rows = capsys.readouterr().out.splitlines()
+    assert rows[2].split(" | ")[1:] == from_folders and rows[2].split(" | ")[4].startswith("0.10 [")
+    assert rows[3].split(" | ")[4].startswith("0.20 [")  # against DP*'s 60
+    with pytest.raises(SystemExit, match="No evaluation 'DoorOpening-lite-v0/tune_ccdp/nothing' in .*holds"):
+        pool.main(["--pair", keys[5], f"{record}:{task}/tune_ccdp/nothing"])
+    with pytest.raises(SystemExit, match="--publish .*run.json exists; name a new file"):
+        tune.main([*grid, "--publish", str(record)])
