@@ -44,6 +44,12 @@ def load(name: Path) -> Episodes:
     return Episodes.from_eval_info(path)
 
 
+def short(name: Path) -> str:
+    """How a pair's row names an evaluation: its folder, after the record's name where it comes from one."""
+    record, sep, key = str(name).partition(".json:")
+    return f"{Path(record).name}: {Path(key).name}" if sep else name.name
+
+
 def row(name: str, reference: Episodes, variant: Episodes) -> str:
     return f"| {name} | {len(reference)} | {paired_cells(variant, reference)} |"
 
@@ -74,7 +80,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     print("|---|---|---|---|---|---|---|---|")
     for (a, b), (ref, var) in zip(args.pair, pairs, strict=True):
-        print(row(f"{a.name} / {b.name}", ref, var))
+        print(row(f"{short(a)} / {short(b)}", ref, var))
     if len(pairs) > 1:
         pooled = [Episodes.concatenate(list(side)) for side in zip(*pairs, strict=True)]
         print(row("pooled", *pooled))
