@@ -17,8 +17,9 @@ Members run side by side each with its own --out are tabulated together with
 `--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`, and compared with the
 same members measured as another variant with `--against <its folders>` (differences paired member by
 member). Stages whose inputs did not change are skipped (stamps, as in the pipeline). Settings are chosen on
-the development members 100-103, 105 and 107 (`--members 100 101 102 103 105 107`); members 0-11 were the
-classifier forms' test family (spent), 12-23, 24-35 and 36-47 the set denoiser's rounds (docs/benchmarks.md).
+the development members 100-103, 105 and 107-109 (`--members 100 101 102 103 105 107 108 109`); members 0-11
+were the classifier forms' test family (spent), 12-23, 24-35 and 36-47 the set denoiser's rounds, and 48-59
+are the round of its guard (docs/benchmarks.md).
 
 With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifier, unless
 --no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its
