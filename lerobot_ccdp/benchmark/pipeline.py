@@ -586,10 +586,11 @@ def time_breakdown(runs: list[TaskRun]) -> str:
     return "\n".join(lines)
 
 
-def w_z_window(count: int | None, start: int, guard: int = 0) -> str:
+def w_z_window(count: int | None, start: int, guard: int = 0, guard_weight: float = 1.0) -> str:
     """The set denoiser's reverse steps at w_z (`w_z_steps`, `w_z_from_step`) and those its guard guides
-    (`failure_guard_steps`), as the forms table says them."""
-    guarded = f"; its guard on the last {guard} steps" if guard else ""
+    (`failure_guard_steps`, at `failure_guard_weight`), as the forms table says them."""
+    weight = f" at weight {guard_weight:g}" if guard_weight != 1 else ""
+    guarded = f"; its guard on the last {guard} steps{weight}" if guard else ""
     if start:
         last = "the last" if count is None else start + count - 1
         return f" on reverse steps {start} to {last} (0 the noisiest), 1 elsewhere{guarded}"
@@ -631,7 +632,10 @@ def method_forms(runs: list[TaskRun]) -> str:
                 f"w_z {ccdp['w_z']:g}"
             )
             form += w_z_window(
-                ccdp.get("w_z_steps"), ccdp.get("w_z_from_step", 0), ccdp.get("failure_guard_steps", 0)
+                ccdp.get("w_z_steps"),
+                ccdp.get("w_z_from_step", 0),
+                ccdp.get("failure_guard_steps", 0),
+                ccdp.get("failure_guard_weight", 1.0),
             )
             synthesis = (
                 f"chunks sampled half at option starts, half along the demos: sigma {recipe.sigma:g}, "

@@ -52,7 +52,7 @@ def check_settings(config: CCDPConfig) -> None:
             f"CCDP composes noise estimates (eq. 4), so `prediction_type` must be 'epsilon'; got "
             f"{config.prediction_type!r}. Remove --policy.prediction_type or set it to epsilon."
         )
-    for name in ("w_s", "w_h", "w_z"):
+    for name in ("w_s", "w_h", "w_z", "failure_guard_weight"):
         if getattr(config, name) < 0:
             raise ValueError(
                 f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(config, name)}."
@@ -88,6 +88,12 @@ def check_settings(config: CCDPConfig) -> None:
             f"`failure_guard_steps` ({config.failure_guard_steps}) guides the set denoiser's last reverse "
             f"steps with its guard; the {config.recovery_head!r} head has none. Remove "
             "--policy.failure_guard_steps or use --policy.recovery_head=set_denoiser."
+        )
+    if config.failure_guard_weight != 1 and not config.failure_guard_steps:
+        raise ValueError(
+            f"`failure_guard_weight` ({config.failure_guard_weight}) weighs the guard's gradient at its "
+            "guarded steps, and `failure_guard_steps` is 0: set --policy.failure_guard_steps or remove "
+            "--policy.failure_guard_weight."
         )
     if config.stratum_weights and config.recovery_head != "set_denoiser":
         raise ValueError(

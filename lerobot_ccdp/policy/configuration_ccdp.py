@@ -68,6 +68,9 @@ class CCDPConfig(PreTrainedConfig):
             guard). Near zero noise P(a_0 outside F | a_t) is nearly 0 or 1, so the guard moves only the
             samples the set denoiser let onto a failed option and leaves the proportions of the others. Each
             guarded step costs one classifier forward and backward.
+        failure_guard_weight: Set denoiser: the weight of the guard's gradient at its guarded steps (1: the
+            classifier-guidance estimate of p(a_t | s) P(a_0 outside F | a_t, s); above 1 pushes harder at
+            no extra cost, for what one weight leaves on a failed option).
         z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
             "eps_z_null" (the recovery head with z dropped, trained on the same rows). `unet` head only.
         history_length: States and actions before the observation window that form the history condition
@@ -174,6 +177,7 @@ class CCDPConfig(PreTrainedConfig):
     w_z_steps: int | None = None
     w_z_from_step: int = 0
     failure_guard_steps: int = 0
+    failure_guard_weight: float = 1.0
     z_reference: ZReference = "eps_z_null"
     history_length: int = 0
     recovery_mode: RecoveryMode = "ccdp"

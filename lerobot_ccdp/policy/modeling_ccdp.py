@@ -652,7 +652,8 @@ class CCDPModel(nn.Module):
         """`compose_with_failure_set` for the rows with failures (eps_{s,F} in one recovery call, plus the
         base terms whose coefficient is not zero at that step's weights: none at w_s = w_z = 1, w_h = 0),
         guided by the head's guard in the last `failure_guard_steps` steps (`guide_away_from_failures` at
-        weight 1), and the base composition for the other rows as a function of (noisy sample, timestep)."""
+        `failure_guard_weight`), and the base composition for the other rows as a function of (noisy sample,
+        timestep)."""
         guarded = set(timesteps[len(timesteps) - self.config.failure_guard_steps :])
         if guarded and not bool(self.recovery.guard_trained):
             raise ValueError(
@@ -687,7 +688,9 @@ class CCDPModel(nn.Module):
                     self.recovery.guard, noisy, step, state_failed, z_failed, mask_failed
                 )
                 alpha_bar = self.noise_scheduler.alphas_cumprod[t].to(sample.device)
-                eps[failed] = guide_away_from_failures(eps[failed], gradient, alpha_bar, 1.0)
+                eps[failed] = guide_away_from_failures(
+                    eps[failed], gradient, alpha_bar, self.config.failure_guard_weight
+                )
             return eps
 
         return estimate

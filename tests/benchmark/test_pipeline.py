@@ -589,3 +589,4 @@ def test_the_forms_table_names_the_set_denoisers_window_of_guided_steps_and_its_
     assert w_z_window(None, 8) == " on reverse steps 8 to the last (0 the noisiest), 1 elsewhere"
     assert w_z_window(None, 0, 4) == "; its guard on the last 4 steps"
     assert w_z_window(3, 5, 2).endswith("1 elsewhere; its guard on the last 2 steps")
+    assert w_z_window(None, 0, 8, 2.0) == "; its guard on the last 8 steps at weight 2"

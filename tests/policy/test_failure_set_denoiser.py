@@ -169,11 +169,12 @@ def test_w_z_guides_only_its_window_of_steps_and_the_set_denoiser_alone_serves_t
     torch.testing.assert_close(plan, sample)
 
 
-def test_the_guard_guides_only_the_last_steps_by_its_classifier_gradient():
+@pytest.mark.parametrize("weight", [1.0, 2.5])
+def test_the_guard_guides_only_the_last_steps_by_its_classifier_gradient(weight):
     """`failure_guard_steps` 3 of 10: the guard runs on the failed rows at the last three reverse steps only,
-    where eps_{s,F} - sqrt(1 - alpha_bar) grad log (1 - P(repeat | a_t)) replaces eps_{s,F}; the plan equals
-    the one sampled step by step by hand."""
-    policy = make_policy(**SETTINGS, failure_guard_steps=3)
+    where eps_{s,F} - weight sqrt(1 - alpha_bar) grad log (1 - P(repeat | a_t)) replaces eps_{s,F}
+    (`failure_guard_weight`); the plan equals the one sampled step by step by hand."""
+    policy = make_policy(**SETTINGS, failure_guard_steps=3, failure_guard_weight=weight)
     model = policy.model
     model.recovery_trained.fill_(True)
     model.recovery.guard_trained.fill_(True)
@@ -196,7 +197,7 @@ def test_the_guard_guides_only_the_last_steps_by_its_classifier_gradient():
             noisy = sample.clone().requires_grad_(True)
             logit = model.recovery.guard(noisy, step, state, z, z_mask)
             (gradient,) = torch.autograd.grad((1 - torch.sigmoid(logit)).log().sum(), noisy)
-            eps = eps - (1 - model.noise_scheduler.alphas_cumprod[int(t)]).sqrt() * gradient
+            eps = eps - weight * (1 - model.noise_scheduler.alphas_cumprod[int(t)]).sqrt() * gradient
         sample = model.noise_scheduler.step(eps, t, sample).prev_sample.detach()
     torch.testing.assert_close(plan, sample)
 
@@ -248,6 +249,10 @@ def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
         make_policy(**{**SETTINGS, "recovery_head": "classifier"}, failure_guard_steps=2)
     with pytest.raises(ValueError, match="exceeds the 10 reverse steps"):
         make_policy(**SETTINGS, failure_guard_steps=11)
+    with pytest.raises(ValueError, match="--policy.failure_guard_steps or remove"):
+        make_policy(**SETTINGS, failure_guard_weight=2.0)
+    with pytest.raises(ValueError, match="`failure_guard_weight` must be >= 0"):
+        make_policy(**SETTINGS, failure_guard_steps=2, failure_guard_weight=-1.0)
 
 
 def test_fourier_octaves_feed_the_set_embedding_z_with_its_sines_and_cosines():
