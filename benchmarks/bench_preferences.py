@@ -28,7 +28,8 @@ lerobot-train trains the failure-set denoiser on them for --head-steps, and "CCD
 sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1
 round) on the same base and seeds; each --w-z other than 1 adds the set denoiser at that failure weight on the
 --w-z-steps reverse steps from each --w-z-from on (0 the noisiest step; 0 steps: to the last), and each
---guard-steps other than 0 the same forms with the head's guard on that many last steps. --set-states
+--guard-steps other than 0 the same forms with the head's guard on that many last steps (at each
+--guard-weight). --set-states
 sets the rows' states (SET_RECIPE's 512), --stratum-weights weighs the head's rows per (state, failure set)
 (`--policy.stratum_weights`), and --no-baselines leaves out DP and DP* (most of a member's
 measurement time) for a sweep of head settings. --z-fourier-octaves gives a `final_state` member's head its z
@@ -78,14 +79,16 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     baselines = BASELINES if first and sampling.baselines else {}
     if head == "set_denoiser":  # one sample per plan
         forms = {
-            set_denoiser_name(w, k, start, guard): Method(
+            set_denoiser_name(w, k, start, guard, w_g): Method(
                 "ccdp",
-                {"w_z": w, "w_z_steps": k or None, "w_z_from_step": start, "failure_guard_steps": guard},
+                {"w_z": w, "w_z_steps": k or None, "w_z_from_step": start, "failure_guard_steps": guard}
+                | ({"failure_guard_weight": w_g} if guard else {}),
             )
             for w in sampling.w_z
             for start in (sampling.w_z_from if w != 1.0 else [0])
             for k in (sampling.w_z_steps if w != 1.0 else [0])
             for guard in sampling.guard_steps
+            for w_g in (sampling.guard_weight if guard else [1.0])
         }
         return {**baselines, **MATCHED, **forms}
     ccdp = {
@@ -98,11 +101,15 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
-def set_denoiser_name(w_z: float, steps: int, start: int = 0, guard: int = 0) -> str:
+def set_denoiser_name(
+    w_z: float, steps: int, start: int = 0, guard: int = 0, guard_weight: float = 1.0
+) -> str:
     """The table's name of the set denoiser at weight `w_z` on `steps` reverse steps from step `start` on (0:
-    to the last), 1 elsewhere, its guard on the last `guard` steps; "CCDP set denoiser" at w_z = 1 without
-    the guard, the form of the round on members 12-23."""
+    to the last), 1 elsewhere, its guard on the last `guard` steps at weight `guard_weight`; "CCDP set
+    denoiser" at w_z = 1 without the guard, the form of the round on members 12-23."""
     guarded = f" guard last {guard}" if guard else ""
+    if guard and guard_weight != 1.0:
+        guarded += f" w_g={guard_weight:g}"
     if w_z == 1.0:
         return f"CCDP set denoiser{guarded}"
     if not start:
@@ -560,6 +567,13 @@ def main() -> None:
         "(--policy.failure_guard_steps; 0: no guard)",
     )
     parser.add_argument(
+        "--guard-weight",
+        type=float,
+        nargs="+",
+        default=[1.0],
+        help="set denoiser: each guarded form at each of these guard weights (--policy.failure_guard_weight)",
+    )
+    parser.add_argument(
         "--no-classifier",
         dest="classifier",
         action="store_false",
@@ -621,7 +635,8 @@ def main() -> None:
         if len({tuple(names) for names in measured.values()}) > 1:
             sys.exit(
                 f"The members were measured with different methods ({measured}): tabulate together only "
-                "members run with the same --w-z, --w-z-steps, --w-z-from, --guard-steps, --redraws and "
+                "members run with the same --w-z, --w-z-steps, --w-z-from, --guard-steps, --guard-weight, "
+                "--redraws and "
                 "--no-baselines, or rerun the rest with them."
             )
         results_path.write_text(json.dumps(results))
@@ -673,7 +688,9 @@ def main() -> None:
     )
     shown = ccdp_name(args.w_z[0], args.redraws[0])
     if shown not in next(iter(chosen.values()))["methods"]:  # members measured with --no-classifier
-        shown = set_denoiser_name(args.w_z[0], args.w_z_steps[0], args.w_z_from[0], args.guard_steps[0])
+        shown = set_denoiser_name(
+            args.w_z[0], args.w_z_steps[0], args.w_z_from[0], args.guard_steps[0], args.guard_weight[0]
+        )
     panel_grid(chosen, args.out / "preferences.png", shown)
 
 
