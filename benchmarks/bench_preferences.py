@@ -72,6 +72,44 @@ MATCHED = {"DP* at CCDP's cost": Method("dp_star", MATCHED_DP_STAR)}
 # w_s = 1.
 SET_RECIPE = {"n_states": 512, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0, "demo_frames": 4096}
 
+# The sampling settings measured in every combination on the same checkpoints (no retraining): flag, type,
+# default, help.
+SAMPLING_GRIDS = (
+    (
+        "--w-z",
+        float,
+        1.0,
+        "classifier guidance weights, or the set denoiser's failure weights, to measure",
+    ),
+    (
+        "--w-z-steps",
+        int,
+        0,
+        "set denoiser: how many reverse steps from each --w-z-from on use each --w-z other than 1, 1 "
+        "elsewhere (0: to the last)",
+    ),
+    (
+        "--w-z-from",
+        int,
+        0,
+        "set denoiser: the first reverse step (0 the noisiest) of each --w-z-steps window",
+    ),
+    (
+        "--guard-steps",
+        int,
+        0,
+        "set denoiser: each form also with its guard on the last this many reverse steps "
+        "(--policy.failure_guard_steps; 0: no guard)",
+    ),
+    (
+        "--guard-weight",
+        float,
+        1.0,
+        "set denoiser: each guarded form at each of these guard weights (--policy.failure_guard_weight)",
+    ),
+    ("--redraws", int, 0, "most redraws of a CCDP plan that repeats a failure (0: one sample per plan)"),
+)
+
 
 def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobotDataset) -> dict[str, Method]:
     """The methods measured on `head` ("classifier" or "set_denoiser"); DP and DP* on the first head only (the
@@ -535,44 +573,8 @@ def main() -> None:
         action="store_true",
         help="set denoiser: weigh its training rows per (state, failure set) (--policy.stratum_weights)",
     )
-    parser.add_argument(
-        "--w-z",
-        type=float,
-        nargs="+",
-        default=[1.0],
-        help="classifier guidance weights, or the set denoiser's failure weights, to measure (sampling "
-        "settings: no retraining)",
-    )
-    parser.add_argument(
-        "--w-z-steps",
-        type=int,
-        nargs="+",
-        default=[0],
-        help="set denoiser: how many reverse steps from each --w-z-from on use each --w-z other than 1, 1 "
-        "elsewhere (0: to the last)",
-    )
-    parser.add_argument(
-        "--w-z-from",
-        type=int,
-        nargs="+",
-        default=[0],
-        help="set denoiser: the first reverse step (0 the noisiest) of each --w-z-steps window",
-    )
-    parser.add_argument(
-        "--guard-steps",
-        type=int,
-        nargs="+",
-        default=[0],
-        help="set denoiser: each form also with its guard on the last this many reverse steps "
-        "(--policy.failure_guard_steps; 0: no guard)",
-    )
-    parser.add_argument(
-        "--guard-weight",
-        type=float,
-        nargs="+",
-        default=[1.0],
-        help="set denoiser: each guarded form at each of these guard weights (--policy.failure_guard_weight)",
-    )
+    for flag, kind, default, help_text in SAMPLING_GRIDS:
+        parser.add_argument(flag, type=kind, nargs="+", default=[default], help=help_text)
     parser.add_argument(
         "--no-classifier",
         dest="classifier",
@@ -583,13 +585,6 @@ def main() -> None:
         "--set-denoiser",
         action="store_true",
         help="also train and measure the failure-set denoiser (recovery_head=set_denoiser)",
-    )
-    parser.add_argument(
-        "--redraws",
-        type=int,
-        nargs="+",
-        default=[0],
-        help="most redraws of a CCDP plan that repeats a failure (0: one sample per plan)",
     )
     parser.add_argument(
         "--no-baselines",
