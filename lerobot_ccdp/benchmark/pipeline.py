@@ -103,11 +103,17 @@ class PipelineError(RuntimeError):
     """A stage's command failed; the message names the command and ends with its log."""
 
 
+def real_path(path: str | Path) -> Path:
+    """The one spelling of an output folder, for the stage stamps (which hash command lines): the real path,
+    symlinks and `..` resolved, the same from every working directory, so a run from another checkout (a
+    worktree) reuses the stages a run from this one finished."""
+    return Path(path).expanduser().resolve()
+
+
 def canonical(path: str | Path) -> Path:
-    """One spelling per folder, for the lock and the stage stamps (which hash command lines): the real path,
-    symlinks and `..` resolved, relative to the working directory when inside it, as `make` spells its
-    folders (so the stamps of outputs made before paths were resolved still match)."""
-    real = Path(path).expanduser().resolve()
+    """The one spelling of a settings folder in the stamps: its real path, relative to the working directory
+    when inside it, so every checkout spells its own settings alike (the stamps hash their content too)."""
+    real = real_path(path)
     return real.relative_to(Path.cwd()) if real.is_relative_to(Path.cwd()) else real
 
 
@@ -792,7 +798,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument(
         "--out",
-        type=canonical,
+        type=real_path,
         default="outputs/pipeline",
         help=f"root of every output: a new or empty folder, or one this pipeline made (it holds {MARKER})",
     )

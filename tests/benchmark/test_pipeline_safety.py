@@ -177,7 +177,7 @@ def test_the_lock_is_one_per_folder_however_it_is_spelled(root, stages, spelling
     assert not stages.commands
 
 
-def test_a_second_run_spelling_the_folders_another_way_skips_every_stage(root, stages, capsys):
+def test_a_second_run_spelling_the_folders_another_way_skips_every_stage(root, stages, capsys, monkeypatch):
     run("out")
     assert len(stages.commands) == 4  # record, base, synthesis, recovery
     (root / "link").symlink_to(root / "out")
@@ -185,6 +185,12 @@ def test_a_second_run_spelling_the_folders_another_way_skips_every_stage(root, s
         capsys.readouterr()
         run(out, settings=settings)
         assert capsys.readouterr().out.count("done already") == 4
+    # From another checkout (a worktree holding the same settings), the output folder named by its path.
+    shutil.copytree(root / "settings", root / "worktree" / "settings")
+    monkeypatch.chdir(root / "worktree")
+    capsys.readouterr()
+    run(root / "out")
+    assert capsys.readouterr().out.count("done already") == 4
     assert len(stages.commands) == 4
 
 
