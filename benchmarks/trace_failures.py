@@ -13,6 +13,8 @@ per lost episode, the options tried and the plans' looked-up options, and two co
   (the sampler chose it) rather than on another (the lookup and the env disagree);
 - stalls: lost episodes that neither succeeded nor used up their failures, and how many times their last
   attempt's plans switched option (two consecutive plans more than `delta_z` apart).
+Where the end effector went (every 10th step) is printed for a stalled episode's last attempt and for every
+attempt that repeated a failure.
 With `--probe K`, every attempt's first plan after a failure is also drawn K more times from the same state
 and failures, by the method and by the base alone (DP, failures ignored): the shares of those draws that the
 lookup places on a failed option, per stage of the task, show where the recovery head leaves the base's
@@ -48,6 +50,8 @@ class Episode:
     repeats_chosen: int = 0  # repeats whose last plan the lookup placed on a failed option
     repeats_other: int = 0
     switches: int = 0  # in the current attempt
+    path: list[np.ndarray] = field(default_factory=list)  # the end effector in the current attempt
+    repeat_paths: list[list[np.ndarray]] = field(default_factory=list)  # each repeated failure's attempt
     stage: int = 0  # stages finished so far (the env's)
     done: bool = False
     success: bool = False
@@ -94,8 +98,9 @@ class Tracer:
                 chosen = bool(episode.plans) and episode.plans[-1][1]
                 episode.repeats_chosen += chosen
                 episode.repeats_other += not chosen
+                episode.repeat_paths.append(episode.path)
             episode.events.append(f"fail option {info['option']}{' (repeat)' if repeat else ''}")
-            episode.attempt_z, episode.switches = None, 0
+            episode.attempt_z, episode.switches, episode.path = None, 0, []
         elif info["is_success"]:
             episode.events.append(f"success option {info['option']}")
         episode.success = bool(info["is_success"])
@@ -123,6 +128,10 @@ class Tracer:
         for index, episode in enumerate(episodes):
             if verbose or not episode.success:
                 print(f"episode {index}: " + "; ".join(episode.events))
+            for path in episode.repeat_paths:
+                print(f"  a repeat's attempt, its end effector every 10 steps: {every_tenth(path)}")
+            if not episode.success and not episode.out_of_failures:  # stalled
+                print(f"  its last attempt's end effector every 10 steps: {every_tenth(episode.path)}")
         print(
             f"\n{len(episodes)} episodes, {len(lost)} lost: {len(lost) - len(stalls)} out of failures, "
             f"{len(stalls)} stalled (their last attempt's plans switched option "
@@ -132,6 +141,10 @@ class Tracer:
             f"repeated failures: {chosen + other}; after a plan looked up on a failed option {chosen}, "
             f"on another option {other}"
         )
+
+
+def every_tenth(path: list[np.ndarray]) -> list[list[float]]:
+    return np.round(np.stack(path[::10]), 2).tolist() if path else []
 
 
 def probe_shares(policy, rows: Tensor, i: int, draws: int, delta_z: float) -> tuple[float, float]:
@@ -166,6 +179,9 @@ def install(tracer: Tracer, draws: int) -> None:
         episode, stage = tracer.rows[row], env._attempts - env._failures  # stages finished
         if stage > episode.stage and not episode.done and not info["is_success"]:
             episode.events.append(f"stage done with option {info['option']}")
+            episode.path = []
+        if not episode.done:
+            episode.path.append(env.ee_pos.copy())
         episode.stage = stage
         if failure or terminated or truncated:
             tracer.outcome(row, info, failure, terminated or truncated)
