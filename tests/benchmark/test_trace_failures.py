@@ -95,3 +95,23 @@ def test_the_probe_counts_the_draws_a_method_and_dp_place_on_a_failed_option(mon
         "stage 1: 1 first plans after a failure; share of draws on a failed option: method 0.00, DP 0.50"
         in (capsys.readouterr().out)
     )
+
+
+def test_a_repeats_attempt_and_a_stalled_last_attempt_show_where_the_end_effector_went(capsys):
+    """A failure starts the next attempt's path afresh; a repeat keeps its attempt's path; the report prints
+    every 10th position of those and of a stalled episode's last attempt."""
+    tracer = trace.Tracer(delta_z=0.1)
+    first, second = [np.full(3, 0.5), np.full(3, 0.6)], [np.full(3, float(i)) for i in range(12)]
+    tracer.rows[0].path.extend(first)
+    tracer.outcome(0, info(0), failure=True, terminated=False)
+    assert tracer.rows[0].path == [] and tracer.rows[0].repeat_paths == []
+    tracer.rows[0].path.extend(second)
+    tracer.outcome(0, info(0, repeated=1), failure=True, terminated=False)
+    assert tracer.rows[0].repeat_paths == [second] and tracer.rows[0].path == []
+    tracer.rows[0].path.extend(first)  # the last attempt, left unfinished by the time limit
+    tracer.rows[0].done = True
+    tracer.new_batch()
+    tracer.report(verbose=False)
+    out = capsys.readouterr().out
+    assert "a repeat's attempt, its end effector every 10 steps: [[0.0, 0.0, 0.0], [10.0, 10.0, 10.0]]" in out
+    assert "its last attempt's end effector every 10 steps: [[0.5, 0.5, 0.5]]" in out
