@@ -126,8 +126,9 @@ class Tracer:
                 f"option: method {method:.2f}, DP {base:.2f}; states where the method's share > 0.5: {high}"
             )
         for index, episode in enumerate(episodes):
-            if verbose or not episode.success:
-                print(f"episode {index}: " + "; ".join(episode.events))
+            if not verbose and episode.success:
+                continue
+            print(f"episode {index}: " + "; ".join(episode.events))
             for path in episode.repeat_paths:
                 print(f"  a repeat's attempt, its end effector every 10 steps: {every_tenth(path)}")
             if not episode.success and not episode.out_of_failures:  # stalled
