@@ -13,8 +13,8 @@ per lost episode, the options tried and the plans' looked-up options, and two co
   (the sampler chose it) rather than on another (the lookup and the env disagree);
 - stalls: lost episodes that neither succeeded nor used up their failures, and how many times their last
   attempt's plans switched option (two consecutive plans more than `delta_z` apart).
-Where the end effector went (every 10th step) is printed for a stalled episode's last attempt and for every
-attempt that repeated a failure.
+Under each printed episode (the lost, or with `--verbose` all), where the end effector went (every 10th step)
+in every attempt that repeated a failure and, if it stalled, in its last attempt.
 With `--probe K`, every attempt's first plan after a failure is also drawn K more times from the same state
 and failures, by the method and by the base alone (DP, failures ignored): the shares of those draws that the
 lookup places on a failed option, per stage of the task, show where the recovery head leaves the base's
