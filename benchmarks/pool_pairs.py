@@ -10,7 +10,9 @@ Each --pair names two evaluations of the same seeds: folders holding lerobot-eva
 the other a variant (the same training changed in one setting, say `--policy.stratum_weights=true`). Prints
 each pair's paired difference, variant minus reference, of success and of repeats per attempt after a failure,
 then the same over every pair's episodes pooled: a pair stays paired by seed, and the pooled interval
-resamples the episodes of all pairs together, as `tune_methods.py` pools tasks. One training decides little
+resamples the episodes of all pairs together, as `tune_methods.py` pools tasks. `--preference` adds the
+paired difference of preference adherence on the episodes both evaluations solved (for a task whose
+demonstrations prefer one option: ObjectManipulation, ObjectPacking, Bartender). One training decides little
 (its seed moves the figures as much as a setting does); pooled pairs of trainings from different seeds say
 whether the change holds across them.
 """
@@ -50,8 +52,8 @@ def short(name: Path) -> str:
     return f"{Path(record).name}: {Path(key).name}" if sep else name.name
 
 
-def row(name: str, reference: Episodes, variant: Episodes) -> str:
-    return f"| {name} | {len(reference)} | {paired_cells(variant, reference)} |"
+def row(name: str, reference: Episodes, variant: Episodes, preference: bool) -> str:
+    return f"| {name} | {len(reference)} | {paired_cells(variant, reference, preference)} |"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -67,6 +69,11 @@ def main(argv: list[str] | None = None) -> None:
         metavar=("REFERENCE", "VARIANT"),
         help="two evaluation folders of the same seeds",
     )
+    parser.add_argument(
+        "--preference",
+        action="store_true",
+        help="also pair preference adherence (tasks whose demonstrations prefer one option)",
+    )
     args = parser.parse_args(argv)
     pairs = [(load(a), load(b)) for a, b in args.pair]
     for (a, b), (ref, var) in zip(args.pair, pairs, strict=True):
@@ -74,16 +81,18 @@ def main(argv: list[str] | None = None) -> None:
             raise SystemExit(
                 f"{a} holds {len(ref)} episodes and {b} {len(var)}: pair evaluations of the same seeds."
             )
+    columns = ["success", "repeats"] + ["preference"] * args.preference
     print(
-        "| pair | episodes | success: variant | reference | variant - reference | repeats: variant "
-        "| reference | variant - reference |"
+        "| pair | episodes | "
+        + " | ".join(f"{c}: variant | reference | variant - reference" for c in columns)
+        + " |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|" + "---|---|---|" * len(columns))
     for (a, b), (ref, var) in zip(args.pair, pairs, strict=True):
-        print(row(f"{short(a)} / {short(b)}", ref, var))
+        print(row(f"{short(a)} / {short(b)}", ref, var, args.preference))
     if len(pairs) > 1:
         pooled = [Episodes.concatenate(list(side)) for side in zip(*pairs, strict=True)]
-        print(row("pooled", *pooled))
+        print(row("pooled", *pooled, args.preference))
 
 
 if __name__ == "__main__":

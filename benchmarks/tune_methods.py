@@ -6,9 +6,12 @@
         --tasks ButtonSearch-v0 --method ccdp --grid ccdp_redraws=0,3 [--write]
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/label_free \
         --label-free --tasks Bartender-v0 --method ccdp --grid w_z=1,2
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/label_free \
+        --label-free --tasks Bartender-v0 --method dp --checkpoint b7200=<recovery checkpoint>
 
 Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy
-fields on each task's recovery checkpoint of a `make benchmark` run (or `python -m
+fields (no `--grid`: the method's `methods.json` settings alone, the only form of DP, which has none) on each
+task's recovery checkpoint of a `make benchmark` run (or `python -m
 lerobot_ccdp.benchmark.pipeline --train-only`), through lerobot-eval with the task's eval config and the
 method's other settings from `methods.json`, but on the development seeds (`--seed`, default 1000, and
 `--episodes`, default 100: episode i uses seed + i, whatever size the eval config gives its test round),
@@ -33,7 +36,8 @@ first named head's first setting.
 `<task>/tune_<METHOD>/frozen_seed<seed>`) and prints a second table: each row's paired success and repeats
 differences against it, and how many test seeds would show success non-inferior to it (interval above
 -0.05, issue 50) if the difference and its spread held (`paired.seeds_for_non_inferiority`): the size a test
-round needs.
+round needs. On a task whose demonstrations prefer one option it adds the paired difference of preference
+adherence on the episodes both solved (issue 50 asks CCDP's to be non-inferior to DP*'s).
 
 `--publish FILE` also writes every evaluation's per-episode outcomes (in `lerobot_ccdp.benchmark.results`'
 run format, keyed `<task>` then `tune_<method>/<evaluation folder>`, with the command and commit) to FILE, for
@@ -61,10 +65,11 @@ from typing import Any
 
 import numpy as np
 
-from lerobot_ccdp.benchmark.comparison import LOST_HEADER, MethodMetrics, paired_cells
+from lerobot_ccdp.benchmark.comparison import LOST_HEADER, MethodMetrics, has_preference, paired_cells
 from lerobot_ccdp.benchmark.episodes import Episodes, LostEpisodes
 from lerobot_ccdp.benchmark.paired import (
     paired_difference,
+    preference_difference,
     repeats_per_opportunity,
     seeds_for_non_inferiority,
     success_rate,
@@ -107,7 +112,7 @@ def value_of(text: str) -> Any:
 
 
 def label(setting: Setting) -> str:
-    return ", ".join(f"{field} {value}" for field, value in setting)
+    return ", ".join(f"{field} {value}" for field, value in setting) or "methods.json"
 
 
 OWN = "recovery"  # the name of the run's own recovery checkpoint, `<out>/<task>/recovery`
@@ -226,13 +231,15 @@ def publish(
     print(f"wrote {path}")
 
 
-def against(episodes: Episodes, reference: Episodes) -> str:
+def against(episodes: Episodes, reference: Episodes, preference: bool) -> str:
     """The `--against` table's cells of one row: the reference's success, the paired differences of success
-    and repeats, and the test seeds that would show non-inferiority."""
+    and repeats, the test seeds that would show non-inferiority, and with `preference` the paired difference
+    of preference adherence (else -)."""
     seeds = seeds_for_non_inferiority(episodes, reference, NON_INFERIORITY)
     return (
         f"{MethodMetrics.of(reference).success} | {paired_difference(episodes, reference, success_rate)} | "
-        f"{paired_difference(episodes, reference, repeats_per_opportunity)} | {seeds:.0f}"
+        f"{paired_difference(episodes, reference, repeats_per_opportunity)} | {seeds:.0f} | "
+        f"{preference_difference(episodes, reference) if preference else '-'}"
     )
 
 
@@ -244,12 +251,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--tasks", nargs="+", default=["all"], help=f"task ids, or one of {list(TASK_GROUPS)}"
     )
-    parser.add_argument("--method", choices=[m for m in METHODS if m != "dp"], default="dp_star")
+    parser.add_argument("--method", choices=list(METHODS), default="dp_star")
     parser.add_argument(
         "--grid",
-        nargs="+",
-        default=["dp_star_candidates=16,32", "dp_star_rounds=1,4"],
-        help="policy fields and the values to try, FIELD=V1,V2,...",
+        nargs="*",
+        default=[],
+        help="policy fields and the values to try, FIELD=V1,V2,... (none: the methods.json settings)",
     )
     parser.add_argument(
         "--against",
@@ -305,6 +312,10 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     args.tasks = expand_tasks(args.tasks)
+    if args.method == "dp" and args.grid:
+        raise SystemExit(f"--grid {' '.join(args.grid)}: DP has no settings to tune; give no --grid.")
+    if args.write and not args.grid:
+        raise SystemExit("--write without --grid: the methods.json settings are already written there.")
     if args.episodes < 1:
         raise SystemExit(f"--episodes {args.episodes}: evaluate at least one episode.")
     if args.publish and args.publish.exists():  # checked before anything runs; a record is never replaced
@@ -402,7 +413,8 @@ def main(argv: list[str] | None = None) -> None:
             )
             print(rows[-1], flush=True)
             if args.against:
-                against_rows.append(f"| {task} | {row_label(row)} | {against(episodes[row], reference)} |")
+                cells = against(episodes[row], reference, has_preference(task))
+                against_rows.append(f"| {task} | {row_label(row)} | {cells} |")
                 print(against_rows[-1], flush=True)
             if args.baseline_run:
                 baseline_rows.append(
@@ -425,8 +437,8 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"\nAgainst {args.against} at its methods.json settings, same seeds\n\n| task | setting | "
             f"{args.against}'s success | success - {args.against} | repeats - {args.against} | "
-            f"test seeds for a lower bound >= -{NON_INFERIORITY} |\n|---|---|---|---|---|---|\n"
-            + "\n".join(against_rows)
+            f"test seeds for a lower bound >= -{NON_INFERIORITY} | preference - {args.against} |\n"
+            "|---|---|---|---|---|---|---|\n" + "\n".join(against_rows)
         )
     if args.baseline_run:
         print(

@@ -28,6 +28,7 @@ from lerobot_ccdp.benchmark.episodes import Episodes, Estimate, LostEpisodes, so
 from lerobot_ccdp.benchmark.paired import (
     cluster_bootstrap,
     paired_difference,
+    preference_difference,
     repeats_per_attempt,
     repeats_per_opportunity,
     success_rate,
@@ -109,15 +110,20 @@ class MethodMetrics:
         return {name: vars(getattr(self, name)) for name in METRIC_LABELS}
 
 
-def paired_cells(here: Episodes, there: Episodes) -> str:
+def paired_cells(here: Episodes, there: Episodes, preference: bool = False) -> str:
     """Table cells comparing two evaluations of the same seeds: success here and there and its paired
-    difference (here minus there), then the same for repeats per attempt after a failure."""
+    difference (here minus there), then the same for repeats per attempt after a failure and, with
+    `preference` (a task whose demonstrations prefer one option), for preference adherence on the episodes
+    both solved (`preference_difference`)."""
     a, b = MethodMetrics.of(here), MethodMetrics.of(there)
-    return (
+    cells = (
         f"{a.success} | {b.success} | {paired_difference(here, there, success_rate)} | "
         f"{a.repeats_per_opportunity} | {b.repeats_per_opportunity} | "
         f"{paired_difference(here, there, repeats_per_opportunity)}"
     )
+    if preference:
+        cells += f" | {a.preference} | {b.preference} | {preference_difference(here, there)}"
+    return cells
 
 
 Results = dict[str, dict[str, MethodMetrics]]  # task -> method -> metrics

@@ -1,9 +1,11 @@
 """`benchmarks/pool_pairs.py` pools trainings seed by seed: each pair stays paired, and the pooled row is
 the pairs' episodes together, not an average of their differences."""
 
+import dataclasses
 import importlib.util
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from lerobot_ccdp.datasets.ownership import claim_output_folder
@@ -43,6 +45,23 @@ def test_each_pair_and_their_pool_are_variant_minus_reference(tmp_path, capsys):
     assert rows["pooled"][1] == "200" and rows["pooled"][4].startswith("0.05 [")
     # 20 + 20 fewer repeats over 2 x 200 attempts after a failure
     assert rows["pooled"][7].startswith("-0.10 [")
+
+
+def test_preference_pairs_on_the_episodes_both_solved(tmp_path, capsys):
+    """--preference adds preference adherence, paired on the episodes both evaluations solved: the variant's
+    10 extra successes do not count, and its 20 solved the wrong way do."""
+    reference, variant = episodes(80), episodes(90)
+    variant = dataclasses.replace(variant, preference_matched=variant.success & (np.arange(100) >= 20))
+    write_eval_info(tmp_path / "u", reference)
+    write_eval_info(tmp_path / "w", variant)
+    pool.main(["--pair", str(tmp_path / "u"), str(tmp_path / "w"), "--preference"])
+    header, _, cells = capsys.readouterr().out.splitlines()
+    assert header.count("preference: variant") == 1
+    cells = cells.split(" | ")
+    assert cells[8].startswith("0.78 [") and cells[9].startswith("1.00 [")  # 70 of 90, 80 of 80
+    assert cells[10].startswith("-0.25 [")  # 60 of the 80 both solved, against 80 of them
+    pool.main(["--pair", str(tmp_path / "u"), str(tmp_path / "w")])
+    assert "preference" not in capsys.readouterr().out
 
 
 def test_pairs_of_other_seeds_or_no_evaluation_are_named(tmp_path):

@@ -2,6 +2,7 @@
 better: a higher mean that the development seeds cannot tell from noise is a tie, not a win (issue 17's honest
 comparison)."""
 
+import dataclasses
 import importlib.util
 from pathlib import Path
 
@@ -76,8 +77,35 @@ def test_seeds_for_non_inferiority_follow_the_difference_and_its_spread():
     assert seeds_for_non_inferiority(episodes(65, shift=8), reference, 0.05) == np.inf
     closer = episodes(72, shift=1)  # 3 and 1 discordant: same mean, less spread
     assert seeds_for_non_inferiority(closer, reference, 0.05) < expected
-    cells = tune.against(ahead, reference).split(" | ")
-    assert cells[1].startswith("0.02 [") and cells[-1] == f"{expected:.0f}"
+    cells = tune.against(ahead, reference, False).split(" | ")
+    assert cells[1].startswith("0.02 [") and cells[3] == f"{expected:.0f}" and cells[4] == "-"
+
+
+def test_dp_and_the_frozen_settings_evaluate_on_every_head_with_preference_against_dp_star(tmp_path, capsys):
+    """No --grid is the methods.json settings, the one form of DP: DP on two heads (two bases, say) pairs
+    head by head. --against adds preference adherence on a task with a preference, paired on the episodes
+    both solved. DP takes no grid and nothing frozen is written back."""
+    out, task = tmp_path / "run", "Bartender-lite-v0"
+    claim_output_folder(out, tune.CREATED_BY)
+    files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", out)
+    (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
+    (tmp_path / "longer").mkdir()
+    write_eval_info(tune.run_dir(files, "dp", tune.OWN, (), 1000), episodes(60))
+    longer = episodes(70)
+    longer = dataclasses.replace(longer, preference_matched=longer.success & (np.arange(100) >= 10))
+    write_eval_info(tune.run_dir(files, "dp", "b2", (), 1000), longer)
+    write_eval_info(tune.run_dir(files, "dp_star", tune.OWN, (), 1000), episodes(80))
+    args = ["--out", str(out), "--tasks", task, "--method", "dp", "--checkpoint", f"b2={tmp_path / 'longer'}"]
+    tune.main([*args, "--report-only", "--against", "dp_star"])
+    printed = capsys.readouterr().out
+    row = next(line for line in printed.splitlines() if line.startswith(f"| {task} | b2: methods.json |"))
+    assert row.split(" | ")[2].startswith("0.70") and row.split(" | ")[3].startswith("0.10 [")  # b2 - own
+    against = next(line for line in printed.splitlines() if "| b2: methods.json | 0.80" in line)
+    assert against.split(" | ")[-1].startswith("-0.14 [")  # 60 of the 70 both solved matched, against 70
+    with pytest.raises(SystemExit, match="DP has no settings to tune; give no --grid"):
+        tune.main([*args, "--report-only", "--grid", "w_z=1"])
+    with pytest.raises(SystemExit, match="--write without --grid"):
+        tune.main([*args, "--report-only", "--write"])
 
 
 def test_the_development_size_is_its_own_and_a_saved_evaluation_of_another_size_is_refused(tmp_path, capsys):
