@@ -91,12 +91,18 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
     assert _without(recipe, *head_rows) == _without(state_recipe, *head_rows)
 
 
+# Base settings a label-free run chose on its own development seeds: the Bartender's base trains 7200 steps
+# without labels (docs/benchmarks.md, "The Bartender's round from 9000, without labels").
+LABEL_FREE_OWN = {"Bartender-v0": ("steps", "save_freq")}
+
+
 @pytest.mark.parametrize("task", LABEL_FREE_TASKS)
 def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp_path):
     """`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`: z where an option ends,
     defined alike in the recipe and the policy (synthesis refuses a base checkpoint whose z differs), no label
     read, and nothing else different from the labelled settings but the files' own paths (and the set
-    embedding's Fourier octaves, for a point z)."""
+    embedding's Fourier octaves, for a point z), and the settings a run chose on its own development seeds
+    (LABEL_FREE_OWN)."""
     labelled = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path)
     files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path, label_free=True)
     slug = task_slug(task) + "_label_free"
@@ -118,6 +124,7 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
         "policy.failure_state_dims",
         "policy.failure_segments",
         "policy.z_fourier_octaves",  # how the head reads a point z (one-hot labels need none)
+        *LABEL_FREE_OWN.get(task, ()),
     )
     assert _without(base, *z_fields) == _without(json.loads(labelled.train_base.read_text()), *z_fields)
 
