@@ -101,6 +101,16 @@ def check_settings(config: CCDPConfig) -> None:
             "has no failure-set strata. Remove --policy.stratum_weights or use "
             "--policy.recovery_head=set_denoiser."
         )
+    if not 0.0 <= config.state_failure_sets <= 1.0:
+        raise ValueError(
+            f"`state_failure_sets` is a share of rows in [0, 1]; got {config.state_failure_sets}."
+        )
+    if config.state_failure_sets and config.recovery_head != "set_denoiser":
+        raise ValueError(
+            f"`state_failure_sets` draws the set denoiser's training failure sets; the "
+            f"{config.recovery_head!r} head has none. Remove --policy.state_failure_sets or use "
+            "--policy.recovery_head=set_denoiser."
+        )
     if config.recovery_head == "set_denoiser" and config.n_obs_steps != 1:
         raise ValueError(
             f"recovery_head='set_denoiser' trains on one-frame rows of a synthesised dataset: it needs "

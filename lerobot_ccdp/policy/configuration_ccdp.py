@@ -116,6 +116,12 @@ class CCDPConfig(PreTrainedConfig):
             share of the base's chunks at the row's state whose outcome lies in its failure set, so that every
             (state, failure set) counts alike and the rare sets that leave little of the base are learned as
             well as the common ones (`failure_buffer.stratum_weights`). False: every kept row weighs 1.
+        state_failure_sets: Set denoiser, recovery stage: the share of the synthesised rows whose training
+            failure set is drawn from the outcomes the base reaches from the row's own state (its siblings)
+            instead of from other rows (`failure_buffer.draw_state_failure_sets`). Sets drawn from other rows
+            seldom hold what the base does at the row's state, so the recoveries that matter (the base's usual
+            options there failed) are barely trained; either way the target stays p_s outside F. 0: other
+            rows only.
         dp_star_candidates: DP*: candidates drawn per plan.
         dp_star_rounds: DP*: rounds of fresh candidates for a row whose candidates were all rejected, before
             it falls back to the candidate farthest from every failure (1: no redraw).
@@ -197,6 +203,7 @@ class CCDPConfig(PreTrainedConfig):
     z_fourier_octaves: int = 0
     delta_z: float = 0.1
     stratum_weights: bool = False
+    state_failure_sets: float = 0.0
     dp_star_candidates: int = 16
     dp_star_rounds: int = 4
     ccdp_redraws: int = 0

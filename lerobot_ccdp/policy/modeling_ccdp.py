@@ -61,6 +61,7 @@ from lerobot_ccdp.recovery.failure_buffer import (
     FailureBuffer,
     distinct_failures,
     draw_failure_sets,
+    draw_state_failure_sets,
     stratum_weights,
 )
 from lerobot_ccdp.recovery.failure_features import FailureFeature
@@ -487,28 +488,38 @@ class CCDPModel(nn.Module):
         if not bool(self.recovery_trained):
             self.recovery.start_from(self.base)
             self.recovery_trained.fill_(True)
-        z_set, z_mask, repeats = draw_failure_sets(
-            self.feature.from_chunk(chunk, self.outcomes), FAILURE_SET_TRAIN_SIZE, cfg.delta_z
-        )
+        z = self.feature.from_chunk(chunk, self.outcomes)
+        if cfg.state_failure_sets:
+            siblings, count = self._siblings(batch, f"--policy.state_failure_sets={cfg.state_failure_sets}")
+            z_set, z_mask, repeats = draw_state_failure_sets(
+                z, siblings, count, FAILURE_SET_TRAIN_SIZE, cfg.delta_z, cfg.state_failure_sets
+            )
+        else:
+            z_set, z_mask, repeats = draw_failure_sets(z, FAILURE_SET_TRAIN_SIZE, cfg.delta_z)
         noise, timesteps, noisy = self._noised(chunk)
         loss = F.mse_loss(self.recovery(noisy, timesteps, state, z_set, z_mask), noise, reduction="none")
         kept = (~repeats).to(loss.dtype)
-        weight = kept * self._stratum_weights(batch, z_set, z_mask) if cfg.stratum_weights else kept
+        if cfg.stratum_weights:
+            siblings, count = self._siblings(batch, "--policy.stratum_weights=true")
+            weight = kept * stratum_weights(z_set, z_mask, siblings, count, cfg.delta_z)
+        else:
+            weight = kept
         loss = (loss.mean(dim=(1, 2)) * weight).sum() / weight.sum().clamp_min(1.0)
         guard_loss = _classifier_loss(self.recovery.guard, noisy, timesteps, state, z_set, z_mask, repeats)
         self.recovery.guard_trained.fill_(True)
         return loss + guard_loss, {"kept_rows": float(kept.mean()), "guard_loss": guard_loss.item()}
 
-    def _stratum_weights(self, batch: dict[str, Tensor], z_set: Tensor, z_mask: Tensor) -> Tensor:
-        """`failure_buffer.stratum_weights` from the sibling outcomes the synthesis wrote beside each row."""
+    def _siblings(self, batch: dict[str, Tensor], option: str) -> tuple[Tensor, Tensor]:
+        """The outcomes of the chunks the synthesis sampled at each row's state (B, K, z_dim) and how many of
+        them are real (B,)."""
         siblings, count = batch.get(SIBLING_FEATURES_KEY), batch.get(SIBLING_COUNT_KEY)
         if siblings is None or count is None or siblings.ndim != 3:
             raise ValueError(
-                f"--policy.stratum_weights=true reads each row's sibling outcomes "
-                f"({SIBLING_FEATURES_KEY!r}, {SIBLING_COUNT_KEY!r}), which this dataset lacks: make it anew "
-                "with lerobot-ccdp-synthesize from this checkpoint, or set --policy.stratum_weights=false."
+                f"{option} reads each row's sibling outcomes ({SIBLING_FEATURES_KEY!r}, "
+                f"{SIBLING_COUNT_KEY!r}), which this dataset lacks: make it anew with "
+                "lerobot-ccdp-synthesize from this checkpoint, or leave the option out."
             )
-        return stratum_weights(z_set, z_mask, siblings, count.reshape(-1), self.config.delta_z)
+        return siblings, count.reshape(-1)
 
     def _recovery_loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         cfg = self.config

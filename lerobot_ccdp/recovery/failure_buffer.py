@@ -72,6 +72,26 @@ def draw_failure_sets(z: Tensor, size: int, delta_z: float) -> tuple[Tensor, Ten
     return z_set, z_mask, in_failure_set(z[:, None], z_set, z_mask, delta_z)[:, 0]
 
 
+def draw_state_failure_sets(
+    z: Tensor, siblings: Tensor, count: Tensor, size: int, delta_z: float, share: float
+) -> tuple[Tensor, Tensor, Tensor]:
+    """`draw_failure_sets`, except that a `share` of the rows with sampled siblings (`siblings` (B, K,
+    z_dim), the first `count` (B,) real, the row's own outcome among them) draw their failures from those: the
+    outcomes the base reaches from the row's own state, as the failures met at that state are. Drawn from the
+    other rows, a set rarely holds what the base does at the row's state, so the strata where it holds most of
+    it (the hard recoveries: at the start of a task, after the base's one or two usual options failed) are
+    barely trained. The siblings are the base's independent draws at the state, so F stays independent of the
+    row's own chunk apart from picking the row's own entry, which puts its outcome in F and drops the row: the
+    kept rows' target given (s, F) is still p_s outside F."""
+    z_set, z_mask, _ = draw_failure_sets(z, size, delta_z)
+    b, k = siblings.shape[:2]
+    at_state = (count >= 2) & (torch.rand(b, device=z.device) < share)
+    picks = (torch.rand(b, size, device=z.device) * count.clamp_min(1)[:, None]).long().clamp_max(k - 1)
+    from_siblings = siblings.gather(1, picks[..., None].expand(-1, -1, siblings.shape[-1]))
+    z_set = torch.where(at_state[:, None, None], from_siblings.to(z_set.dtype), z_set)
+    return z_set, z_mask, in_failure_set(z[:, None], z_set, z_mask, delta_z)[:, 0]
+
+
 def in_failure_set(z: Tensor, z_set: Tensor, z_mask: Tensor, delta_z: float) -> Tensor:
     """(R, M): whether each of the outcomes z (R, M, z_dim) lies within `delta_z` (squared distance) of a
     failure of its row's set (z_set (R, N, z_dim), mask (R, N)): a repeat, as DP*'s rejection counts one."""

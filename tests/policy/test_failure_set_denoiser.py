@@ -7,7 +7,7 @@ import torch
 from torch import Tensor
 
 from lerobot_ccdp.policy.configuration_ccdp import SIBLING_COUNT_KEY, SIBLING_FEATURES_KEY
-from lerobot_ccdp.recovery.failure_buffer import draw_failure_sets, stratum_weights
+from lerobot_ccdp.recovery.failure_buffer import draw_failure_sets, draw_state_failure_sets, stratum_weights
 
 from fixtures.policy_factory import make_policy
 
@@ -41,6 +41,30 @@ def test_failure_sets_come_from_other_rows_and_flag_the_rows_whose_outcome_they_
     assert z_set.shape == (64, 3, 4) and z_mask[:, 0].all() and not z_mask.all()
     holds_own = ((z_set == z[:, None]).all(-1) & z_mask).any(1)
     assert torch.equal(repeats, holds_own) and 0 < repeats.float().mean() < 1
+
+
+def test_failure_sets_drawn_at_the_state_keep_the_base_outside_them_in_its_proportions():
+    """Each row's own outcome is one of its siblings, the others the base's independent draws (options 0, 1,
+    2 at 0.7, 0.2, 0.1): among the rows kept with F = {0} the options left keep the base's 2 : 1, within 0.03
+    of the exact 0.67 (about 1000 such rows; the sampling spread is 0.015). A row without siblings draws its
+    failures from the other rows, and share 0 draws as `draw_failure_sets` does."""
+    torch.manual_seed(0)
+    b, k = 20000, 16
+    siblings = torch.multinomial(torch.tensor([0.7, 0.2, 0.1]), b * k, replacement=True).float().view(b, k, 1)
+    own, count = siblings[:, 0], torch.full((b,), k)
+    count[:100] = 0
+    z_set, z_mask, repeats = draw_state_failure_sets(own, siblings, count, 3, delta_z=0.25, share=1.0)
+    in_siblings = ((z_set[..., None, :] == siblings[:, None]).all(-1).any(-1) | ~z_mask).all(-1)
+    assert in_siblings[100:].all() and not in_siblings[:100].all()
+    only_zero = ((z_set[..., 0] == 0) | ~z_mask).all(-1)
+    left = own[~repeats & only_zero, 0]
+    assert len(left) > 500 and (left == 1).float().mean().item() == pytest.approx(2 / 3, abs=0.03)
+    torch.manual_seed(1)
+    plain = draw_failure_sets(own, 3, delta_z=0.25)
+    torch.manual_seed(1)
+    drawn = draw_state_failure_sets(own, siblings, count, 3, 0.25, share=0.0)
+    for got, expected in zip(drawn, plain, strict=True):
+        assert torch.equal(got, expected)
 
 
 def test_the_loss_leaves_out_rows_whose_own_outcome_is_in_their_failure_set():
@@ -102,6 +126,26 @@ def test_stratum_weights_change_the_loss_only_where_a_failure_set_covers_some_of
     with pytest.raises(ValueError, match="stratum_weights=true reads each row's sibling outcomes"):
         policy.config.stratum_weights = True
         policy.forward(rows)
+    policy.config.stratum_weights = False
+    policy.config.state_failure_sets = 0.5
+    with pytest.raises(ValueError, match="state_failure_sets=0.5 reads each row's sibling outcomes"):
+        policy.forward(rows)
+
+
+def test_state_failure_sets_train_on_failures_drawn_from_each_rows_siblings():
+    """With every row's failures drawn from its siblings, siblings that all lie outside every option keep
+    every row, and siblings at each row's own outcome keep none."""
+    policy = make_policy(**{**SETTINGS, "training_stage": "recovery", "state_failure_sets": 1.0}).train()
+    policy.model.outcomes.fill(torch.randn(3, 16 * 2), torch.zeros(3, 2), torch.arange(3))
+    rows = {"observation.state": torch.randn(32, 2), "action": torch.randn(32, 16, 2)}
+    own = policy.model.feature.from_chunk(rows["action"], policy.model.outcomes)
+
+    def kept(siblings: Tensor) -> float:
+        batch = {**rows, SIBLING_FEATURES_KEY: siblings, SIBLING_COUNT_KEY: torch.full((32, 1), 4)}
+        return policy.forward(batch)[1]["kept_rows"]
+
+    assert kept(torch.zeros(32, 4, 3)) == 1.0
+    assert kept(own[:, None].expand(32, 4, 3)) == 0.0
 
 
 def count_calls(module: torch.nn.Module) -> list[int]:
