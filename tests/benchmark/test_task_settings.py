@@ -92,8 +92,12 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
 
 
 # Base settings a label-free run chose on its own development seeds: the Bartender's base trains 7200 steps
-# without labels (docs/benchmarks.md, "The Bartender's round from 9000, without labels").
-LABEL_FREE_OWN = {"Bartender-v0": ("steps", "save_freq")}
+# without labels (docs/benchmarks.md, "The Bartender's round from 9000, without labels"), and its set
+# denoiser's failure sets are drawn at the state and weighed per stratum ("After the round from 10000: failure
+# sets drawn at the state").
+LABEL_FREE_OWN = {
+    "Bartender-v0": ("steps", "save_freq", "policy.stratum_weights", "policy.state_failure_sets")
+}
 
 
 @pytest.mark.parametrize("task", LABEL_FREE_TASKS)
