@@ -91,11 +91,11 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
     assert _without(recipe, *head_rows) == _without(state_recipe, *head_rows)
 
 
-# Base settings a label-free run chose on its own development seeds: the Bartender's base trains 7200 steps
-# without labels (docs/benchmarks.md, "The Bartender's round from 9000, without labels"), and its set
-# denoiser's failure sets are drawn at the state and weighed per stratum ("After the round from 10000: failure
-# sets drawn at the state"), and its synthesis draws 128 base chunks per state ("After the round from 10600:
-# more of the base's draws per state").
+# Settings (train config and recipe) a label-free run chose on its own development seeds: the Bartender's
+# base trains 7200 steps without labels (docs/benchmarks.md, "The Bartender's round from 9000, without
+# labels"), its set denoiser's failure sets are drawn at the state and weighed per stratum ("After the round
+# from 10000: failure sets drawn at the state"), and its synthesis draws 128 base chunks per state ("After the
+# round from 10600: more of the base's draws per state").
 LABEL_FREE_OWN = {
     "Bartender-v0": (
         "steps",
