@@ -18,8 +18,13 @@ in every attempt that repeated a failure and, if it stalled, in its last attempt
 With `--probe K`, every attempt's first plan after a failure is also drawn K more times from the same state
 and failures, by the method and by the base alone (DP, failures ignored): the shares of those draws that the
 lookup places on a failed option, per stage of the task, show where the recovery head leaves the base's
-mistake in place. The extra draws come from torch's global generator: CCDP's own plans (common random
-numbers) are unchanged, DP*'s later rounds, which draw from it too, are not.
+mistake in place. The probe also gives, of the draws off the failed options, the share on the option the
+demonstrator prefers there (the env's `preferred_feasible_option`): the base's share is what DP*'s first
+accepted candidate keeps, so the method's minus the base's, per state, shows whether composition keeps the
+base's proportions (a `final_state` z only: a draw's option is the option whose end, the last target of the
+env's own plan normalised with the checkpoint's state stats, lies nearest the draw's z). The extra draws come
+from torch's global generator: CCDP's own plans (common random numbers) are unchanged, DP*'s later rounds,
+which draw from it too, are not.
 lerobot-eval's own output goes to a temporary folder.
 """
 
@@ -30,8 +35,11 @@ import sys
 import tempfile
 from collections import defaultdict
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+import torch
+from safetensors.torch import load_file
 from torch import Tensor
 
 from lerobot_ccdp.benchmark.pipeline import COMMON_NOISE
@@ -65,13 +73,16 @@ class Tracer:
         self.delta_z = delta_z
         self.rows: dict[int, Episode] = defaultdict(Episode)
         self.env_rows: dict[int, int] = {}
+        self.envs: dict[int, CCDPTaskEnv] = {}  # row: its env, for the probe's preferred option
         self.finished: list[Episode] = []
-        self.probes: dict[int, list[tuple[float, float]]] = defaultdict(list)  # stage: (method, DP) shares
+        # stage: (method, DP) shares on a failed option, then (method, DP) preferred shares off them
+        self.probes: dict[int, list[tuple[float, float, float, float]]] = defaultdict(list)
 
     def new_batch(self) -> None:
         self.finished.extend(self.rows[r] for r in sorted(self.rows))
         self.rows.clear()
         self.env_rows.clear()
+        self.envs.clear()
 
     def row_of(self, env: CCDPTaskEnv) -> int:
         return self.env_rows.setdefault(id(env), len(self.env_rows))
@@ -119,12 +130,23 @@ class Tracer:
         chosen = sum(e.repeats_chosen for e in episodes)
         other = sum(e.repeats_other for e in episodes)
         for stage, shares in sorted(self.probes.items()):
-            method, base = np.mean(shares, axis=0)
-            high = sum(m > 0.5 for m, _ in shares)
+            table = np.array(shares)
+            method, base = table[:, :2].mean(axis=0)
+            high = int((table[:, 0] > 0.5).sum())
             print(
                 f"stage {stage}: {len(shares)} first plans after a failure; share of draws on a failed "
                 f"option: method {method:.2f}, DP {base:.2f}; states where the method's share > 0.5: {high}"
             )
+            both = table[~np.isnan(table[:, 2:]).any(axis=1), 2:]  # states where both drew off the failures
+            if len(both):
+                gap = both[:, 0] - both[:, 1]
+                half = 1.96 * gap.std(ddof=1) / np.sqrt(len(gap)) if len(gap) > 1 else float("nan")
+                method, base = both.mean(axis=0)
+                print(
+                    f"  of the draws off the failed options, the share on the preferred option over "
+                    f"{len(both)} states: method {method:.2f}, DP (DP*'s first accepted) {base:.2f}; "
+                    f"method - DP {gap.mean():+.3f} [{gap.mean() - half:+.3f}, {gap.mean() + half:+.3f}]"
+                )
         for index, episode in enumerate(episodes):
             if not verbose and episode.success:
                 continue
@@ -148,9 +170,27 @@ def every_tenth(path: list[np.ndarray]) -> list[list[float]]:
     return np.round(np.stack(path[::10]), 2).tolist() if path else []
 
 
-def probe_shares(policy, rows: Tensor, i: int, draws: int, delta_z: float) -> tuple[float, float]:
+def option_ends(env: CCDPTaskEnv, checkpoint: Path, policy) -> Tensor:
+    """Each option's end in z space: the last target of the env's plan for it (the end effector's state),
+    normalised as the checkpoint's preprocessor normalises observation.state, at the z dims."""
+    stats = load_file(next(checkpoint.glob("policy_preprocessor_step_*_normalizer_processor.safetensors")))
+    key, config = policy.config.failure_state_key, policy.config
+    raw = torch.tensor([env.plan(option)[-1].target for option in range(env.n_options)], dtype=torch.float32)
+    if config.normalization_mapping["STATE"].value == "MIN_MAX":
+        low, high = stats[f"{key}.min"], stats[f"{key}.max"]
+        normalised = 2 * (raw - low) / (high - low).clamp_min(1e-8) - 1
+    else:
+        normalised = (raw - stats[f"{key}.mean"]) / stats[f"{key}.std"].clamp_min(1e-8)
+    return policy.model.feature.from_frame(normalised)
+
+
+def probe_shares(
+    policy, rows: Tensor, i: int, draws: int, delta_z: float, ends: Tensor | None, preferred: int
+) -> tuple[float, float, float, float]:
     """Shares of `draws` plans for the i-th selected row, by the policy's recovery mode and by DP, that the
-    lookup places within `delta_z` of one of the row's failures."""
+    lookup places within `delta_z` of one of the row's failures; then, of the draws off the failures, the
+    shares whose nearest option end (`ends`) is the `preferred` option (NaN where none is off them, or
+    without `ends`)."""
     model, memory = policy.model, policy._memory
     z, z_mask = policy._failures.padded(rows)
     state, history = memory.state_condition(rows)[i : i + 1], memory.history_condition(rows)[i : i + 1]
@@ -160,16 +200,21 @@ def probe_shares(policy, rows: Tensor, i: int, draws: int, delta_z: float) -> tu
         z[i : i + 1].repeat_interleave(draws, 0),
         z_mask[i : i + 1].repeat_interleave(draws, 0),
     )
-    shares = []
+    failed, kept = [], []
     for mode in (policy.config.recovery_mode, "dp"):
         chunks = SAMPLERS[mode](model, probe)
-        z_draws = model.feature.from_chunk(chunks, model.outcomes)[:, None]
-        distance = nearest_failure_distance(z_draws, probe.z, probe.z_mask)[:, 0]
-        shares.append(float((distance <= delta_z).float().mean()))
-    return shares[0], shares[1]
+        z_draws = model.feature.from_chunk(chunks, model.outcomes)
+        on_failed = nearest_failure_distance(z_draws[:, None], probe.z, probe.z_mask)[:, 0] <= delta_z
+        failed.append(float(on_failed.float().mean()))
+        if ends is None or on_failed.all():
+            kept.append(float("nan"))
+            continue
+        option = torch.cdist(z_draws[~on_failed].float(), ends.to(z_draws.device)).argmin(dim=1)
+        kept.append(float((option == preferred).float().mean()))
+    return failed[0], failed[1], kept[0], kept[1]
 
 
-def install(tracer: Tracer, draws: int) -> None:
+def install(tracer: Tracer, draws: int, checkpoint: Path) -> None:
     """Wrap the env's step and the policy's reset and sampler (in this process only)."""
     step, env_reset = CCDPTaskEnv.step, CCDPTaskEnv.reset
     reset, sample = modeling_ccdp.CCDPPolicy.reset, modeling_ccdp.CCDPPolicy._sample
@@ -177,6 +222,7 @@ def install(tracer: Tracer, draws: int) -> None:
     def traced_step(env, action):
         observation, reward, terminated, truncated, info = step(env, action)
         row, failure = tracer.row_of(env), bool(observation["failure"][0] > 0)  # rows in stepping order
+        tracer.envs[row] = env
         episode, stage = tracer.rows[row], env._attempts - env._failures  # stages finished
         if stage > episode.stage and not episode.done and not info["is_success"]:
             episode.events.append(f"stage done with option {info['option']}")
@@ -203,9 +249,16 @@ def install(tracer: Tracer, draws: int) -> None:
         for i, row in enumerate(rows.nonzero().flatten().tolist()):
             episode = tracer.rows[row]
             if draws and mask[i].any() and episode.attempt_z is None and not episode.done:
-                shares = probe_shares(policy, rows, i, draws, tracer.delta_z)
+                env = tracer.envs[row]
+                final_state = policy.config.failure_feature == "final_state"
+                ends = option_ends(env, checkpoint, policy) if final_state else None
+                preferred = env.preferred_feasible_option()
+                shares = probe_shares(policy, rows, i, draws, tracer.delta_z, ends, preferred)
                 tracer.probes[episode.stage].append(shares)
-                episode.events.append(f"probe: {shares[0]:.2f} on a failed option (DP {shares[1]:.2f})")
+                episode.events.append(
+                    f"probe: {shares[0]:.2f} on a failed option (DP {shares[1]:.2f}); off them, on the "
+                    f"preferred option {preferred} {shares[2]:.2f} (DP {shares[3]:.2f})"
+                )
             tracer.plan(row, z[i], failures[i][mask[i]].cpu().numpy())
         return chunk
 
@@ -232,7 +285,7 @@ def main() -> None:
     from lerobot.scripts.lerobot_eval import main as lerobot_eval
 
     tracer = Tracer(args.delta_z)
-    install(tracer, args.probe)
+    install(tracer, args.probe, Path(args.checkpoint))
     with tempfile.TemporaryDirectory() as out:
         sys.argv = [
             "lerobot-eval",

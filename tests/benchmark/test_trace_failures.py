@@ -62,7 +62,9 @@ def test_repeats_are_told_apart_by_the_last_plan_and_stalls_count_their_switches
 
 def test_the_probe_counts_the_draws_a_method_and_dp_place_on_a_failed_option(monkeypatch, capsys):
     """`--probe K`: an attempt's first plan after a failure is drawn K more times by the method and by DP from
-    the same state and failures; the shares within `delta_z` of a failure are reported per stage."""
+    the same state and failures; the shares within `delta_z` of a failure are reported per stage, and of the
+    draws off the failures, the shares on the preferred option (DP's is what DP*'s first accepted candidate
+    keeps)."""
     failed = torch.tensor(A, dtype=torch.float32)
 
     def chunks_on(options: list[np.ndarray]):
@@ -71,7 +73,7 @@ def test_the_probe_counts_the_draws_a_method_and_dp_place_on_a_failed_option(mon
         )
 
     draws = 4
-    monkeypatch.setitem(trace.SAMPLERS, "ccdp", chunks_on([B, C, B, C]))
+    monkeypatch.setitem(trace.SAMPLERS, "ccdp", chunks_on([B, C, C, C]))
     monkeypatch.setitem(trace.SAMPLERS, "dp", chunks_on([A, B, A, C]))
     memory = SimpleNamespace(
         state_condition=lambda rows: torch.zeros(int(rows.sum()), 2),
@@ -86,15 +88,44 @@ def test_the_probe_counts_the_draws_a_method_and_dp_place_on_a_failed_option(mon
     policy = SimpleNamespace(
         model=model, _memory=memory, _failures=failures, config=SimpleNamespace(recovery_mode="ccdp")
     )
-    shares = trace.probe_shares(policy, torch.tensor([True]), 0, draws, delta_z=0.1)
-    assert shares == (0.0, 0.5)
+    ends = torch.tensor(np.stack([A, B, C]), dtype=torch.float32)  # options 0, 1, 2 end at A, B, C
+    shares = trace.probe_shares(policy, torch.tensor([True]), 0, draws, 0.1, ends, preferred=1)
+    assert shares == (0.0, 0.5, 0.25, 0.5)  # off the failure: method B C C C, DP B C
+    no_ends = trace.probe_shares(policy, torch.tensor([True]), 0, draws, 0.1, None, preferred=1)
+    assert no_ends[:2] == (0.0, 0.5) and np.isnan(no_ends[2:]).all()
     tracer = trace.Tracer(delta_z=0.1)
-    tracer.probes[1].append(shares)
+    tracer.probes[1].extend([shares, (0.0, 0.5, 0.75, 0.5)])
     tracer.report(verbose=False)
+    out = capsys.readouterr().out
     assert (
-        "stage 1: 1 first plans after a failure; share of draws on a failed option: method 0.00, DP 0.50"
-        in (capsys.readouterr().out)
+        "stage 1: 2 first plans after a failure; share of draws on a failed option: method 0.00, DP 0.50"
+        in out
     )
+    assert "over 2 states: method 0.50, DP (DP*'s first accepted) 0.50; method - DP +0.000" in out
+
+
+def test_an_options_end_is_its_plans_last_target_normalised_as_the_checkpoint_normalises_the_state(tmp_path):
+    """The probe reads a draw's option as the option whose end lies nearest its z: the env plan's last target,
+    through the checkpoint's own state stats (MIN_MAX to [-1, 1]), at the z dims."""
+    from safetensors.torch import save_file
+
+    save_file(
+        {
+            "observation.state.min": torch.tensor([-1.0, 0.0]),
+            "observation.state.max": torch.tensor([1.0, 4.0]),
+        },
+        tmp_path / "policy_preprocessor_step_3_normalizer_processor.safetensors",
+    )
+    targets = {0: (0.5, 1.0), 1: (-1.0, 4.0)}
+    env = SimpleNamespace(n_options=2, plan=lambda option: [None, SimpleNamespace(target=targets[option])])
+    config = SimpleNamespace(
+        failure_state_key="observation.state",
+        normalization_mapping={"STATE": SimpleNamespace(value="MIN_MAX")},
+    )
+    feature = SimpleNamespace(from_frame=lambda frame: frame[..., [1]])  # z: the state's second dim
+    policy = SimpleNamespace(config=config, model=SimpleNamespace(feature=feature))
+    ends = trace.option_ends(env, tmp_path, policy)
+    assert torch.allclose(ends, torch.tensor([[-0.5], [1.0]]))
 
 
 def test_a_repeats_attempt_and_a_stalled_last_attempt_show_where_the_end_effector_went(capsys):
