@@ -91,11 +91,12 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
     assert _without(recipe, *head_rows) == _without(state_recipe, *head_rows)
 
 
-# Settings (train config and recipe) a label-free run chose on its own development seeds: the Bartender's
-# base trains 7200 steps without labels (docs/benchmarks.md, "The Bartender's round from 9000, without
-# labels"), its set denoiser's failure sets are drawn at the state and weighed per stratum ("After the round
-# from 10000: failure sets drawn at the state"), and its synthesis draws 128 base chunks per state ("After the
-# round from 10600: more of the base's draws per state").
+# Settings (train config, recipe and methods.json) a label-free run chose on its own development seeds:
+# the Bartender's base trains 7200 steps without labels (docs/benchmarks.md, "The Bartender's round from
+# 9000, without labels"), its set denoiser's failure sets are drawn at the state and weighed per stratum
+# ("After the round from 10000: failure sets drawn at the state"), its synthesis draws 128 base chunks per
+# state ("After the round from 10600: more of the base's draws per state"), and CCDP guards its last 4
+# reverse steps ("After the round from 11200: where the preference goes").
 LABEL_FREE_OWN = {
     "Bartender-v0": (
         "steps",
@@ -103,6 +104,7 @@ LABEL_FREE_OWN = {
         "policy.stratum_weights",
         "policy.state_failure_sets",
         "recovery.chunks_per_state",
+        "failure_guard_steps",
     )
 }
 
@@ -154,7 +156,7 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
     for method in ("dp_star", "ccdp"):
         settings = files.method_settings(method)
         assert settings["failure_state_at"] in FAILURE_STATES_AT
-        read_z = ("failure_state_at", "failure_label_at", "delta_z", "w_z")
+        read_z = ("failure_state_at", "failure_label_at", "delta_z", "w_z", *LABEL_FREE_OWN.get(task, ()))
         assert _without(settings, *read_z) == _without(labelled.method_settings(method), *read_z)
 
     recipe, labelled_recipe = (yaml.safe_load(f.read_text()) for f in (files.recipe, labelled.recipe))
