@@ -21,10 +21,10 @@ lookup places on a failed option, per stage of the task, show where the recovery
 mistake in place. The probe also gives, of the draws off the failed options, the share on the option the
 demonstrator prefers there (the env's `preferred_feasible_option`): the base's share is what DP*'s first
 accepted candidate keeps, so the method's minus the base's, per state, shows whether composition keeps the
-base's proportions (a `final_state` z only: a draw's option is the option whose end, the last target of the
-env's own plan normalised with the checkpoint's state stats, lies nearest the draw's z). The extra draws come
-from torch's global generator: CCDP's own plans (common random numbers) are unchanged, DP*'s later rounds,
-which draw from it too, are not.
+base's proportions (a `final_state` z of observation.state only: a draw's option is the option whose end,
+the last target of the env's own plan normalised with the checkpoint's state stats, lies nearest the draw's
+z). The extra draws come from torch's global generator: CCDP's own plans (common random numbers) are
+unchanged, DP*'s later rounds, which draw from it too, are not.
 lerobot-eval's own output goes to a temporary folder.
 """
 
@@ -35,10 +35,12 @@ import sys
 import tempfile
 from collections import defaultdict
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 import torch
+from lerobot.utils.constants import OBS_STATE
 from safetensors.torch import load_file
 from torch import Tensor
 
@@ -170,10 +172,17 @@ def every_tenth(path: list[np.ndarray]) -> list[list[float]]:
     return np.round(np.stack(path[::10]), 2).tolist() if path else []
 
 
+@cache
+def state_stats(checkpoint: Path) -> dict[str, Tensor]:
+    """The checkpoint preprocessor's normalisation stats (read once per checkpoint)."""
+    return load_file(next(checkpoint.glob("policy_preprocessor_step_*_normalizer_processor.safetensors")))
+
+
 def option_ends(env: CCDPTaskEnv, checkpoint: Path, policy) -> Tensor:
-    """Each option's end in z space: the last target of the env's plan for it (the end effector's state),
-    normalised as the checkpoint's preprocessor normalises observation.state, at the z dims."""
-    stats = load_file(next(checkpoint.glob("policy_preprocessor_step_*_normalizer_processor.safetensors")))
+    """Each option's end in z space: the last target of the env's plan for it (the end effector's state,
+    laid out as observation.state), normalised as the checkpoint's preprocessor normalises observation.state,
+    at the z dims."""
+    stats = state_stats(checkpoint)
     key, config = policy.config.failure_state_key, policy.config
     raw = torch.tensor([env.plan(option)[-1].target for option in range(env.n_options)], dtype=torch.float32)
     if config.normalization_mapping["STATE"].value == "MIN_MAX":
@@ -250,8 +259,9 @@ def install(tracer: Tracer, draws: int, checkpoint: Path) -> None:
             episode = tracer.rows[row]
             if draws and mask[i].any() and episode.attempt_z is None and not episode.done:
                 env = tracer.envs[row]
-                final_state = policy.config.failure_feature == "final_state"
-                ends = option_ends(env, checkpoint, policy) if final_state else None
+                config = policy.config  # an option's end is known as the robot's state only
+                robot_z = config.failure_feature == "final_state" and config.failure_state_key == OBS_STATE
+                ends = option_ends(env, checkpoint, policy) if robot_z else None
                 preferred = env.preferred_feasible_option()
                 shares = probe_shares(policy, rows, i, draws, tracer.delta_z, ends, preferred)
                 tracer.probes[episode.stage].append(shares)
