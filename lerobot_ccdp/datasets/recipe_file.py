@@ -107,6 +107,8 @@ class RecoveryRecipe:
     # drop sampled chunks whose RMS gap to every demonstrated chunk exceeds this; 0 keeps all
     outcome_radius: float = 0.0
     demo_frames: int = 4096  # demonstrated chunks that join the pool; 0 = synthesised chunks only
+    # set denoiser: give a demonstrated chunk the siblings of a state drawn at its frame (`sibling_outcomes`)
+    demo_siblings: bool = False
     delta_z: float = 0.5  # eq. (5): a recovery's z differs from the failure's by more than this
     delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
     pairs_per_failure: int = 2  # recoveries drawn per pool sample taken as a failure

@@ -97,6 +97,7 @@ class Samples:
     z: Tensor  # (R, z_dim)
     source: Tensor  # (R,): SYNTHESISED or FROM_DEMOS
     state_id: Tensor  # (R,): which drawn demo state a synthesised chunk was sampled at; -1 for a demo chunk
+    frame: Tensor  # (R,): the demo frame whose window the chunk starts from (perturbed if synthesised)
 
     @staticmethod
     def cat(parts: list[Samples]) -> Samples:
@@ -271,6 +272,7 @@ def synthesised_samples(
     drawn = torch.arange(recipe.n_states).split(recipe.batch_states)
     for ids in tqdm(drawn, desc="Sampling chunks (eq. 7)", disable=not progress):
         batch, state_id = picks[ids], ids.repeat_interleave(k)
+        frame = batch.repeat_interleave(k)
         x_s = demos.windows[batch].repeat_interleave(k, dim=0)  # (b * k, n_obs, D)
         x = x_s + recipe.sigma * torch.randn(x_s.shape, generator=generator)  # eq. (6)
         condition = x if images is None else torch.cat([x, images(batch).repeat_interleave(k, dim=0)], dim=-1)
@@ -280,9 +282,9 @@ def synthesised_samples(
         chunks = policy.model.sample_exploratory(condition, recipe.w_s, noise)
         if recipe.outcome_radius:  # before z: a dropped chunk's borrowed outcome is never needed
             near = policy.model.outcomes.rms_distance(chunks) <= recipe.outcome_radius
-            x, chunks, state_id = x[near.cpu()], chunks[near], state_id[near.cpu()]
+            x, chunks, state_id, frame = x[near.cpu()], chunks[near], state_id[near.cpu()], frame[near.cpu()]
         z = policy.model.feature.from_chunk(chunks, policy.model.outcomes)
-        parts.append(Samples(x, chunks.cpu(), z.cpu(), torch.full((len(x),), SYNTHESISED), state_id))
+        parts.append(Samples(x, chunks.cpu(), z.cpu(), torch.full((len(x),), SYNTHESISED), state_id, frame))
     return Samples.cat(parts)
 
 
@@ -315,7 +317,12 @@ def demo_samples(
     chunks = demos.chunks[pick]
     z = policy.model.feature.from_chunk(chunks.to(policy.config.device), policy.model.outcomes).cpu()
     return Samples(
-        demos.windows[pick], chunks, z, torch.full((len(pick),), FROM_DEMOS), torch.full((len(pick),), -1)
+        demos.windows[pick],
+        chunks,
+        z,
+        torch.full((len(pick),), FROM_DEMOS),
+        torch.full((len(pick),), -1),
+        pick,
     )
 
 
@@ -346,11 +353,17 @@ def own_outcome_rows(pool: Samples) -> tuple[Tensor, Tensor]:
     return rows, rows
 
 
-def sibling_outcomes(pool: Samples, chunks_per_state: int) -> tuple[Tensor, Tensor]:
+def sibling_outcomes(
+    pool: Samples, chunks_per_state: int, demo_siblings: bool = False
+) -> tuple[Tensor, Tensor]:
     """For `recovery_head=set_denoiser`: each pool sample's siblings, the outcomes z of every chunk sampled at
     the same drawn state (itself included), (R, chunks_per_state, z_dim) zero-padded, and how many are real
     (R,). They estimate the base's share of each failure set at that state (`failure_buffer.stratum_weights`).
-    A demonstrated chunk has none."""
+    A demonstrated chunk has none, or with `demo_siblings` those of the first state drawn at its frame (if one
+    was): the base's draws where the demonstrator chose that chunk, so that its failure sets and weight are
+    those of the synthesised rows there. A recovery the base almost never samples (home with the two nearest
+    cups failed) is then trained on the demonstrations of it at that stratum's weight, not at weight 1 under
+    failure sets drawn from other states."""
     synthesised = pool.state_id >= 0
     ids = pool.state_id[synthesised]
     table = torch.zeros(int(ids.max()) + 1 if len(ids) else 0, chunks_per_state, pool.z.shape[1])
@@ -360,6 +373,14 @@ def sibling_outcomes(pool: Samples, chunks_per_state: int) -> tuple[Tensor, Tens
     siblings = torch.zeros(len(pool), chunks_per_state, pool.z.shape[1])
     counts = torch.zeros(len(pool), dtype=torch.long)
     siblings[synthesised], counts[synthesised] = table[ids], count[ids]
+    if demo_siblings and len(ids):
+        none = len(table)
+        state_at = torch.full((int(pool.frame.max()) + 1,), none)  # the first state drawn at each frame
+        state_at = state_at.scatter_reduce(0, pool.frame[synthesised], ids, reduce="amin")
+        demo = torch.nonzero(~synthesised).flatten()
+        state = state_at[pool.frame[demo]]
+        drawn = state < none
+        siblings[demo[drawn]], counts[demo[drawn]] = table[state[drawn]], count[state[drawn]]
     return siblings, counts
 
 
@@ -422,7 +443,9 @@ def synthesize_recovery_dataset(
     failure, recovery = (
         own_outcome_rows(pool) if among is not None else recovery_pairs(pool, recipe, generator)
     )
-    siblings = sibling_outcomes(pool, recipe.chunks_per_state) if among is not None else None
+    siblings = (
+        sibling_outcomes(pool, recipe.chunks_per_state, recipe.demo_siblings) if among is not None else None
+    )
     if len(failure) == 0:
         raise ValueError(
             f"No pair satisfies eq. (5) with delta_z={recipe.delta_z}, delta_x={recipe.delta_x}: the "
@@ -442,6 +465,8 @@ def synthesize_recovery_dataset(
         "recoveries_from_demos": int((pool.source[recovery] == FROM_DEMOS).sum()),
         "sampling_seconds": round(sampling_seconds, 2),
     }
+    if siblings is not None:
+        result["demo_with_siblings"] = int(((pool.source == FROM_DEMOS) & (siblings[1] > 0)).sum())
     with staged_dataset_root(out_root, overwrite) as path:
         _write(path, out_repo_id, config, stats, pool, failure, recovery, meta, siblings)
         result["seconds"] = round(time.perf_counter() - started, 2)
