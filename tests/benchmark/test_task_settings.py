@@ -95,8 +95,10 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
 # the Bartender's base trains 7200 steps without labels (docs/benchmarks.md, "The Bartender's round from
 # 9000, without labels"), its set denoiser's failure sets are drawn at the state and weighed per stratum
 # ("After the round from 10000: failure sets drawn at the state"), its synthesis draws 128 base chunks per
-# state ("After the round from 10600: more of the base's draws per state"), and CCDP guards its last 4
-# reverse steps ("After the round from 11200: where the preference goes").
+# state ("After the round from 10600: more of the base's draws per state"), CCDP guards its last 4
+# reverse steps ("After the round from 11200: where the preference goes"), and its demonstrated rows
+# carry their state's siblings, the head trained 12000 steps ("The demonstrations' rows weighed at their
+# state").
 LABEL_FREE_OWN = {
     "Bartender-v0": (
         "steps",
@@ -104,6 +106,7 @@ LABEL_FREE_OWN = {
         "policy.stratum_weights",
         "policy.state_failure_sets",
         "recovery.chunks_per_state",
+        "recovery.demo_siblings",
         "failure_guard_steps",
     )
 }
@@ -143,8 +146,9 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
 
     recovery = json.loads(files.train_recovery.read_text())
     assert recovery["dataset"]["repo_id"] == f"local/{slug}_recovery"
-    assert _without(recovery, "dataset", "output_dir") == _without(
-        json.loads(labelled.train_recovery.read_text()), "dataset", "output_dir"
+    own = LABEL_FREE_OWN.get(task, ())
+    assert _without(recovery, "dataset", "output_dir", *own) == _without(
+        json.loads(labelled.train_recovery.read_text()), "dataset", "output_dir", *own
     )
     # the same evaluation for both runs; each task's size from its own run's development estimate, and a run
     # whose settings changed since the last round of both starts a later round of its own (the labelled
