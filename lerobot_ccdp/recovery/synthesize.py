@@ -410,6 +410,12 @@ def synthesize_recovery_dataset(
     policy, stats = load_checkpoint(policy_path, device)
     config = policy.config
     check_recipe_matches(recipe, config, recipe_source)
+    if recipe.demo_siblings and config.recovery_head != "set_denoiser":
+        raise ValueError(
+            f"recovery.demo_siblings gives demonstrated rows the siblings that only the set denoiser's rows "
+            f"carry, and {policy_path} has recovery_head={config.recovery_head!r}: remove "
+            "recovery.demo_siblings, or train the base with --policy.recovery_head=set_denoiser."
+        )
     if config.failure_feature != "action" and len(policy.model.outcomes) == 0:
         raise ValueError(
             f"{policy_path} holds no demonstrated outcomes, so z of a sampled chunk is unknown; "

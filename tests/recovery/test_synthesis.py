@@ -255,6 +255,17 @@ def test_refuses_a_demo_dataset_without_the_named_feature(reaching_root, tmp_pat
     assert not (tmp_path / "r").exists()
 
 
+def test_refuses_demo_siblings_for_a_head_without_siblings(reaching_root, tmp_path):
+    """Only the set denoiser's rows carry siblings: the flag would otherwise change nothing, silently."""
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
+    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "demo_siblings": True})
+    with pytest.raises(ValueError, match="recovery.demo_siblings .* recovery_head='unet'"):
+        synthesize_recovery_dataset(
+            recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r", progress=False
+        )
+    assert not (tmp_path / "r").exists()
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [
