@@ -404,15 +404,20 @@ def test_set_denoiser_states_are_drawn_half_at_option_starts_and_half_along_the_
     assert torch.bincount(frames, minlength=10).tolist() == [6, 1, 1, 1, 1, 6, 1, 1, 1, 1]
 
 
-def test_siblings_are_the_outcomes_sampled_at_the_same_state_however_many_outcome_radius_kept():
-    """State 0 kept 3 of its 4 chunks, state 1 one, state 2 two; demonstrated chunks (state -1) have none."""
-    z = torch.arange(8.0)[:, None]
+def sibling_pool() -> synthesize.Samples:
+    """Eight pool samples, z = 0..7: states 0, 1 and 2 kept 3, 1 and 2 of their 4 chunks (outcome_radius),
+    drawn at demo frames 7, 2 and 7; two demonstrated chunks (state -1) of frames 7 and 4."""
     state_id = torch.tensor([0, 0, 0, 1, 2, 2, -1, -1])
     frame = torch.tensor([7, 7, 7, 2, 7, 7, 7, 4])
-    pool = synthesize.Samples(
+    z = torch.arange(8.0)[:, None]
+    return synthesize.Samples(
         torch.zeros(8, 1, 2), torch.zeros(8, 4, 2), z, (state_id < 0).long(), state_id, frame
     )
-    siblings, count = synthesize.sibling_outcomes(pool, chunks_per_state=4)
+
+
+def test_siblings_are_the_outcomes_sampled_at_the_same_state_however_many_outcome_radius_kept():
+    """State 0 kept 3 of its 4 chunks, state 1 one, state 2 two; demonstrated chunks (state -1) have none."""
+    siblings, count = synthesize.sibling_outcomes(sibling_pool(), chunks_per_state=4)
     assert count.tolist() == [3, 3, 3, 1, 2, 2, 0, 0]
     assert siblings[1, :, 0].tolist() == [0, 1, 2, 0] and siblings[3, :, 0].tolist() == [3, 0, 0, 0]
     assert siblings[5, :, 0].tolist() == [4, 5, 0, 0] and siblings[6:].eq(0).all()
@@ -421,12 +426,6 @@ def test_siblings_are_the_outcomes_sampled_at_the_same_state_however_many_outcom
 def test_demo_siblings_are_those_of_the_first_state_drawn_at_the_demonstrated_frame():
     """States 0 and 2 were drawn at frame 7, state 1 at frame 2: the demonstrated chunk of frame 7 takes state
     0's outcomes, that of frame 4, where no state was drawn, keeps none."""
-    z = torch.arange(8.0)[:, None]
-    state_id = torch.tensor([0, 0, 0, 1, 2, 2, -1, -1])
-    frame = torch.tensor([7, 7, 7, 2, 7, 7, 7, 4])
-    pool = synthesize.Samples(
-        torch.zeros(8, 1, 2), torch.zeros(8, 4, 2), z, (state_id < 0).long(), state_id, frame
-    )
-    siblings, count = synthesize.sibling_outcomes(pool, chunks_per_state=4, demo_siblings=True)
+    siblings, count = synthesize.sibling_outcomes(sibling_pool(), chunks_per_state=4, demo_siblings=True)
     assert count.tolist() == [3, 3, 3, 1, 2, 2, 3, 0]
     assert siblings[6, :, 0].tolist() == [0, 1, 2, 0] and siblings[7].eq(0).all()
