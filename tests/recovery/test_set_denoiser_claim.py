@@ -6,8 +6,8 @@ The reduced form of `benchmarks/bench_preferences.py --set-denoiser`: the base a
 (`in_memory_training.py`, lerobot-train's step) for fewer steps, on fewer synthesised rows; the rows come from
 the real `lerobot-ccdp-synthesize`. Member 101 is a development member without labels (`final_state` z); the
 family's test members are listed in docs/benchmarks.md ("Seeds"). The default suite asserts the failed goals'
-share; the slow test, trained longer, also the proportions among the goals left (issue 50, item 7). `pytest -s`
-prints the scores.
+share; the slow test, trained longer, also the proportions among the goals left (issue 50, item 7).
+`pytest -s` prints the scores.
 """
 
 import subprocess
