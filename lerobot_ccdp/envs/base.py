@@ -30,6 +30,9 @@ from lerobot_ccdp.envs.interface import (  # noqa: F401  (re-exported for record
 )
 from lerobot_ccdp.envs.scene import CAMERAS, WORKSPACE_HIGH, WORKSPACE_LOW, CartesianGripper
 
+# The keys reset's `options` may hold.
+RESET_OPTIONS = ("hidden_param",)
+
 
 class OutcomeKind(Enum):
     FAILURE = "failure"
@@ -143,6 +146,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         self.observation_space = spaces.Dict(observations)
         self.hidden_param = 0
         self.attempt_index = 0
+        self._has_reset = False  # step() needs a successful reset first
         self.attempt_start_pose = np.asarray(self.home, dtype=np.float64)
 
     # ----------------------------------------------------------------------------------------------------
@@ -244,7 +248,10 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
     # ----------------------------------------------------------------------------------------------------
     # gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        """Reset; `options={"hidden_param": code}` forces the hidden parameter (tests, balanced recording)."""
+        """Reset; `options={"hidden_param": code}` forces the hidden parameter (tests, balanced recording).
+        The arguments are checked before anything changes, so a refused reset leaves the env as it was."""
+        forced = self._checked_reset_arguments(seed, options)
+        self._has_reset = False  # until this reset is through
         super().reset(seed=seed)
         mujoco.mj_resetData(self.model, self.data)
         start = np.asarray(self._start_pose(), dtype=np.float64).copy()
@@ -255,13 +262,7 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         # Drawn last, so the layout (and the first observation) never depends on it (beyond what a task's
         # `_apply_hidden` does with it: only the Bartender's recording options `right_start` and
         # `after_fill_start`).
-        forced = (options or {}).get("hidden_param")
-        if forced is None:
-            self.hidden_param = self._sample_hidden()
-        else:
-            if int(forced) not in self.hidden_values():
-                raise ValueError(f"{self.name}: hidden_param {forced} not in {self.hidden_values()}")
-            self.hidden_param = int(forced)
+        self.hidden_param = self._sample_hidden() if forced is None else forced
         self._apply_hidden()
         self._attempts = self._failures = self._repeated_failures = self._attempts_after_failure = 0
         self._failed_options: set[int] = set()
@@ -271,15 +272,51 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         self.attempt_index = -1
         self._begin_attempt()
         mujoco.mj_forward(self.model, self.data)
+        self._has_reset = True
         return self._observation(failure=False), self._info()
 
+    def _checked_reset_arguments(self, seed: Any, options: Any) -> int | None:
+        """The hidden parameter `options` forces (None: drawn), once `seed` and `options` are known good."""
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
+            raise ValueError(
+                f"{self.name}: reset's seed must be None or an integer >= 0; got {seed!r}. Pass a "
+                "non-negative seed, or none for a random episode."
+            )
+        if options is None:
+            return None
+        unknown = sorted(map(str, set(options) - set(RESET_OPTIONS))) if isinstance(options, dict) else None
+        if unknown is None or unknown:
+            raise ValueError(
+                f"{self.name}: reset's options take only the keys {list(RESET_OPTIONS)}; got {options!r}."
+            )
+        forced = options.get("hidden_param")
+        if forced is None:
+            return None
+        values = self.hidden_values()
+        if isinstance(forced, bool) or not isinstance(forced, (int, np.integer)) or forced not in values:
+            raise ValueError(
+                f"{self.name}: hidden_param {forced!r} not in {values}: reset's options['hidden_param'] "
+                "forces one of these; leave it out for a drawn one."
+            )
+        return int(forced)
+
     def step(self, action):
-        action = np.asarray(action, dtype=np.float64)
-        if action.shape != self.action_space.shape or not np.isfinite(action).all():
+        if not self._has_reset:
+            raise RuntimeError(
+                f"{type(self).__name__}.step before a successful reset: call env.reset() first (a refused "
+                "reset leaves the env as it was)."
+            )
+        given = action
+        try:
+            action = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            action = None  # not numbers: refused below, as given
+        if action is None or action.shape != self.action_space.shape or not np.isfinite(action).all():
+            shown = repr(given) if action is None else action.tolist()
             raise ValueError(
                 f"{type(self).__name__}.step takes a finite action of shape {self.action_space.shape} "
-                f"(an end-effector target); got {action.tolist()}. A NaN action usually comes from a "
-                "policy fed NaN observations or settings."
+                f"(an end-effector target); got {shown}. A NaN action usually comes from a policy fed NaN "
+                "observations or settings."
             )
         action = np.clip(action, self.action_space.low, self.action_space.high)
         self.robot.step(action)

@@ -88,10 +88,17 @@ def gym_id(task: str) -> str:
 
 
 def register_tasks() -> None:
-    """Register every task with gymnasium by entry-point string (idempotent; imports no task)."""
+    """Register every task with gymnasium by entry-point string (idempotent; imports no task).
+
+    Without gymnasium's passive env checker, as LeRobot makes its envs: that wrapper marks its first reset
+    done before calling it, so after a refused first reset (a negative seed) every step failed in the wrapper
+    ("cannot unpack non-iterable NoneType object"). The tests run gymnasium's full `check_env` on every task
+    instead."""
     import gymnasium as gym
 
     for task, (entry_point, step_limit) in ENTRY_POINTS.items():
         env_id = f"{GYM_NAMESPACE}/{task}"
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=entry_point, max_episode_steps=step_limit)
+            gym.register(
+                id=env_id, entry_point=entry_point, max_episode_steps=step_limit, disable_env_checker=True
+            )

@@ -40,3 +40,52 @@ def test_an_env_setting_below_its_range_is_refused(settings, named):
 def test_an_episode_length_below_one_is_refused_naming_the_flag():
     with pytest.raises(ValueError, match="--env.episode_length must be >= 1"):
         CCDPEnvConfig(task="DoorOpening-lite-v0", episode_length=0)
+
+
+def _steps(env: gym.Env, n: int = 3) -> list[np.ndarray]:
+    """Agent positions after `n` steps towards a fixed target (the same for every env)."""
+    target = np.array([0.1, 0.0, 0.2, 0.5], dtype=np.float32)
+    return [env.step(target)[0]["agent_pos"] for _ in range(n)]
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, "0", True])
+def test_a_refused_seed_leaves_the_env_ready_for_the_next_reset(seed):
+    """Through gym.make, the route a Python user takes: before, gymnasium's passive env checker broke every
+    step after a refused first reset ("cannot unpack non-iterable NoneType object")."""
+    env = gym.make("lerobot_ccdp/DoorOpening-lite-v0")
+    with pytest.raises(ValueError, match=r"seed must be None or an integer >= 0; got"):
+        env.reset(seed=seed)
+    with pytest.raises(RuntimeError, match=r"step before a successful reset: call env.reset\(\) first"):
+        env.step(env.action_space.sample())
+    first = env.reset(seed=0)[0]["agent_pos"]
+    twin = gym.make("lerobot_ccdp/DoorOpening-lite-v0")
+    np.testing.assert_array_equal(first, twin.reset(seed=0)[0]["agent_pos"])
+    np.testing.assert_array_equal(_steps(env), _steps(twin))
+
+
+@pytest.mark.parametrize(
+    "options,named",
+    [
+        ({"hidden_param": 99}, r"hidden_param 99 not in \[0, 1\]"),
+        ({"hidden_param": 0.5}, r"hidden_param 0.5 not in \[0, 1\]"),
+        ({"hidden_parm": 1}, r"options take only the keys \['hidden_param'\]; got \{'hidden_parm': 1\}"),
+        ("hidden_param=1", r"options take only the keys \['hidden_param'\]"),
+    ],
+)
+def test_a_refused_reset_mid_episode_leaves_the_episode_as_it_was(options, named):
+    """Before, the options were read after the env had been reseeded and laid out again."""
+    env, twin = (gym.make("lerobot_ccdp/DoorOpening-lite-v0") for _ in range(2))
+    for e in (env, twin):
+        e.reset(seed=4)
+        _steps(e)
+    with pytest.raises(ValueError, match=named):
+        env.reset(seed=5, options=options)
+    np.testing.assert_array_equal(_steps(env), _steps(twin))
+    assert env.unwrapped.hidden_param == twin.unwrapped.hidden_param
+
+
+def test_an_action_that_is_not_numbers_is_refused_as_given():
+    env = _make(task="DoorOpening-lite-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"finite action of shape \(4,\).*got 'left'"):
+        env.step("left")
