@@ -49,6 +49,7 @@ from lerobot_ccdp.benchmark.comparison import (
     lost_table,
     markdown_table,
 )
+from lerobot_ccdp.benchmark.published import REPORT_NOTE, check_report_targets
 from lerobot_ccdp.benchmark.results import ccdp_label, save_run
 from lerobot_ccdp.benchmark.run_lock import PipelineRunning, die_with_parent, exclusive
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
@@ -97,6 +98,8 @@ STEP_TIMES = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
 PROGRESS = re.compile(r"([A-Za-z][\w ()=.-]*:\s+\d+%)\|[^|]*\|\s*(\d+/\d+ \[[^\]]*\])")
 # What the pipeline writes in the marker of its output folder (`lerobot_ccdp.datasets.ownership`).
 CREATED_BY = "lerobot_ccdp.benchmark.pipeline"
+# lerobot-eval seeds numpy with each episode's seed, which must lie in [0, 2**32).
+SEED_LIMIT = 2**32
 
 
 class PipelineError(RuntimeError):
@@ -106,8 +109,19 @@ class PipelineError(RuntimeError):
 def real_path(path: str | Path) -> Path:
     """The one spelling of an output folder, for the stage stamps (which hash command lines): the real path,
     symlinks and `..` resolved, the same from every working directory, so a run from another checkout (a
-    worktree) reuses the stages a run from this one finished."""
-    return Path(path).expanduser().resolve()
+    worktree) reuses the stages a run from this one finished. A path that names no folder (`~user` of no
+    user, a symlink loop) is an argument error."""
+    try:
+        expanded = Path(path).expanduser()
+    except RuntimeError:
+        user = str(path).split("/", 1)[0].removeprefix("~")
+        raise argparse.ArgumentTypeError(f"{path}: there is no user {user}; spell the path out") from None
+    try:
+        return expanded.resolve()
+    except (RuntimeError, OSError):  # Python 3.11 raises RuntimeError for a loop, 3.13 OSError (ELOOP)
+        raise argparse.ArgumentTypeError(
+            f"{path}: a symlink in it loops; fix the link or choose another path"
+        ) from None
 
 
 def canonical(path: str | Path) -> Path:
@@ -164,7 +178,11 @@ class TaskFiles:
         settings = (files.recipe, files.train_base, files.train_recovery, files.eval)
         missing = [str(p) for p in settings if not p.is_file()]
         if missing:
-            raise FileNotFoundError(f"{task}: missing settings file(s) {', '.join(missing)}")
+            raise FileNotFoundError(
+                f"{task}: missing settings file(s) {', '.join(missing)}; --configs and --recipes name the "
+                "folders that hold them"
+            )
+        files.method_settings(METHODS[0])  # names unknown methods of methods.json now, not after training
         env = files.eval_config()["env"]
         if env.get("task") != task:
             raise ValueError(f"{files.eval} evaluates env.task={env.get('task')!r}, not {task!r}")
@@ -176,6 +194,13 @@ class TaskFiles:
 
     def eval_config(self) -> dict[str, Any]:
         return json.loads(self.eval.read_text())
+
+    def seeds(self, first: int | None = None, episodes: int | None = None) -> range:
+        """The evaluation's seeds, episode i's at `first + i`: from `first` (None: the eval config's seed) for
+        `episodes` episodes (None: the eval config's number)."""
+        config = self.eval_config()
+        first = config.get("seed", 1000) if first is None else first
+        return range(first, first + (config["eval"]["n_episodes"] if episodes is None else episodes))
 
     def recovery_head(self) -> str:
         """The recovery head the base config builds (part of the checkpoint's architecture, so chosen there):
@@ -269,12 +294,10 @@ class TaskRun:
         # Evaluations run `jobs` at a time, each on its share of the cores (`run_at_once`).
         self.jobs = jobs
         self._book_lock = threading.Lock()
-        self.eval_seed = files.eval_config().get("seed", 1000) if eval_seed is None else eval_seed
+        seeds = files.seeds(eval_seed, eval_episodes)
+        self.eval_seed, self.n_episodes = seeds.start, len(seeds)
         # None: the eval config's number, which no command then names (its stamps stay those of the config)
         self.eval_episodes = eval_episodes
-        self.n_episodes = (
-            files.eval_config()["eval"]["n_episodes"] if eval_episodes is None else eval_episodes
-        )
         self.slug = files.out.name
         self.logs = files.out / "logs"
         self.logs.mkdir(parents=True, exist_ok=True)
@@ -737,19 +760,19 @@ def write_report(
     return report
 
 
-def publish_report(report: str, out: Path, target: Path) -> None:
+def publish_report(report: str, out: Path, target: Path, flag: str = "--publish") -> None:
     """Copy the report (and its chart and per-episode run file, renamed after it) to `target`, so the docs
-    show a run's own output and `lerobot_ccdp.benchmark.results` can tabulate it."""
+    show a run's own output and `lerobot_ccdp.benchmark.results` can tabulate it. Each of the three replaces
+    only a file the pipeline published (`published.check_report_targets`, raising NotOwned before any is
+    written), so a user's file of the same name is never lost."""
+    chart = out / "comparison.png"
+    check_report_targets(target, flag, chart=chart.exists())
     target.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(out / RUN_FILE, target.with_suffix(".json"))
-    chart = out / "comparison.png"
     if chart.exists():
         shutil.copyfile(chart, target.with_suffix(".png"))
         report = report.replace("](comparison.png)", f"]({target.with_suffix('.png').name})")
-    note = (
-        f"<!-- Written by the command below ({time.strftime('%Y-%m-%d')}); "
-        "rerun it rather than editing. -->\n"
-    )
+    note = f"{REPORT_NOTE} ({time.strftime('%Y-%m-%d')}); rerun it rather than editing. -->\n"
     target.write_text(note + report)
 
 
@@ -775,9 +798,20 @@ def run_tasks(
                     write_report([run], {f.task: episodes[f.task]}, f.out, command, not args.no_chart),
                     f.out,
                     target,
+                    "--publish-each",
                 )
                 print(f"Published: {target}", flush=True)
     return runs, episodes
+
+
+def published_reports(args: argparse.Namespace, tasks: list[str]) -> list[tuple[Path, str]]:
+    """(path, flag) of every report the run will publish: --publish's, and --publish-each's per task."""
+    if args.train_only:
+        return []
+    each = (
+        [(args.publish_each / f"{task}.md", "--publish-each") for task in tasks] if args.publish_each else []
+    )
+    return ([(args.publish, "--publish")] if args.publish else []) + each
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -882,11 +916,6 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.train_only:
         args.methods = []
-    tasks = expand_tasks(args.tasks)
-    files = [
-        TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type, args.label_free)
-        for t in tasks
-    ]
     if args.jobs < 1:
         parser.error(f"--jobs {args.jobs}: run at least one evaluation at a time")
     if args.eval_episodes is not None and args.eval_episodes < 1:
@@ -897,24 +926,48 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--train-only runs the training stages and --report-only runs none; pass one of them")
     if args.fresh and args.adopt:
         parser.error("--adopt keeps the folder's outputs and --fresh deletes them; pass one of them")
+    if args.publish and args.publish.suffix != ".md":
+        parser.error(
+            f"--publish {args.publish}: name the report's .md file (its run file and chart go beside it, "
+            "as .json and .png)"
+        )
+    tasks = expand_tasks(args.tasks)
+    try:
+        files = [
+            TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type, args.label_free)
+            for t in tasks
+        ]
+    except (ValueError, OSError) as error:
+        parser.error(str(error))
+    for f in files:  # checked here: a stage clears its output before its command would refuse the seed
+        seeds = f.seeds(args.eval_seed, args.eval_episodes)
+        if seeds.start < 0 or seeds.stop > SEED_LIMIT:
+            source = "--eval-seed" if args.eval_seed is not None else f"the seed of {f.eval}:"
+            parser.error(
+                f"{source} {seeds.start}: its {len(seeds)} episodes would use seeds {seeds.start} to "
+                f"{seeds.stop - 1}, outside numpy's seed range 0 to {SEED_LIMIT - 1} (lerobot-eval seeds "
+                f"numpy with each); choose a first seed from 0 to {SEED_LIMIT - len(seeds)}"
+            )
     command = "python -m lerobot_ccdp.benchmark.pipeline " + shlex.join(
         argv if argv is not None else sys.argv[1:]
     )
     start = time.perf_counter()
     try:
+        for report, flag in published_reports(args, [f.task for f in files]):
+            check_report_targets(report, flag, chart=not args.no_chart)
         check_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)  # before the lock file beside it
         with exclusive(args.out):
             runs, episodes = run_tasks(files, args, command)
+        if args.train_only:
+            print(f"Trained: {', '.join(str(f.out / 'recovery' / CHECKPOINT) for f in files)}")
+            return
+        report = write_report(runs, episodes, args.out, command, chart=not args.no_chart)
+        print(report)
+        if args.publish:
+            publish_report(report, args.out, args.publish)
+            print(f"Published: {args.publish}")
     except (PipelineError, PipelineRunning, NotOwned) as error:
         sys.exit(str(error))
-    if args.train_only:
-        print(f"Trained: {', '.join(str(f.out / 'recovery' / CHECKPOINT) for f in files)}")
-        return
-    report = write_report(runs, episodes, args.out, command, chart=not args.no_chart)
-    print(report)
-    if args.publish:
-        publish_report(report, args.out, args.publish)
-        print(f"Published: {args.publish}")
     print(f"Report: {args.out / 'report.md'}; total {time.perf_counter() - start:.0f} s")
 
 

@@ -35,8 +35,10 @@ from lerobot_ccdp.benchmark.paired import (
     repeats_per_opportunity,
     success_rate,
 )
+from lerobot_ccdp.benchmark.published import RESULTS_NOTE, RUN_FORMAT, is_results, refuse_unless_ours
+from lerobot_ccdp.datasets.ownership import NotOwned
 
-FORMAT = "lerobot_ccdp.results/1"
+FORMAT = RUN_FORMAT
 BASELINES = ("dp", "dp_star", "dp_star_matched")
 README_BEGIN = "<!-- results:begin (written by python -m lerobot_ccdp.benchmark.results; do not edit) -->"
 README_END = "<!-- results:end -->"
@@ -350,12 +352,13 @@ def main(argv: list[str] | None = None) -> None:
             "(make benchmark)."
         )
     try:
+        refuse_unless_ours(args.out, is_results, f"holds no note {RESULTS_NOTE} ...", "--out", str(args.out))
         runs = [(title, Run.load(*map(Path, paths))) for title, *paths in args.run]
         command = "python -m lerobot_ccdp.benchmark.results " + shlex.join(
             argv if argv is not None else sys.argv[1:]
         )
         write_results(runs, args.out, command, args.readme)
-    except (OSError, ValueError) as error:
+    except (OSError, ValueError, NotOwned) as error:
         sys.exit(str(error))
     print(f"Wrote {args.out}" + (f" and the table in {args.readme}" if args.readme else ""))
 

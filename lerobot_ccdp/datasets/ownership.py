@@ -10,8 +10,10 @@ output folder and the benchmarks' work folders all use it: `--overwrite` and `--
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -19,7 +21,23 @@ MARKER = ".lerobot_ccdp_owner.json"
 
 
 class NotOwned(RuntimeError):
-    """A folder holds files this project did not put there: it is neither written into nor deleted."""
+    """A folder or file holds what this project did not put there (it is neither written into, replaced nor
+    deleted), or an output cannot be made where it is named."""
+
+
+def unmakeable(path: str | Path) -> tuple[int, Path, str] | None:
+    """Why `path`, which does not exist, cannot be made: (errno, the nearest existing folder above it or the
+    file in its way, the problem), or None when its nearest existing ancestor is a writable folder."""
+    ancestor = Path(path).absolute().parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        return errno.ENOTDIR, ancestor, "a file, not a folder"
+    if os.access(ancestor, os.W_OK | os.X_OK):
+        return None
+    if os.statvfs(ancestor).f_flag & os.ST_RDONLY:
+        return errno.EROFS, ancestor, "on a read-only file system"
+    return errno.EACCES, ancestor, "not writable (permission denied)"
 
 
 def identity(folder: str | Path) -> str:
@@ -65,6 +83,11 @@ def check_output_folder(
         )
     if real.exists() and not real.is_dir():
         raise NotOwned(f"{flag} {real} is a file, not a folder. Nothing was changed; choose another folder.")
+    if not real.exists() and (problem := unmakeable(real)) is not None:
+        raise NotOwned(
+            f"{flag} {real} cannot be made: {problem[1]} is {problem[2]}. Nothing was changed; choose "
+            "another folder."
+        )
     made_by = owner(real) if real.exists() else None
     if adopt or not real.exists() or made_by == created_by or not any(real.iterdir()):
         return

@@ -19,7 +19,7 @@ import traceback
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
-from lerobot_ccdp.datasets.ownership import MARKER, mark, owner
+from lerobot_ccdp.datasets.ownership import MARKER, mark, owner, unmakeable
 
 logger = logging.getLogger(__name__)
 
@@ -70,18 +70,10 @@ def check_output_root(root: str | Path, overwrite: bool) -> None:
 
 def _check_parent_writable(root: Path) -> None:
     """The nearest existing folder above `root` must be writable, or the dataset cannot be created there."""
-    ancestor = root.absolute().parent
-    while not ancestor.exists() and ancestor != ancestor.parent:
-        ancestor = ancestor.parent
-    if not ancestor.is_dir():
-        code, problem = errno.ENOTDIR, "a file, not a folder"
-    elif os.access(ancestor, os.W_OK | os.X_OK):
-        return
-    elif os.statvfs(ancestor).f_flag & os.ST_RDONLY:
-        code, problem = errno.EROFS, "on a read-only file system"
-    else:
-        code, problem = errno.EACCES, "not writable (permission denied)"
-    raise OSError(code, f"Cannot create the dataset {root}: {ancestor} is {problem}. {WRITE_FIXES[code]}")
+    problem = unmakeable(root)
+    if problem is not None:
+        code, ancestor, reason = problem
+        raise OSError(code, f"Cannot create the dataset {root}: {ancestor} is {reason}. {WRITE_FIXES[code]}")
 
 
 def check_disjoint(

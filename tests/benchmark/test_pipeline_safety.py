@@ -4,24 +4,29 @@ spelled, for its lock and its stage stamps. The stages are faked (each makes the
 so these run in seconds; tests/benchmark/test_pipeline.py runs the real ones."""
 
 import fcntl
+import os
 import re
 import shutil
 from pathlib import Path
 
 import pytest
 
-from lerobot_ccdp.benchmark import pipeline, run_lock
+from lerobot_ccdp.benchmark import pipeline, results, run_lock
+from lerobot_ccdp.benchmark.comparison import MethodMetrics, bar_chart
 from lerobot_ccdp.benchmark.pipeline import (
     CHECKPOINT,
     CREATED_BY,
+    RUN_FILE,
     PipelineError,
     TaskFiles,
     TaskRun,
     main,
+    publish_report,
     task_slug,
 )
+from lerobot_ccdp.benchmark.published import REPORT_NOTE
 from lerobot_ccdp.benchmark.run_lock import PipelineRunning, exclusive
-from lerobot_ccdp.datasets.ownership import MARKER, claim_output_folder, owner
+from lerobot_ccdp.datasets.ownership import MARKER, NotOwned, claim_output_folder, owner
 
 REPO = Path(__file__).resolve().parents[2]
 TASK = "DoorOpening-lite-v0"
@@ -70,8 +75,9 @@ def root(tmp_path, monkeypatch) -> Path:
     return tmp_path
 
 
-def run(out: str | Path, *extra: str, settings: str | Path = "settings") -> None:
-    """The pipeline's training stages on `out`, the settings spelled from `settings`."""
+def run(out: str | Path, *extra: str, settings: str | Path = "settings", train_only: bool = True) -> None:
+    """The pipeline's training stages (or with `train_only` False every stage) on `out`, the settings spelled
+    from `settings`."""
     main(
         [
             "--tasks",
@@ -82,7 +88,7 @@ def run(out: str | Path, *extra: str, settings: str | Path = "settings") -> None
             f"{settings}/configs",
             "--recipes",
             f"{settings}/recipes",
-            "--train-only",
+            *(["--train-only"] if train_only else []),
             *extra,
         ]
     )
@@ -237,3 +243,137 @@ def test_a_stage_clears_only_inside_its_task_folder(root):
     with pytest.raises(PipelineError, match=re.escape(f"refusing to clear {mine}, which is not inside")):
         TaskRun(files)._stage("record", mine / "done", ["lerobot-ccdp-record"], upstream=None, clear=mine)
     assert untouched(mine)
+
+
+def refusal(capsys, out: str | Path, *extra: str, train_only: bool = False) -> str:
+    """The one line the pipeline exits with on `out` and `extra` (sys.exit's message, or argparse's last)."""
+    with pytest.raises(SystemExit) as refused:
+        run(out, *extra, train_only=train_only)
+    code = refused.value.code
+    return code if isinstance(code, str) else capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def everything(folder: Path) -> list[str]:
+    """Every path under `folder`, symlinks not followed (one of them loops)."""
+    return sorted(os.path.join(d, name) for d, dirs, files in os.walk(folder) for name in dirs + files)
+
+
+# Inputs refused before any output is touched (issue 110): (--out, flags, what the one line says)
+BAD_INPUTS = {
+    "an unknown task": (
+        "out",
+        ["--tasks", "DoorOpening-lite-v9"],
+        r"Unknown task 'DoorOpening-lite-v9'; choose among .*DoorOpening-lite-v0",
+    ),
+    "--configs without the task's folder": (
+        "out",
+        ["--configs", "empty"],
+        rf"{TASK}: missing settings file\(s\) .*empty/{SLUG}/train_base.json",
+    ),
+    "--out under a file": (
+        "notes.txt/out",
+        [],
+        r"--out .*/notes.txt/out cannot be made: .*/notes.txt is a file",
+    ),
+    "--out through a symlink loop": ("loop/out", [], r"argument --out: loop/out: a symlink in it loops"),
+    "--out in an unknown user's home": (
+        "~nosuchuser/out",
+        [],
+        r"argument --out: ~nosuchuser/out: there is no user nosuchuser",
+    ),
+    "a negative --eval-seed": ("out", ["--eval-seed", "-1"], r"--eval-seed -1: .*seeds -1 to "),
+    "an --eval-seed past numpy's range": (
+        "out",
+        ["--eval-seed", str(2**40)],
+        rf"--eval-seed {2**40}: .*numpy's seed range.*choose a first seed from 0 to ",
+    ),
+    "episodes that run past numpy's range": (
+        "out",
+        ["--eval-seed", str(2**32 - 5), "--eval-episodes", "10"],
+        r"seeds 4294967291 to 4294967300, outside numpy's seed range.*a first seed from 0 to 4294967286",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUTS))
+def test_a_bad_input_is_one_line_before_any_output_is_touched(root, stages, capsys, case):
+    out, extra, message = BAD_INPUTS[case]
+    (root / "notes.txt").write_text("keep me")
+    (root / "empty").mkdir()
+    (root / "loop").symlink_to("loop")
+    before = everything(root)
+    assert re.search(message, refusal(capsys, out, *extra))
+    assert everything(root) == before and not stages.commands
+
+
+def test_a_bad_eval_seed_loses_no_finished_evaluation(root, stages, capsys):
+    """The evaluation stage cleared its finished output before lerobot-eval refused the seed."""
+    run("out")
+    finished = root / "out" / SLUG / "eval" / "dp" / "eval_info.json"
+    finished.parent.mkdir(parents=True)
+    finished.write_text("finished")
+    for seed in ("-1", str(2**40)):
+        assert "--eval-seed" in refusal(capsys, "out", "--methods", "dp", "--eval-seed", seed)
+    assert finished.read_text() == "finished" and len(stages.commands) == 4
+
+
+# Where each publishing flag writes the task's report: (the flag's value, the report's path less .md)
+PUBLISH = {"--publish": ("pub/r.md", "pub/r"), "--publish-each": ("pub", f"pub/{TASK}")}
+
+
+@pytest.mark.parametrize("flag", list(PUBLISH))
+@pytest.mark.parametrize("suffix", [".md", ".json", ".png"])
+def test_publishing_is_refused_before_any_stage_where_it_would_replace_a_users_file(
+    root, stages, capsys, flag, suffix
+):
+    value, stem = PUBLISH[flag]
+    mine = root / f"{stem}{suffix}"
+    mine.parent.mkdir()
+    mine.write_bytes(b"mine")
+    message = refusal(capsys, "out", flag, value)
+    named = re.escape(f"{stem}{suffix}")  # as the flag spells it (here, relative to the working directory)
+    assert re.search(
+        rf"Refusing {flag} .*: {named} .*lerobot_ccdp did not write it\. Nothing was written\. Choose "
+        rf"another {flag}, or move or delete {named} yourself",
+        message,
+    )
+    assert mine.read_bytes() == b"mine" and not stages.commands and not (root / "out").exists()
+
+
+def test_publish_replaces_what_the_pipeline_published_and_refuses_what_appeared_since(root):
+    """Checked again when the report is published (a run takes hours). What the pipeline published is
+    replaced: docs/benchmark's files (their chart named by their report), a chart it marked."""
+    docs, out, pub = REPO / "docs" / "benchmark", root / "out", root / "pub"
+    out.mkdir()
+    pub.mkdir()
+    shutil.copy(docs / "DoorOpening-v0.json", out / RUN_FILE)
+    run = results.Run.load(out / RUN_FILE)
+    bar_chart(
+        {t: {m: MethodMetrics.of(e) for m, e in ms.items()} for t, ms in run.episodes.items()}, pub / "x.png"
+    )
+    shutil.copy(pub / "x.png", out / "comparison.png")
+    for suffix in (".md", ".json", ".png"):
+        shutil.copy(docs / f"DoorOpening-v0{suffix}", pub)
+    for target in (pub / "DoorOpening-v0.md", pub / "x.md"):
+        publish_report("# report\n\n![comparison](comparison.png)\n", out, target)
+        assert target.read_text().startswith(REPORT_NOTE)
+        assert target.read_text().endswith(f"![comparison]({target.stem}.png)\n")
+        assert target.with_suffix(".json").read_bytes() == (out / RUN_FILE).read_bytes()
+    (pub / "x.json").write_text("{}")  # a user's file, put there during the run
+    before = {p.name: p.read_bytes() for p in pub.iterdir()}
+    with pytest.raises(NotOwned, match=re.escape(f"{pub / 'x.json'} is not a run file of the pipeline")):
+        publish_report("# another\n", out, pub / "x.md")
+    assert {p.name: p.read_bytes() for p in pub.iterdir()} == before
+
+
+def test_results_never_replace_a_users_file(root, capsys):
+    """`python -m lerobot_ccdp.benchmark.results --out`: replaced only where it wrote the file before."""
+    run_file = str(REPO / "docs" / "benchmark" / "DoorOpening-v0.json")
+    mine = root / "results.md"
+    mine.write_text("# my notes")
+    with pytest.raises(SystemExit, match=rf"Refusing --out {mine}: .*did not write it\. Nothing was written"):
+        results.main(["--run", "Labels", run_file, "--out", str(mine)])
+    assert mine.read_text() == "# my notes"
+    shutil.copy(REPO / "docs" / "results.md", mine)
+    results.main(["--run", "Labels", run_file, "--out", str(mine)])
+    assert "| DoorOpening |" in mine.read_text()
