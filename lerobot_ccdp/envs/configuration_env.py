@@ -8,6 +8,7 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
+from lerobot_ccdp.compat.env_fit import install_env_fit_check
 from lerobot_ccdp.compat.eval_metrics import install_episode_metrics
 from lerobot_ccdp.envs.interface import ACTION_DIM, AGENT_POS_DIM, CONTROL_FPS, OBS_TYPES, OBSERVATION_SIZE
 from lerobot_ccdp.envs.tasks import gym_id, task_class
@@ -46,6 +47,7 @@ class CCDPEnvConfig(EnvConfig):
 
     def __post_init__(self):
         install_episode_metrics()  # an evaluation of ccdp tasks reports their per-episode metrics
+        install_env_fit_check()  # and refuses a checkpoint that does not fit the task before it starts
         if self.task is None:
             raise ValueError("--env.task is required for --env.type=ccdp")
         cls = task_class(self.task)
