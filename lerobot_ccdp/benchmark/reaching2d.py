@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from lerobot_ccdp.datasets.staging import check_output_root, staged_dataset_root
+
 GOALS = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]], dtype=np.float32)
 PREFERENCE = np.array([0.4, 0.3, 0.2, 0.1])
 FPS = 10
@@ -124,19 +126,27 @@ def record_reaching_dataset(
     return FOUR_GOALS.record(root, repo_id, n_episodes, seed)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     """`python -m lerobot_ccdp.benchmark.reaching2d --root data/reaching2d`: write the demo dataset for local
-    training."""
+    training (built beside `--root` and renamed into place, as lerobot-ccdp-record's)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--root", type=Path, required=True, help="where to write the dataset (must not exist)"
+        "--root", type=Path, required=True, help="where to write the dataset: a new or empty folder"
     )
     parser.add_argument("--repo-id", default="local/reaching2d")
     parser.add_argument("--n-episodes", type=int, default=60)
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace a dataset this command wrote at --root"
+    )
+    args = parser.parse_args(argv)
+    try:
+        check_output_root(args.root, args.overwrite, "--overwrite")
+    except (OSError, ValueError) as error:
+        parser.error(str(error))
     logging.basicConfig(level=logging.INFO)
-    dataset = record_reaching_dataset(args.root, args.repo_id, args.n_episodes, args.seed)
+    with staged_dataset_root(args.root, args.overwrite, "--overwrite") as staging:
+        dataset = record_reaching_dataset(staging, args.repo_id, args.n_episodes, args.seed)
     logging.info("Wrote %d episodes (%d frames) to %s", dataset.num_episodes, dataset.num_frames, args.root)
 
 

@@ -63,6 +63,8 @@ class RecordRecipe:
         for name in ("n_episodes", "max_episode_steps"):
             if (value := getattr(recipe, name)) is not None and value < 1:
                 raise ValueError(f"{at}record.{name} must be a positive integer, got {value!r}")
+        if recipe.seed < 0:
+            raise ValueError(f"{at}record.seed must be >= 0 (gymnasium's seeds), got {recipe.seed}")
         accepted = env_arguments(env_class)
         unknown = sorted(set(recipe.env_kwargs) - set(accepted))
         if unknown:

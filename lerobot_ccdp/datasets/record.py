@@ -121,7 +121,7 @@ def _record_into(path: Path, recipe: RecordRecipe, repo_id: str, env: gym.Env, p
     )
     try:
         expert = Expert(env)
-        seed, discarded = recipe.seed, 0
+        seed, discarded, timed_out = recipe.seed, 0, 0
         for _ in tqdm(range(recipe.n_episodes), desc=f"Recording {recipe.task}", disable=not progress):
             while True:
                 episode = run_episode(env, expert, seed=seed)
@@ -129,19 +129,43 @@ def _record_into(path: Path, recipe: RecordRecipe, repo_id: str, env: gym.Env, p
                 if episode.success:
                     break
                 discarded += 1
+                timed_out += len(episode.actions) >= env.spec.max_episode_steps
                 logger.warning(
                     "Expert failed on seed %d (hidden_param=%d); episode discarded",
                     seed - 1,
                     episode.hidden_param,
                 )
                 if discarded > recipe.n_episodes:
-                    raise RuntimeError(f"The {recipe.task} expert failed {discarded} times; giving up")
+                    raise RuntimeError(
+                        f"The {recipe.task} expert failed {discarded} times; giving up. "
+                        + _why_the_expert_failed(recipe, env, timed_out == discarded)
+                    )
             _add_episode(dataset, episode, description)
     finally:
         # close its writers now, or their destructors write into the deleted staging folder
         dataset.finalize()
     (path / RECIPE_COPY).write_text(yaml.safe_dump({"record": _as_dict(recipe)}, sort_keys=False))
     return discarded
+
+
+def _why_the_expert_failed(recipe: RecordRecipe, env: gym.Env, all_timed_out: bool) -> str:
+    """The likely cause of the expert's failures, and its fix: a step limit too short for it, or settings."""
+    own = gym.spec(gym_id(recipe.task)).max_episode_steps
+    if not all_timed_out:
+        return (
+            "The scripted expert rarely fails the task as registered; check what the recipe changes "
+            f"(record.env_kwargs={recipe.env_kwargs}, record.seed={recipe.seed})."
+        )
+    if recipe.max_episode_steps is not None and recipe.max_episode_steps < own:
+        return (
+            f"Every failed episode ran to its step limit of {recipe.max_episode_steps} steps "
+            "(record.max_episode_steps), too few for the expert: raise --record.max_episode_steps (the "
+            f"task's own limit: {own}) or leave it unset."
+        )
+    return (
+        f"Every failed episode ran to its step limit of {env.spec.max_episode_steps} steps; raise "
+        "--record.max_episode_steps, or check what record.env_kwargs changes."
+    )
 
 
 def _env_kwargs(recipe: RecordRecipe) -> dict:

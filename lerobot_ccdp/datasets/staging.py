@@ -41,22 +41,31 @@ WRITE_FIXES = {
 }
 
 
-def check_output_root(root: str | Path, overwrite: bool) -> None:
+def check_output_root(root: str | Path, overwrite: bool, overwrite_flag: str = "--overwrite=true") -> None:
     """Refuse, before any work, a `root` that cannot be created or that exists and may not be replaced.
 
-    --overwrite deletes what sits at `root` once the new dataset is complete, so it only reaches a dataset
-    this project wrote there (`ownership.owner`): never the working directory, its parents, or others'
-    files."""
+    An empty folder (not a symlink, not the working directory) is used: the dataset takes its place.
+    --overwrite (spelt `overwrite_flag` by the command) deletes what sits at `root` once the new dataset is
+    complete, so it only reaches a dataset this project wrote there (`ownership.owner`): never the working
+    directory, its parents, or others' files."""
     root = Path(root)
-    if not (root.exists() or root.is_symlink()):
+    if root.is_symlink() and not root.exists():
+        raise FileExistsError(
+            f"{root} is a symlink to {os.readlink(root)}, which does not exist; remove the link or choose "
+            "another root"
+        )
+    if not root.exists():
         _check_parent_writable(root)
+        return
+    resolved, cwd = root.resolve(), Path.cwd().resolve()
+    holds_cwd = resolved == cwd or resolved in cwd.parents
+    if not (holds_cwd or root.is_symlink()) and root.is_dir() and not any(root.iterdir()):
         return
     if not overwrite:
         raise FileExistsError(
-            f"{root} already exists; pass --overwrite=true to replace it, or choose another root"
+            f"{root} already exists; pass {overwrite_flag} to replace it, or choose another root"
         )
-    resolved, cwd = root.resolve(), Path.cwd().resolve()
-    if resolved == cwd or resolved in cwd.parents:
+    if holds_cwd:
         raise ValueError(
             f"--overwrite refuses {root}: it holds the working directory. Name the dataset's own folder."
         )
@@ -118,7 +127,9 @@ def _alive(pid: int) -> bool:
 
 
 @contextlib.contextmanager
-def staged_dataset_root(root: str | Path, overwrite: bool = False) -> Iterator[Path]:
+def staged_dataset_root(
+    root: str | Path, overwrite: bool = False, overwrite_flag: str = "--overwrite=true"
+) -> Iterator[Path]:
     """Yield a fresh path to create a dataset at; when the block completes it becomes `root`, marked as ours.
 
     If the block raises (or is interrupted), nothing appears at `root` and the staging folder is removed,
@@ -127,7 +138,7 @@ def staged_dataset_root(root: str | Path, overwrite: bool = False) -> Iterator[P
     error LeRobot's writers raised last, rather than the hidden staging file it hit.
     """
     root = Path(root)
-    check_output_root(root, overwrite)
+    check_output_root(root, overwrite, overwrite_flag)
     staging = None
     try:
         root.parent.mkdir(parents=True, exist_ok=True)
@@ -137,7 +148,7 @@ def staged_dataset_root(root: str | Path, overwrite: bool = False) -> Iterator[P
         )
         yield staging / "dataset"
         mark(staging / "dataset", CREATED_BY, at=root)
-        check_output_root(root, overwrite)  # again: what appeared at `root` meanwhile may not be ours
+        check_output_root(root, overwrite, overwrite_flag)  # again: what appeared at `root` may not be ours
         if root.exists():
             root.rename(staging / "replaced")  # deleted with the staging folder, the new dataset in place
         (staging / "dataset").rename(root)

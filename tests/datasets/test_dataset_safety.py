@@ -14,8 +14,10 @@ from pathlib import Path
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from lerobot_ccdp.benchmark import reaching2d
 from lerobot_ccdp.datasets import record
-from lerobot_ccdp.datasets.ownership import MARKER, identity
+from lerobot_ccdp.datasets.ownership import MARKER, identity, owner
+from lerobot_ccdp.datasets.staging import CREATED_BY
 from lerobot_ccdp.recovery import synthesize
 
 from fixtures.policy_factory import untrained_checkpoint
@@ -215,6 +217,7 @@ def test_a_file_size_limit_is_named_by_the_console_script(tmp_path):
         ("--record.max_episode_steps=0", "record.max_episode_steps must be a positive integer, got 0"),
         ("--record.max_episode_steps=-5", "record.max_episode_steps must be a positive integer, got -5"),
         ("--record.env_kwargs={init_noise: .nan}", "record.env_kwargs.init_noise must be a finite number"),
+        ("--record.seed=-1", r"record.seed must be >= 0 \(gymnasium's seeds\), got -1"),
     ],
 )
 def test_record_recipe_errors_are_named_before_any_env_is_made(tmp_path, monkeypatch, flag, message):
@@ -251,3 +254,45 @@ def test_a_checkpoint_of_another_layout_is_refused_naming_both(door, reaching_ro
     with pytest.raises(ValueError, match=expected):
         synthesize.main(synthesize_flags(demos, other, tmp_path / "out"))
     assert list(tmp_path.iterdir()) == [tmp_path / "reaching_base"]
+
+
+def test_a_step_limit_too_short_for_the_expert_is_named_with_the_tasks_own(tmp_path):
+    with pytest.raises(
+        RuntimeError,
+        match=r"expert failed 2 times; giving up\. Every failed episode ran to its step limit of 3 steps "
+        r"\(record.max_episode_steps\).*raise --record.max_episode_steps \(the task's own limit: 150\) or "
+        r"leave it unset",
+    ):
+        record.main(record_flags(tmp_path / "demos", "--record.max_episode_steps=3"))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_dangling_symlink_root_is_named_as_one(tmp_path):
+    link = tmp_path / "demos"
+    link.symlink_to(tmp_path / "gone")
+    with pytest.raises(
+        FileExistsError, match=rf"{link} is a symlink to {tmp_path / 'gone'}, which does not exist"
+    ):
+        record.main(record_flags(link))
+    assert link.is_symlink() and sorted(p.name for p in tmp_path.iterdir()) == ["demos"]
+
+
+def test_an_empty_folder_root_receives_the_dataset(tmp_path):
+    root = tmp_path / "demos"
+    root.mkdir()
+    record.main(record_flags(root))
+    assert LeRobotDataset(DEMOS_ID, root=root).num_episodes == 1 and owner(root) == CREATED_BY
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demos"]
+
+
+def test_the_reaching_data_command_names_an_existing_root(tmp_path, capsys):
+    """`python -m lerobot_ccdp.benchmark.reaching2d --root R` run twice: the second says what to do."""
+    root = tmp_path / "reaching2d"
+    flags = ["--root", str(root), "--n-episodes", "4"]
+    reaching2d.main(flags)
+    with pytest.raises(SystemExit):
+        reaching2d.main(flags)
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last.endswith(f"{root} already exists; pass --overwrite to replace it, or choose another root")
+    reaching2d.main(["--root", str(root), "--n-episodes", "10", "--overwrite"])
+    assert LeRobotDataset("local/reaching2d", root=root).num_episodes == 10 and owner(root) == CREATED_BY
