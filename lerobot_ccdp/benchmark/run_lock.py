@@ -10,10 +10,13 @@ import contextlib
 import ctypes
 import fcntl
 import os
+import re
 import signal
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
+
+from lerobot_ccdp.datasets.ownership import NotOwned
 
 PR_SET_PDEATHSIG = 1
 
@@ -30,6 +33,14 @@ def exclusive(out: Path) -> Iterator[None]:
     out.parent.mkdir(parents=True, exist_ok=True)
     path = out.parent / f".{out.name}.pipeline.lock"
     handle = _locked(path, out)
+    handle.seek(0)
+    if not re.fullmatch(r"\d*\s*", handle.read()):  # a killed run's lock holds its pid, a new one nothing
+        handle.close()
+        raise NotOwned(
+            f"{path}, the lock file of --out {out}, holds something other than a pipeline's pid: "
+            "lerobot_ccdp did not write it. Nothing was written. Move or delete it yourself, or choose "
+            "another --out."
+        )
     try:
         handle.seek(0)
         handle.truncate()

@@ -215,6 +215,15 @@ def test_a_killed_runs_lock_file_does_not_stop_the_next_run(root, stages):
     assert len(stages.commands) == 4 and not (root / ".out.pipeline.lock").exists()
 
 
+def test_a_users_file_named_as_the_lock_file_is_left_alone(root, stages):
+    (root / ".out.pipeline.lock").write_text("my notes")
+    with pytest.raises(
+        SystemExit, match=r"holds something other than a pipeline's pid: lerobot_ccdp did not"
+    ):
+        run("out")
+    assert (root / ".out.pipeline.lock").read_text() == "my notes" and not stages.commands
+
+
 def test_a_lock_file_removed_between_opening_and_locking_it_is_not_held(root, monkeypatch):
     """A run that opened the lock file just before the run holding it ended (and removed it) must not hold a
     lock on the removed file while a third run locks the new one: it locks the file the path names now."""
