@@ -3,10 +3,25 @@
 LeRobot's server refuses policy types outside a built-in list and never imports plugins. This entry point
 imports the plugin (registering `ccdp`), adds `ccdp` to that list in place and runs LeRobot's own `serve`,
 so the server's code, flags and LeRobot's robot client stay exactly LeRobot's.
+
+It serves LeRobot's server class with checks made where the client's messages enter (`checked_server`):
+LeRobot's own server accepted `actions_per_chunk=0` and failed later, and answered an observation that lacks
+one of the robot's keys with an empty reply and the key alone in its log (`'y'`).
 """
 
+import functools
+import pickle  # nosec: LeRobot's async protocol pickles its messages
 from types import ModuleType
+from typing import Any
 
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType
+from lerobot.datasets.utils import DEFAULT_FEATURES, dataset_to_policy_features
+from lerobot.utils.constants import OBS_IMAGES, OBS_STR
+
+from lerobot_ccdp.compat.cli_errors import buried_error
+from lerobot_ccdp.compat.env_fit import described, feature_mismatches
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import (
     CCDPPolicy,  # importing the package registers the ccdp policy type
 )
@@ -50,10 +65,114 @@ def allow_ccdp(server: ModuleType) -> None:
         supported.append(CCDPPolicy.name)
 
 
+def robot_keys(lerobot_features: dict[str, dict]) -> list[str]:
+    """The keys of the robot's raw observation that LeRobot's server reads (`build_dataset_frame`): the name
+    of every value of a 1-D float feature, and each camera's name."""
+    keys = []
+    for key, feature in lerobot_features.items():
+        if key in DEFAULT_FEATURES or not key.startswith(OBS_STR):
+            continue
+        if feature["dtype"] in ("image", "video"):
+            keys.append(key.removeprefix(f"{OBS_IMAGES}."))
+        elif feature["dtype"] == "float32" and len(feature["shape"]) == 1:
+            keys.extend(feature["names"])
+    return keys
+
+
+def refuse_unfit_setup(specs: Any) -> None:
+    """Refuse the client's policy instructions before the server changes anything: `actions_per_chunk` out of
+    range, a ccdp config whose own checks fail, or a checkpoint whose inputs the robot's features lack."""
+    chunk = specs.actions_per_chunk
+    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise ValueError(
+            f"actions_per_chunk={chunk!r}: the number of actions the server sends per observation must be an "
+            "integer >= 1. Set the robot client's --actions_per_chunk."
+        )
+    if specs.policy_type != CCDPPolicy.name:
+        return
+    path = specs.pretrained_name_or_path
+    try:
+        config = PreTrainedConfig.from_pretrained(path)
+    except Exception as error:  # the config's own message, not draccus's "Couldn't instantiate"
+        raise ValueError(f"The policy at {path} cannot be served: {buried_error(error) or error}") from error
+    if not isinstance(config, CCDPConfig):
+        return  # CCDPPolicy.from_pretrained names another policy type with the fix
+    if chunk > config.n_action_steps:
+        raise ValueError(
+            f"actions_per_chunk={chunk}: {path} plans {config.n_action_steps} actions per observation "
+            f"(n_action_steps), so the server can send 1 to {config.n_action_steps}. Set the robot client's "
+            "--actions_per_chunk in that range."
+        )
+    provided = {
+        specs.rename_map.get(key, key): feature
+        for key, feature in dataset_to_policy_features(specs.lerobot_features).items()
+    }
+    # The server resizes each camera to the policy's image size: only its presence counts.
+    provided |= {
+        key: config.input_features[key]
+        for key, feature in provided.items()
+        if feature.type is FeatureType.VISUAL and key in config.input_features
+    }
+    inputs = {k: f for k, f in config.input_features.items() if k != FAILURE_FEATURE_KEY}
+    mismatches = feature_mismatches(inputs, provided)
+    if mismatches:
+        raise ValueError(
+            f"{path} does not fit the robot the client describes: {described(mismatches, 'robot')}. Serve a "
+            "checkpoint trained on this robot's observations, or map the robot's keys with the client's "
+            "rename_map."
+        )
+
+
+@functools.cache
+def checked_server(base: type) -> type:
+    """LeRobot's server class `base`, refusing bad policy instructions and incomplete observations with a
+    message that names the setting or keys, logged and raised the way the server reports its own errors (the
+    client's call fails with it)."""
+    from lerobot.async_inference.helpers import RemotePolicyConfig
+
+    class CheckedPolicyServer(base):
+        def SendPolicyInstructions(self, request, context):  # noqa: N802 (gRPC's name)
+            if self.running:
+                specs = pickle.loads(request.data)  # nosec: as LeRobot's own handler reads it
+                if isinstance(specs, RemotePolicyConfig):
+                    self._refuse(refuse_unfit_setup, specs)
+            return super().SendPolicyInstructions(request, context)
+
+        def _enqueue_observation(self, obs) -> bool:
+            self._refuse(self._refuse_incomplete, obs.get_observation())
+            return super()._enqueue_observation(obs)
+
+        def _refuse_incomplete(self, observation: dict) -> None:
+            if self.lerobot_features is None:
+                raise ValueError(
+                    "An observation arrived before any policy was set up: the client sends its policy "
+                    "instructions (SendPolicyInstructions) first."
+                )
+            expected = robot_keys(self.lerobot_features)
+            missing = [key for key in expected if key not in observation]
+            if missing:
+                raise ValueError(
+                    f"The observation lacks {missing}: the client described the robot with the keys "
+                    f"{expected}, and each observation must hold them all. Send every key, or set the "
+                    "policy up again with the robot's features."
+                )
+
+        def _refuse(self, check, *args) -> None:
+            try:
+                check(*args)
+            except ValueError as error:
+                self.logger.error(str(error))
+                raise
+
+    CheckedPolicyServer.__name__ = CheckedPolicyServer.__qualname__ = base.__name__
+    return CheckedPolicyServer
+
+
 def main() -> None:
     """Same flags as `python -m lerobot.async_inference.policy_server` (--host, --port, --fps, ...)."""
     server = lerobot_policy_server()
     allow_ccdp(server)
+    server.PolicyServer = checked_server(server.PolicyServer)  # serve() builds it by this name
     server.serve()
 
 
