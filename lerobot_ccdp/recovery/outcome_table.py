@@ -7,6 +7,7 @@ from lerobot.utils.constants import ACTION
 from torch import Tensor
 
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.observations import refuse_non_finite_stats
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch
 from lerobot_ccdp.recovery.demo_segments import segment_ends, segment_final_states
 from lerobot_ccdp.recovery.outcome_index import demo_chunks
@@ -18,14 +19,18 @@ OUTCOME_TABLE_SIZE = 20000
 def build_outcome_table(
     config: CCDPConfig, meta: LeRobotDatasetMetadata, stats: dict | None
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """(chunks, final-state z, primitive labels) of demonstrated frames, in the policy's normalised space."""
+    """(chunks, final-state z, primitive labels) of demonstrated frames, in the policy's normalised space.
+    Every frame goes in, not only those training draws, so every frame and the stats are checked finite
+    (`read_columns`)."""
     required = [ACTION, config.failure_state_key]
     if config.failure_feature == "primitive":
         required.append(config.primitive_key)
     columns = read_columns(meta, required, optional=[config.primitive_key])
+    stats = stats or meta.stats
+    refuse_non_finite_stats(config, stats)
     normalized = normalize_batch(
         config,
-        stats or meta.stats,
+        stats,
         {key: torch.from_numpy(columns[key]) for key in (ACTION, config.failure_state_key)},
     )
     episodes, primitives = columns["episode_index"], columns.get(config.primitive_key)
@@ -50,7 +55,9 @@ def build_outcome_table(
 def read_columns(
     meta: LeRobotDatasetMetadata, required: list[str], optional: list[str] = ()
 ) -> dict[str, np.ndarray]:
-    """Whole columns of a local LeRobot dataset as float32 arrays (frames in episode order)."""
+    """Whole columns of a local LeRobot dataset as float32 arrays (frames in episode order). A NaN or inf in
+    any of them is refused, naming its episode and frame: the dataset's stats.json may predate it, and a
+    frame no training batch draws would otherwise reach the outcome table unseen."""
     missing = [k for k in required if k not in meta.features]
     if missing:
         raise ValueError(
@@ -59,10 +66,20 @@ def read_columns(
             "feature settings."
         )
     keys = list(dict.fromkeys([*required, *(k for k in optional if k in meta.features)]))
-    read = list(dict.fromkeys([*keys, "episode_index"]))
+    read = list(dict.fromkeys([*keys, "episode_index", "frame_index"]))
     # one batch read of these columns only: row by row, `datasets` formats every frame on its own
     hf = LeRobotDataset(meta.repo_id, root=meta.root).hf_dataset
     data = hf.select_columns(read).with_format("numpy")[:]
     out = {k: np.stack(data[k]).astype(np.float32) for k in keys}
     out["episode_index"] = np.asarray(data["episode_index"]).reshape(-1)
+    for key in keys:
+        bad = ~np.isfinite(out[key].reshape(len(out[key]), -1)).all(axis=1)
+        if bad.any():
+            first = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"Dataset {meta.repo_id!r} at {meta.root} holds NaN or inf in column {key!r} at episode "
+                f"{out['episode_index'][first]}, frame {np.asarray(data['frame_index']).reshape(-1)[first]} "
+                f"({int(bad.sum())} frame(s) in all). Remove or re-record those episodes, then recompute "
+                "the dataset's stats."
+            )
     return out

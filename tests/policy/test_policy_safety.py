@@ -218,7 +218,8 @@ def test_lerobot_train_refuses_a_dataset_shorter_than_a_chunk(reaching_root, tmp
 
 
 def test_lerobot_train_stops_on_nan_actions_its_stats_do_not_show(reaching_root, tmp_path):
-    """stats.json computed before the data went bad: LeRobot would train on to a NaN checkpoint and exit 0."""
+    """stats.json computed before the data went bad: LeRobot would train on to a NaN checkpoint and exit 0.
+    The outcome table, which reads every frame, now names the first bad one before the first step."""
     root = tmp_path / "damaged"
     shutil.copytree(reaching_root, root)
     for file in (root / "data").rglob("*.parquet"):
@@ -229,7 +230,7 @@ def test_lerobot_train_stops_on_nan_actions_its_stats_do_not_show(reaching_root,
         pq.write_table(table.set_column(table.schema.get_field_index("action"), "action", column), file)
     result = _run(*train_args(root, tmp_path / "out", 5))
     assert result.returncode != 0
-    assert "ValueError: The batch holds NaN or inf in ['action']" in result.stderr
+    assert "holds NaN or inf in column 'action' at episode 0, frame 0 (" in result.stderr
     assert not (tmp_path / "out" / "checkpoints").exists()
 
 
