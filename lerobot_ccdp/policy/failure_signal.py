@@ -28,18 +28,23 @@ class FailureSignalFile:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
+        setting = f"--policy.failure_signal_file={str(self.path)!r}"
+        if "\0" in str(self.path):  # no file can have it: os.stat would raise "embedded null byte"
+            raise ValueError(
+                f"{setting} holds a NUL byte (\\x00), which no file path can contain. Name a plain path "
+                "(e.g. /tmp/ccdp_failed)."
+            )
         if not self.path.parent.is_dir():
             raise ValueError(
-                f"failure_signal_file={str(self.path)!r}: its folder {str(self.path.parent)!r} does not "
-                "exist. Create the folder, or name a file in an existing one (e.g. /tmp/ccdp_failed)."
+                f"{setting}: its folder {str(self.path.parent)!r} does not exist. Create the folder, or name "
+                "a file in an existing one (e.g. /tmp/ccdp_failed)."
             )
         try:
             self._seen = self._status()  # what is there now is the baseline, not a failure
         except OSError as error:
             raise ValueError(
-                f"failure_signal_file={str(self.path)!r} cannot be used as a signal ({error.strerror}): it "
-                "must be a plain file, or not exist yet, in a folder this process can read. Name another "
-                "path (e.g. /tmp/ccdp_failed)."
+                f"{setting} cannot be used as a signal ({error.strerror}): it must be a plain file, or not "
+                "exist yet, in a folder this process can read. Name another path (e.g. /tmp/ccdp_failed)."
             ) from None
         self._warned = False
 

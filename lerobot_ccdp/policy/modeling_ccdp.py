@@ -41,6 +41,7 @@ from lerobot_ccdp.policy.model_card import make_model_card
 from lerobot_ccdp.policy.noise_streams import row_generators
 from lerobot_ccdp.policy.observations import (
     ConstantInputs,
+    failure_flags,
     observation_frames,
     refuse_non_finite_batch,
     refuse_non_finite_stats,
@@ -175,7 +176,7 @@ class CCDPPolicy(PreTrainedPolicy):
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
         """One action per row. Rows whose env flags `observation.failure` remember the failure and re-plan;
         the other rows keep executing their current chunk."""
-        rows = self._observe(batch).needs_plan()
+        rows = self._observe(batch, noise).needs_plan()
         if rows.any():
             self._memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
         return self._memory.pop_action()
@@ -184,7 +185,7 @@ class CCDPPolicy(PreTrainedPolicy):
     def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
         """A fresh chunk (B, n_action_steps, A) for every row from its current windows and failures; it
         becomes the rows' plan, as the chunk a client executes next."""
-        memory = self._observe(batch)
+        memory = self._observe(batch, noise)
         rows = torch.ones(memory.batch_size, dtype=torch.bool, device=memory.frames.device)
         memory.set_plan(rows, self._sample(rows, noise), start=self.config.n_obs_steps - 1)
         return memory.plan.clone()
@@ -195,11 +196,19 @@ class CCDPPolicy(PreTrainedPolicy):
         `rows` are the batch rows that failed (all rows if None). z defaults to the failure feature of the
         latest observation and the attempt's chunks; pass `z` (len(rows), z_dim), normalised, to override it.
         Those rows re-plan from their next observation, which should be the attempt's restored start pose.
+        A report before any select_action() since reset() is refused: no attempt was made in this episode,
+        and the policy does not yet know its rows.
         """
         self._heard_failure_source = True
+        index = _row_index(rows)
         if self._memory is None:
-            raise RuntimeError("report_failure() needs at least one select_action() call since reset().")
-        mask = self._failed_rows(rows)
+            raise RuntimeError(
+                "report_failure() came before any select_action() since the policy was made or reset(): "
+                "this episode has made no attempt yet, so there is no failure to remember (reset() began a "
+                "new episode and forgot the last one's). Call it after the select_action() calls of the "
+                "attempt that failed."
+            )
+        mask = self._failed_rows(index, rows)
         if not mask.any():
             return  # an empty list of rows: nothing failed
         dim = self.config.failure_feature_dim
@@ -231,34 +240,39 @@ class CCDPPolicy(PreTrainedPolicy):
             FAILURE_FLAG_KEY,
         )
 
-    def _failed_rows(self, rows: int | list[int] | Tensor | None) -> Tensor:
-        """Bool mask (B,) of the failed rows, refusing rows outside the batch the policy is acting on."""
+    def _failed_rows(self, index: Tensor | None, rows: object) -> Tensor:
+        """Bool mask (B,) of the failed rows (`index` from `_row_index(rows)`), refusing rows outside the
+        batch the policy is acting on."""
         b = self._memory.batch_size
         mask = torch.zeros(b, dtype=torch.bool, device=self._memory.frames.device)
-        index = None if rows is None else torch.as_tensor(rows, device=mask.device)
-        if index is not None and index.numel() == 0:
-            return mask
-        try:
-            if index is not None and index.dtype != torch.bool and bool((index < 0).any()):
-                # -1 would name the last row: almost surely a bug in the loop
-                raise IndexError("negative row")
-            mask[slice(None) if index is None else index] = True
-        except (IndexError, RuntimeError) as error:
+        if index is None:
+            return ~mask
+        index = index.to(mask.device)
+        if index.dtype == torch.bool:
+            fits = index.shape == (b,)
+        else:  # -1 would name the last row: almost surely a bug in the loop
+            fits = not bool(((index < 0) | (index >= b)).any())
+        if not fits:
             raise ValueError(
                 f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a "
                 "bool mask of that length). Pass the failed rows' indices, or None for every row."
-            ) from error
+            )
+        mask[index] = True
         return mask
 
     def failure_count(self) -> Tensor:
         """How many failures each row currently remembers."""
         return torch.zeros(0, dtype=torch.long) if self._failures is None else self._failures.count.clone()
 
-    def _observe(self, batch: dict[str, Tensor]) -> RolloutMemory:
-        """Take in one observation per row: remember flagged failures, then push the frame."""
+    def _observe(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> RolloutMemory:
+        """Take in one observation per row: remember flagged failures, then push the frame. Every input (the
+        frame, the failure flags, the caller's noise) is checked before anything is remembered."""
         frame = self.model.frames(batch)
         if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
             frame = frame[:, -1]
+        flag = batch.get(FAILURE_FLAG_KEY)
+        failed = None if flag is None else failure_flags(flag, frame.shape[0]).to(frame.device)
+        self._refuse_unfit_noise(noise, frame.shape[0])
         fresh = self._memory is None or self._memory.batch_size != frame.shape[0]
         if fresh:
             if self._failures is not None and bool((self._failures.count > 0).any()):
@@ -276,10 +290,8 @@ class CCDPPolicy(PreTrainedPolicy):
             )
             self._streams = row_generators(self._rollouts, frame.shape[0]) if cfg.row_noise_streams else None
             self._rollouts += 1
-        flag = batch.get(FAILURE_FLAG_KEY)
-        if flag is not None:
+        if failed is not None:
             self._heard_failure_source = True
-            failed = flag.reshape(frame.shape[0], -1)[:, 0] > 0.5
             if failed.any():
                 self._record_failures(failed)
         if self.failure_signal is not None and self.failure_signal.poll():
@@ -338,7 +350,82 @@ class CCDPPolicy(PreTrainedPolicy):
             None if noise is None else noise[rows],
             streams,
         )
-        return SAMPLERS[mode](self.model, plan)
+        chunks = SAMPLERS[mode](self.model, plan)
+        if not bool(torch.isfinite(chunks).all()):
+            self._refuse_non_finite_plan(rows, chunks, z, mode)
+        return chunks
+
+    def _refuse_unfit_noise(self, noise: Tensor | None, batch_size: int) -> None:
+        """The caller's initial noise must be one finite (B, horizon, A) chunk per row: it is the start of
+        every reverse diffusion, and NaN in it makes NaN actions."""
+        if noise is None:
+            return
+        shape = (batch_size, self.config.horizon, self.config.action_dim)
+        if not isinstance(noise, Tensor) or tuple(noise.shape) != shape:
+            got = f"shape {tuple(noise.shape)}" if isinstance(noise, Tensor) else type(noise).__name__
+            raise ValueError(
+                f"noise= got {got}; it is the initial noise of one chunk per row, a tensor of shape {shape} "
+                "(batch, horizon, action dim). Leave it out to draw it."
+            )
+        if not bool(torch.isfinite(noise).all()):
+            raise ValueError("noise= holds NaN or inf: draw it with torch.randn, or leave it out.")
+
+    def _refuse_non_finite_plan(self, rows: Tensor, chunks: Tensor, z: Tensor, mode: str) -> None:
+        """Non-finite actions are never returned: name what made them (damaged tensors, non-finite
+        failures, or settings that overflow eq. (4))."""
+        bad = rows.nonzero().flatten()[~torch.isfinite(chunks).flatten(start_dim=1).all(dim=1)].tolist()
+        damaged = [
+            name
+            for name, tensor in self.state_dict().items()
+            if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all())
+        ]
+        weights = self.model.weights
+        settings = f"w_s={weights.w_s}, w_h={weights.w_h}, w_z={weights.w_z}"
+        if damaged:
+            cause = (
+                f"the policy's tensors {damaged[:3]}{' ...' if len(damaged) > 3 else ''} hold NaN or inf: "
+                "load the checkpoint again from its files, or train it anew"
+            )
+        elif not bool(torch.isfinite(z).all()):
+            cause = "the rows' recorded failure features z hold NaN or inf: reset() and report finite ones"
+        else:
+            cause = (
+                f"its inputs and tensors are finite, so eq. (4) made them at the settings {settings}: use "
+                "finite weights near the defaults (w_s 1, w_z 1, w_h 0)"
+            )
+        raise FloatingPointError(
+            f"The {mode} sampler made NaN or inf actions for row(s) {bad}; none were returned. Cause: "
+            f"{cause}."
+        )
+
+
+# What `report_failure(rows=...)` takes.
+ROW_FORMS = (
+    "None (every row), a row index (int), a list or tensor of row indices, or a bool mask with one entry "
+    "per row"
+)
+
+
+def _row_index(rows: object) -> Tensor | None:
+    """`report_failure`'s rows as a tensor of row indices or a bool mask (None: every row), refusing any
+    other type before anything is recorded."""
+    if rows is None:
+        return None
+    refused = TypeError(
+        f"report_failure(rows={rows!r}) got a {type(rows).__name__}; rows takes {ROW_FORMS}. For every "
+        "row, leave rows out."
+    )
+    if isinstance(rows, (str, bytes, bool, float)):
+        raise refused
+    try:
+        index = torch.as_tensor(rows)
+    except (TypeError, ValueError, RuntimeError):
+        raise refused from None
+    if index.numel() == 0:  # an empty list of rows: nothing failed
+        return index.long()
+    if index.ndim > 1 or (index.dtype != torch.bool and (index.is_floating_point() or index.is_complex())):
+        raise refused
+    return index
 
 
 class CCDPModel(nn.Module):

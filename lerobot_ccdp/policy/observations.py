@@ -8,7 +8,7 @@ from lerobot.configs.types import NormalizationMode
 from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
 from torch import Tensor, nn
 
-from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
 from lerobot_ccdp.policy.image_encoder import ImageEncoder
 
 logger = logging.getLogger(__name__)
@@ -24,9 +24,23 @@ _ZERO_SPREAD = {
 }
 
 
+# Largest |value| of a normalised input the policy acts on. Normalised demonstrations span [-1, 1] (min-max,
+# quantiles) or have unit spread (mean-std), so a value beyond it lies a thousand spreads outside the data:
+# a reading in other units (mm for m, 0-255 pixels for 0-1) or a failing sensor, not a state the policy
+# learnt. Nothing is lost by refusing it: the networks saturate long before (on the reaching checkpoint the
+# actions at 1e3 are within 2e-3 of those at 1e19), and from about 1e20 (by the weights) float32 overflows in
+# the UNet's group norms and every action is NaN.
+MAX_NORMALISED_INPUT = 1e3
+
+
 def vector_keys(config: CCDPConfig) -> list[str]:
     """The vector inputs of a frame, in frame order."""
     return [OBS_STATE] + ([OBS_ENV_STATE] if config.env_state_feature else [])
+
+
+def vector_names(config: CCDPConfig) -> list[str]:
+    """The name of every vector dimension of a frame (`observation.state[0]`, ...), in frame order."""
+    return [f"{key}[{i}]" for key in vector_keys(config) for i in range(config.input_features[key].shape[0])]
 
 
 class ConstantInputs(nn.Module):
@@ -46,9 +60,7 @@ class ConstantInputs(nn.Module):
         dim = sum(config.input_features[key].shape[0] for key in vector_keys(config))
         self.register_buffer("held", torch.zeros(dim, dtype=torch.bool))
         self.register_buffer("value", torch.zeros(dim))
-        self._names = [
-            f"{key}[{i}]" for key in vector_keys(config) for i in range(config.input_features[key].shape[0])
-        ]
+        self._names = vector_names(config)
         self._warned = False
 
     def fill(self, config: CCDPConfig, stats: dict) -> None:
@@ -116,17 +128,64 @@ def observation_frames(
             raise ValueError(
                 f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}."
             )
-        if not torch.isfinite(value).all():
-            raise ValueError(
-                f"{key!r} contains NaN or inf; fix the dataset or env observation before calling the "
-                "policy (a non-finite input would make that row's actions NaN)."
-            )
+        _refuse_non_finite(key, value)
         parts.append(value)
+    vector = torch.cat(parts, dim=-1)
     if constant is not None:
-        parts = [constant(torch.cat(parts, dim=-1))]
+        vector = constant(vector)
+    _refuse_far_outside(vector, vector_names(config))
+    parts = [vector]
     if images is not None:
-        parts.append(images([_camera(config, batch, key, parts[0].shape[:-1]) for key in images.keys]))
+        parts.append(images([_camera(config, batch, key, vector.shape[:-1]) for key in images.keys]))
     return torch.cat(parts, dim=-1)
+
+
+def _refuse_non_finite(key: str, value: Tensor) -> None:
+    if not bool(torch.isfinite(value).all()):
+        raise ValueError(
+            f"{key!r} contains NaN or inf; fix the dataset or env observation before calling the "
+            "policy (a non-finite input would make that row's actions NaN)."
+        )
+
+
+def _refuse_far_outside(value: Tensor, names: list[str]) -> None:
+    """Refuse a normalised input beyond MAX_NORMALISED_INPUT, naming the first such entry (`names` names the
+    last axis, or holds one name for the whole tensor). Dimensions held by `ConstantInputs` are already at
+    their training value."""
+    far = value.abs() > MAX_NORMALISED_INPUT
+    if not bool(far.any()):
+        return
+    where = far.nonzero()[0]
+    name = names[int(where[-1])] if len(names) > 1 else names[0]
+    raise ValueError(
+        f"{name} is {value[tuple(where)].item():.4g} after normalisation, beyond the "
+        f"+-{MAX_NORMALISED_INPUT:g} the policy acts on (normalised demonstrations lie within a few units "
+        "of 0): no state it learnt from. Check the sensor, and this input's units against the training "
+        "dataset's (metres, not millimetres; images as floats in [0, 1], not 0-255) and that it passes "
+        "through the checkpoint's preprocessor. In a dataset, remove that frame or recompute the stats."
+    )
+
+
+def failure_flags(flag: Tensor, batch_size: int) -> Tensor:
+    """`observation.failure` as one bool per row (B,). A flag is 0 (no failure) or 1 (the row's attempt just
+    failed), shaped (B, 1) as LeRobot's env wrapper makes it, or (B,); anything else is refused rather than
+    read: NaN is not "no failure", and a flag of another shape cannot be matched to the rows."""
+    flag = torch.as_tensor(flag)
+    if flag.numel() != batch_size or flag.ndim > 2 or (flag.ndim == 2 and flag.shape[1] != 1):
+        raise ValueError(
+            f"{FAILURE_FLAG_KEY!r} has shape {tuple(flag.shape)}; the policy takes one flag per row, shape "
+            f"({batch_size}, 1) or ({batch_size},) for this batch of {batch_size}. Give each row's flag: "
+            f"flag.reshape({batch_size}, 1)."
+        )
+    values = flag.reshape(batch_size)
+    refused = ~((values == 0) | (values == 1))  # NaN is neither
+    if bool(refused.any()):
+        raise ValueError(
+            f"{FAILURE_FLAG_KEY!r} holds {values[refused].tolist()} in row(s) "
+            f"{refused.nonzero().flatten().tolist()}; a failure flag is 1 (the attempt failed) or 0 (it did "
+            "not). Check the failure detector or env that sets it."
+        )
+    return values == 1
 
 
 def refuse_unknown_cameras(config: CCDPConfig, batch: dict[str, Tensor]) -> None:
@@ -198,6 +257,8 @@ def _camera(config: CCDPConfig, batch: dict[str, Tensor], key: str, lead: torch.
             "height, width as in its training data). Render or resize this camera to that size (for a ccdp "
             "task: --env.observation_height/--env.observation_width), or train on images of this size."
         )
+    _refuse_non_finite(key, image)
+    _refuse_far_outside(image, [repr(key)])
     return image
 
 
