@@ -14,7 +14,9 @@ pipeline only moves every output under `--out/<task>/` (datasets, checkpoints, e
 whose output exists is skipped, so an interrupted run resumes; `--fresh` starts over. The pipeline writes only
 into a folder it created or adopted, marked as its own (`lerobot_ccdp.datasets.ownership`), and deletes
 nothing else. `--publish` copies the report (all tasks) into the docs; `--publish-each` copies each task's own
-report as soon as the task is done, so that a round of many hours keeps its finished tasks across a stop.
+report as soon as the task is done, so that a round of many hours keeps its finished tasks across a stop. Both
+replace only files the pipeline published (`lerobot_ccdp.benchmark.published`), and every input is checked
+before any stage runs.
 """
 
 from __future__ import annotations
@@ -883,7 +885,8 @@ def main(argv: list[str] | None = None) -> None:
         "--publish",
         type=canonical,
         default=None,
-        help="also write the report here (its chart beside it), e.g. docs/benchmark_report.md",
+        help="also write the report here (its run file and chart beside it, as .json and .png), e.g. "
+        "docs/benchmark_report.md; a file already there is replaced only if the pipeline published it",
     )
     parser.add_argument(
         "--publish-each",
@@ -891,7 +894,8 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="also write each task's own report to <folder>/<task>.md (chart and run file beside it) as soon "
         "as its evaluations finish, so that a long round keeps every finished task's figures if it stops "
-        "between tasks (rerun the others with --tasks); e.g. docs/benchmark",
+        "between tasks (rerun the others with --tasks); e.g. docs/benchmark. As --publish, it replaces only "
+        "files the pipeline published",
     )
     parser.add_argument(
         "--report-only",
@@ -942,7 +946,7 @@ def main(argv: list[str] | None = None) -> None:
     for f in files:  # checked here: a stage clears its output before its command would refuse the seed
         seeds = f.seeds(args.eval_seed, args.eval_episodes)
         if seeds.start < 0 or seeds.stop > SEED_LIMIT:
-            source = "--eval-seed" if args.eval_seed is not None else f"the seed of {f.eval}:"
+            source = "--eval-seed" if args.eval_seed is not None else f"{f.eval}'s seed"
             parser.error(
                 f"{source} {seeds.start}: its {len(seeds)} episodes would use seeds {seeds.start} to "
                 f"{seeds.stop - 1}, outside numpy's seed range 0 to {SEED_LIMIT - 1} (lerobot-eval seeds "
