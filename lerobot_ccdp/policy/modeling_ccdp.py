@@ -352,7 +352,7 @@ class CCDPPolicy(PreTrainedPolicy):
         )
         chunks = SAMPLERS[mode](self.model, plan)
         if not bool(torch.isfinite(chunks).all()):
-            self._refuse_non_finite_plan(rows, chunks, z, mode)
+            self._refuse_non_finite_plan(rows, chunks, plan, mode)
         return chunks
 
     def _refuse_unfit_noise(self, noise: Tensor | None, batch_size: int) -> None:
@@ -370,7 +370,7 @@ class CCDPPolicy(PreTrainedPolicy):
         if not bool(torch.isfinite(noise).all()):
             raise ValueError("noise= holds NaN or inf: draw it with torch.randn, or leave it out.")
 
-    def _refuse_non_finite_plan(self, rows: Tensor, chunks: Tensor, z: Tensor, mode: str) -> None:
+    def _refuse_non_finite_plan(self, rows: Tensor, chunks: Tensor, plan: PlanRows, mode: str) -> None:
         """Non-finite actions are never returned: name what made them (damaged tensors, non-finite
         failures, or settings that overflow eq. (4))."""
         bad = rows.nonzero().flatten()[~torch.isfinite(chunks).flatten(start_dim=1).all(dim=1)].tolist()
@@ -386,12 +386,14 @@ class CCDPPolicy(PreTrainedPolicy):
                 f"the policy's tensors {damaged[:3]}{' ...' if len(damaged) > 3 else ''} hold NaN or inf: "
                 "load the checkpoint again from its files, or train it anew"
             )
-        elif not bool(torch.isfinite(z).all()):
+        elif not bool(torch.isfinite(plan.z).all()):
             cause = "the rows' recorded failure features z hold NaN or inf: reset() and report finite ones"
         else:
+            largest = float(torch.cat([plan.state, plan.history], dim=-1).abs().max())
             cause = (
-                f"its inputs and tensors are finite, so eq. (4) made them at the settings {settings}: use "
-                "finite weights near the defaults (w_s 1, w_z 1, w_h 0)"
+                f"its tensors and inputs are finite (the largest normalised input {largest:.3g}), so the "
+                f"networks or eq. (4) overflowed at the settings {settings}: use finite weights near the "
+                "defaults (w_s 1, w_z 1, w_h 0), and inputs within the training data's range"
             )
         raise FloatingPointError(
             f"The {mode} sampler made NaN or inf actions for row(s) {bad}; none were returned. Cause: "

@@ -93,7 +93,7 @@ def test_non_finite_actions_are_never_returned_and_their_cause_is_named(untraine
 
     policy, pre, post = _readme_policy(untrained_primitive_checkpoint)
     policy.model.weights = replace(policy.model.weights, w_s=float("nan"))  # weights edited in Python
-    with pytest.raises(FloatingPointError, match=r"inputs and tensors are finite.*settings w_s=nan"):
+    with pytest.raises(FloatingPointError, match=r"tensors and inputs are finite.*settings w_s=nan"):
         _act(policy, pre, post, observation)
 
 
