@@ -9,6 +9,7 @@ away for every config class by `lerobot_ccdp/compat/config_help.py`.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import fields
 from typing import TYPE_CHECKING, Literal, get_args, get_origin
 
@@ -39,8 +40,27 @@ NON_NEGATIVE_FIELDS = (
     "w_z_from_step",
     "failure_guard_steps",
     "z_fourier_octaves",
+    "num_primitives",
 )
 NOISE_SCHEDULERS = ("DDPM", "DDIM")
+# The weights of eq. (4) and of the guard's gradient. Each multiplies a difference of unit-variance noise
+# estimates, and a reverse step moves its predicted clean chunk by sqrt((1 - alpha_bar_t) / alpha_bar_t)
+# times the composed estimate; on the default schedule (squaredcos, 100 steps) that factor is 0.025 at the
+# least noisy step and 0.19 to 7 at the others. At a weight of 100 a difference of 0.8 between two estimates
+# moves even the last step's chunk across the whole clipping range [-1, 1], so the actions are decided by the
+# clipping and sit on their bounds (`w_z=1e30` pinned every action). The shipped configs and benchmarks use at
+# most 10 (`w_z`) and 16 (`failure_guard_weight`).
+WEIGHT_FIELDS = ("w_s", "w_h", "w_z", "failure_guard_weight")
+MAX_WEIGHT = 100.0
+# Fourier octaves of z: sin and cos of 2^k pi z in float32, whose 24-bit mantissa leaves z (about 1 in
+# normalised units) a step of 2^-23; at k = 16 that step moves the angle by pi / 128, at k = 23 by pi (the
+# features are rounding noise), and from k = 127 the scale is inf and the features NaN. The shipped
+# label-free configs use 4.
+MAX_FOURIER_OCTAVES = 16
+# Bytes per float32 weight or activation, and per step of the noise schedule: diffusers keeps betas, alphas
+# and alphas_cumprod (float32) and the timesteps (int64).
+FLOAT_BYTES = 4
+SCHEDULE_BYTES_PER_STEP = 3 * FLOAT_BYTES + 8
 
 
 def check_settings(config: CCDPConfig) -> None:
@@ -52,11 +72,24 @@ def check_settings(config: CCDPConfig) -> None:
             f"CCDP composes noise estimates (eq. 4), so `prediction_type` must be 'epsilon'; got "
             f"{config.prediction_type!r}. Remove --policy.prediction_type or set it to epsilon."
         )
-    for name in ("w_s", "w_h", "w_z", "failure_guard_weight"):
+    for name in WEIGHT_FIELDS:
         if getattr(config, name) < 0:
             raise ValueError(
                 f"`{name}` must be >= 0 (eq. 4 uses positive weights); got {getattr(config, name)}."
             )
+        if getattr(config, name) > MAX_WEIGHT:
+            raise ValueError(
+                f"`{name}` must be <= {MAX_WEIGHT:g}; got {getattr(config, name):g}. A weight multiplies a "
+                "difference of noise estimates, and one this large pushes every predicted chunk past the "
+                "scheduler's clipping range, so every action sits on its bound (the shipped configs and "
+                f"benchmarks use at most 16). Set --policy.{name} to {MAX_WEIGHT:g} or less."
+            )
+    if config.z_fourier_octaves > MAX_FOURIER_OCTAVES:
+        raise ValueError(
+            f"`z_fourier_octaves` must be <= {MAX_FOURIER_OCTAVES}; got {config.z_fourier_octaves}. Beyond, "
+            "sin(2^k pi z) of a float32 z is rounding noise, and from 128 octaves features are NaN (the "
+            f"shipped configs use 4). Set --policy.z_fourier_octaves to {MAX_FOURIER_OCTAVES} or less."
+        )
     if config.w_h > 0 and config.history_length == 0:
         raise ValueError(
             "`w_h` > 0 weighs the history term of eq. (4), which needs a history condition: set "
@@ -126,6 +159,7 @@ def check_settings(config: CCDPConfig) -> None:
             f"`n_action_steps` ({config.n_action_steps}) must be <= horizon - n_obs_steps + 1 "
             f"({config.horizon - config.n_obs_steps + 1})."
         )
+    _check_memory(config)
 
 
 def _check_numbers(config: CCDPConfig) -> None:
@@ -141,16 +175,17 @@ def _check_numbers(config: CCDPConfig) -> None:
                 "number (its default is in `lerobot-train --policy.type=ccdp --help`)."
             )
     at_least = dict.fromkeys(POSITIVE_FIELDS, 1) | dict.fromkeys(NON_NEGATIVE_FIELDS, 0)
-    small = {
-        name: getattr(config, name)
+    small = [
+        f"`{name}` must be >= {low} (got {getattr(config, name)})"
         for name, low in at_least.items()
         if getattr(config, name) is not None and getattr(config, name) < low
-    }
-    small |= {"down_dims": config.down_dims} if not config.down_dims or min(config.down_dims) < 1 else {}
+    ]
+    if not config.down_dims or min(config.down_dims) < 1:
+        small.append(f"`down_dims` must be a non-empty list of channel counts >= 1 (got {config.down_dims})")
     if small:
         raise ValueError(
-            f"{', '.join(f'`{k}`' for k in small)} must be >= 1 ({', '.join(NON_NEGATIVE_FIELDS)} >= 0, "
-            f"`down_dims` non-empty); got {small}."
+            f"{'; '.join(small)}. Set each named --policy.<field> (its default is in "
+            "`lerobot-train --policy.type=ccdp --help`)."
         )
     if config.num_inference_steps is not None and config.num_inference_steps > config.num_train_timesteps:
         raise ValueError(
@@ -168,6 +203,77 @@ def _check_numbers(config: CCDPConfig) -> None:
             f"`failure_guard_steps` ({config.failure_guard_steps}) exceeds the {steps} reverse steps: "
             "lower it."
         )
+
+
+def _check_memory(config: CCDPConfig) -> None:
+    """Refuse sizes whose allocations exceed this machine's memory, before anything is allocated: a
+    checkpoint whose config.json said `"horizon": 1000000000` allocated 16-23 GB for its first action and the
+    kernel killed the process without a message."""
+    needed = memory_estimate(config)
+    total = sum(needed.values())
+    memory = _physical_memory()
+    if memory is None or total <= memory:
+        return
+    parts = ", ".join(
+        f"{what}: {size / 2**30:,.1f} GiB" for what, size in needed.items() if size >= 0.05 * 2**30
+    )
+    raise ValueError(
+        f"These settings need at least {total / 2**30:,.1f} GiB of memory ({parts}), more than the "
+        f"{memory / 2**30:,.1f} GiB this machine has. Lower the sizes named (a checkpoint's config.json "
+        "holds the sizes its weights were trained with: a value far from the shipped configs' was edited)."
+    )
+
+
+def memory_estimate(config: CCDPConfig) -> dict[str, int]:
+    """Lower bounds, in bytes, of the largest allocations the config's sizes make up to the first action,
+    keyed by what drives them: the noise schedule's tables, the convolutions and FiLM condition layers of
+    the UNets (LeRobot's: per level two residual blocks of `kernel_size` x channels^2, two more at the
+    bottom, each block's FiLM layer from the condition), and one chunk of one row passing the UNet's first
+    level. Features not set yet (a config made before the dataset is read) count as size 1 or 0."""
+    dims, kernel = list(config.down_dims), config.kernel_size
+    action = config.action_feature.shape[-1] if config.action_feature else 1
+    frame = config.image_feature_dim + sum(
+        math.prod(feature.shape)
+        for feature in (config.robot_state_feature, config.env_state_feature)
+        if feature is not None
+    )
+    step = config.diffusion_step_embed_dim
+    base_condition = step + config.n_obs_steps * frame + config.history_length * (frame + action) + 2
+    recovery_condition = {
+        "unet": step + _failure_feature_size(config) + 1,
+        "set_denoiser": base_condition,
+    }.get(config.recovery_head)
+
+    def unet(condition: int) -> int:
+        convolutions = kernel * (sum(d * d for d in dims) + 4 * dims[-1] ** 2)
+        return convolutions + condition * (2 * sum(dims) + 2 * dims[-1])
+
+    networks = unet(base_condition) + (unet(recovery_condition) if recovery_condition else 0)
+    return {
+        f"noise schedule (num_train_timesteps={config.num_train_timesteps})": (
+            config.num_train_timesteps * SCHEDULE_BYTES_PER_STEP
+        ),
+        "networks (down_dims, kernel_size, the condition sizes)": networks * FLOAT_BYTES,
+        f"one chunk in the UNet (horizon={config.horizon} x down_dims[0])": (
+            config.horizon * (action + 2 * dims[0]) * FLOAT_BYTES
+        ),
+    }
+
+
+def _failure_feature_size(config: CCDPConfig) -> int:
+    """z's size, or 0 while the features it is read from are not set."""
+    try:
+        return config.failure_feature_dim
+    except (AttributeError, KeyError):
+        return 0
+
+
+def _physical_memory() -> int | None:
+    """This machine's RAM in bytes (None where the OS does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
 
 
 def _check_choices(config: CCDPConfig) -> None:

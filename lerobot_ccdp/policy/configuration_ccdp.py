@@ -55,6 +55,8 @@ class CCDPConfig(PreTrainedConfig):
 
     Args:
         w_s: Weight of the state term eps_s - eps_a in eq. (4). A zero weight skips that term's network rows.
+            Every weight (w_s, w_h, w_z, failure_guard_weight) lies in [0, 100]: beyond, every action sits on
+            its clipping bound (`config_checks.MAX_WEIGHT`).
         w_h: Weight of the history term eps_h - eps_a in eq. (4); needs `history_length` > 0.
         w_z: Weight of the failure terms of eq. (4), or of the failure-set term for the set denoiser and the
             classifier's guidance.
@@ -231,7 +233,10 @@ class CCDPConfig(PreTrainedConfig):
             self.failure_signal_file = signal
 
     def validate_features(self) -> None:
-        """Check the dataset/env features against what the policy needs, and declare the z input."""
+        """Check the settings again (`CCDPPolicy.__init__` calls this: a config edited after it was made, or
+        passed to `from_pretrained(path, config=...)`, gets the same checks as `CCDPConfig()` and the CLI),
+        then the dataset/env features against what the policy needs, and declare the z input."""
+        check_settings(self)
         check_features(self)
         if len(self.action_feature.shape) == 2:
             # Recovery datasets store one chunk per frame: (horizon, action_dim). The policy acts per step.
