@@ -12,19 +12,23 @@ import importlib
 import json
 import logging
 from collections.abc import Iterator
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+import torch
 from huggingface_hub import hf_hub_download
 from huggingface_hub.constants import SAFETENSORS_SINGLE_FILE
 from huggingface_hub.errors import HFValidationError
 from huggingface_hub.utils import validate_repo_id
 from lerobot.configs.parser import get_cli_overrides
+from lerobot.configs.policies import PreTrainedConfig
 from lerobot.processor import ProcessorStep, ProcessorStepRegistry
 from lerobot.utils.constants import POLICY_POSTPROCESSOR_DEFAULT_NAME, POLICY_PREPROCESSOR_DEFAULT_NAME
 from safetensors import SafetensorError, safe_open
 
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.observations import vector_keys
 
 logger = logging.getLogger(__name__)
 
@@ -64,11 +68,44 @@ def check_checkpoint(path: str | Path) -> None:
     config = _read_json(folder / CONFIG_FILE)
     if not isinstance(config, dict) or "type" not in config:
         raise _damaged(folder / CONFIG_FILE, "it has no policy 'type' entry")
+    mixed = mixed_config_error(folder)
+    if mixed is not None:
+        raise mixed
     for file in sorted(folder.glob("*.safetensors")):
         _check_safetensors(file)
     for name in PROCESSOR_FILES:
         if (folder / name).is_file():
             check_processor_steps(folder / name)
+
+
+def mixed_config_error(folder: str | Path) -> ValueError | None:
+    """The error for a local checkpoint whose config.json's "type" names another policy than its fields
+    describe, one of the two being ccdp (None otherwise): draccus would list every field the named type lacks
+    (40 for a ccdp config that says "diffusion") without saying why. Other mixes are left to LeRobot."""
+    file = Path(folder) / CONFIG_FILE
+    content = _read_json(file) if file.is_file() else None
+    if not isinstance(content, dict) or not isinstance(content.get("type"), str):
+        return None
+    kind, keys = content["type"], set(content) - {"type"}
+    known = PreTrainedConfig.get_known_choices()
+
+    def fields_of(name: str) -> set[str]:
+        return {f.name for f in fields(known[name])} if name in known else set()
+
+    owner = next((name for name in ["ccdp", *known] if keys <= fields_of(name)), None)
+    if kind == owner or keys <= fields_of(kind) or owner is None or "ccdp" not in (kind, owner):
+        return None
+    foreign = sorted(keys - fields_of(kind))
+    lacks = (
+        f" (a {kind!r} config has no {', '.join(foreign[:3])}{', ...' if len(foreign) > 3 else ''})"
+        if kind in known
+        else f" ({kind!r} is no policy type LeRobot knows)"
+    )
+    return ValueError(
+        f'{file} says "type": {json.dumps(kind)}, but its fields are those of a {owner!r} policy config'
+        f'{lacks}. If the file was edited, set "type": "{owner}" again; otherwise load it as the '
+        f"{owner!r} checkpoint it is."
+    )
 
 
 def check_processor_steps(file: Path) -> None:
@@ -197,6 +234,7 @@ def refuse_other_checkpoint(config: Any, saved: dict, path: str | Path) -> None:
     saved_action = _layout(saved.get("output_features", {})).get("action")
     given = config.output_features.get("action")
     if saved_action is None or given is None or saved_action[-1:] == tuple(given.shape)[-1:]:
+        _refuse_other_frame(config, path)
         return
     raise ValueError(
         f"{path} was trained for another task or robot: it takes inputs "
@@ -204,6 +242,35 @@ def refuse_other_checkpoint(config: Any, saved: dict, path: str | Path) -> None:
         f"env given has action {tuple(given.shape)} (inputs "
         f"{_layout({k: {'shape': v.shape} for k, v in config.input_features.items()})}). Use a checkpoint "
         "trained on this task, or the dataset or env it was trained on."
+    )
+
+
+# A buffer sized by a frame's vector inputs (`observations.ConstantInputs`): the frame the weights learnt.
+FRAME_BUFFER = "model.constant_inputs.value"
+
+
+def _refuse_other_frame(config: CCDPConfig, path: str | Path) -> None:
+    """Refuse a local checkpoint whose weights were trained on another frame size than the vector inputs the
+    config names (config.json's `input_features` edited, or the caller's config), naming each feature and
+    both sizes instead of LeRobot's state-dict size mismatch. A checkpoint saved before that buffer existed is
+    left to the load."""
+    weights = Path(path) / SAFETENSORS_SINGLE_FILE
+    keys = [key for key in vector_keys(config) if key in config.input_features]
+    if not weights.is_file() or len(keys) != len(vector_keys(config)):
+        return
+    with safe_open(weights, framework="pt") as saved:
+        if FRAME_BUFFER not in set(saved.keys()):
+            return
+        trained = saved.get_slice(FRAME_BUFFER).get_shape()[0]
+    shapes = {key: tuple(config.input_features[key].shape) for key in keys}
+    if sum(shape[0] for shape in shapes.values()) == trained:
+        return
+    named = " + ".join(f"{key} {shape}" for key, shape in shapes.items())
+    raise ValueError(
+        f"The policy is to read {named}, {sum(s[0] for s in shapes.values())} values per frame, but the "
+        f"weights in {path} were trained on {trained} ({FRAME_BUFFER}). If its config.json's input_features "
+        "were edited, restore the shapes lerobot-train saved; otherwise use a checkpoint trained on this "
+        "dataset, env or robot."
     )
 
 
@@ -251,6 +318,7 @@ def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, 
         # A set denoiser saved before its guard existed: the guard stays untrained (`guard_trained` False)
         # and sampling refuses `failure_guard_steps` > 0 with the fix.
         missing = [k for k in missing if not k.startswith(GUARD_PREFIX)]
+    refuse_non_finite_weights(state, path)
     if missing or unexpected:
         raise ValueError(
             f"The weights in {path} do not fit the ccdp policy its config describes: "
@@ -258,6 +326,20 @@ def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, 
             "the networks moved under `model.` (lerobot_ccdp before the policy/model split) or with other "
             "network settings cannot be loaded: retrain it, or load it with the lerobot_ccdp version that "
             "saved it."
+        )
+
+
+def refuse_non_finite_weights(state: dict, path: str | Path) -> None:
+    """Refuse loaded weights or buffers (the outcome table among them) holding NaN or inf, naming the
+    tensors: they gave non-finite actions from the first `select_action`."""
+    bad = [
+        key for key, value in state.items() if value.is_floating_point() and not torch.isfinite(value).all()
+    ]
+    if bad:
+        raise ValueError(
+            f"The weights in {path} hold NaN or inf in {_listed(bad, 'tensor(s)')}: the training that saved "
+            "them diverged or read non-finite data, or the file was altered. Use an earlier checkpoint "
+            "(<output_dir>/checkpoints/<step>/pretrained_model) or train again."
         )
 
 
