@@ -1,4 +1,5 @@
-"""A settings error of this package ends the traceback of a LeRobot command, as its last line.
+"""A settings error of this package ends the traceback of a LeRobot command, as its last line, and is what
+`PreTrainedConfig.from_pretrained` raises.
 
 LeRobot's CLIs parse their configs with draccus, which turns the ValueError a config's checks raise into
 "Couldn't instantiate class CCDPConfig using the given arguments" and prints the real message 60 lines higher,
@@ -6,13 +7,20 @@ in the middle of the traceback. The hook below, installed by importing the plugi
 before and then repeats that buried error as the last line. It acts only when the uncaught exception was
 raised while handling a ValueError or TypeError from this package's own code, so a LeRobot that stops burying
 the message (the error is then the top exception) leaves the output unchanged.
+
+Through the Python API (`PreTrainedConfig.from_pretrained(folder)`, which `CCDPPolicy.from_pretrained`,
+LeRobot's make_policy and `--policy.path` call) the buried error itself is raised instead of draccus's, so
+that its str() names the setting; so is the reason a ccdp checkpoint's config.json names another policy type
+than its fields (`checkpoint_files.mixed_config_error`).
 """
 
 from __future__ import annotations
 
+import functools
 import sys
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 PACKAGE = Path(__file__).resolve().parents[1]  # lerobot_ccdp, whose code raised the buried error
 
@@ -37,7 +45,8 @@ def _raised_here(error: BaseException) -> bool:
 
 
 def install_error_surfacing() -> None:
-    """Chain a hook after the current sys.excepthook, once."""
+    """Chain a hook after the current sys.excepthook, and wrap `PreTrainedConfig.from_pretrained`, once."""
+    _surface_in_from_pretrained()
     previous = sys.excepthook
     if getattr(previous, "_ccdp_surfacing", False):
         return
@@ -50,3 +59,28 @@ def install_error_surfacing() -> None:
 
     hook._ccdp_surfacing = True
     sys.excepthook = hook
+
+
+def _surface_in_from_pretrained() -> None:
+    """Make `PreTrainedConfig.from_pretrained` raise this package's buried error, or the reason a ccdp
+    config.json does not parse, in place of draccus's."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    original = PreTrainedConfig.from_pretrained.__func__
+    if getattr(original, "_ccdp_surfacing", False):
+        return
+
+    @functools.wraps(original)
+    def from_pretrained(cls: type, pretrained_name_or_path: str | Path, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return original(cls, pretrained_name_or_path, *args, **kwargs)
+        except Exception as error:
+            from lerobot_ccdp.policy.checkpoint_files import mixed_config_error  # imports torch
+
+            clearer = buried_error(error) or mixed_config_error(pretrained_name_or_path)
+            if clearer is None:
+                raise
+            raise clearer from None
+
+    from_pretrained._ccdp_surfacing = True
+    PreTrainedConfig.from_pretrained = classmethod(from_pretrained)
