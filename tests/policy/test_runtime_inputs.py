@@ -20,6 +20,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.policies.factory import make_policy as lerobot_make_policy
 from lerobot.policies.factory import make_pre_post_processors
 from lerobot.utils.constants import OBS_IMAGES, OBS_STATE
+from safetensors.torch import load_file, save_file
 
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
@@ -211,3 +212,17 @@ def test_a_nan_demo_frame_is_refused_before_it_reaches_the_outcome_table(reachin
         rf"{episode}, frame {frame} \(1 frame\(s\) in all\).*recompute the dataset's stats",
     ):
         lerobot_make_policy(config, ds_meta=LeRobotDatasetMetadata(REACHING_REPO_ID, root=root))
+
+
+def test_a_checkpoint_whose_outcome_table_holds_nan_is_refused_at_load(
+    untrained_primitive_checkpoint, tmp_path
+):
+    """The table is a buffer of the state dict (model.outcomes.*), so the finiteness check of every loaded
+    tensor covers it: DP* used to run on it without a word."""
+    crafted = tmp_path / "crafted"
+    shutil.copytree(untrained_primitive_checkpoint, crafted)
+    weights = load_file(crafted / "model.safetensors")
+    weights["model.outcomes.chunks"][5, 3] = float("nan")
+    save_file(weights, crafted / "model.safetensors", metadata={"format": "pt"})
+    with pytest.raises(ValueError, match=r"model\.outcomes\.chunks"):
+        CCDPPolicy.from_pretrained(crafted)
