@@ -4,6 +4,7 @@ chunk garbage."""
 
 import logging
 
+import pytest
 import torch
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 
@@ -78,10 +79,13 @@ def test_a_changed_constant_dimension_plans_as_at_its_training_value_and_is_logg
     assert len(warnings) == 1 and "observation.environment_state[1]" in warnings[0]
 
 
-def test_without_the_hold_the_same_input_changes_the_plan():
+def test_without_the_hold_the_changed_dimension_is_refused_naming_it():
     policy = _policy()
     policy.model.constant_inputs.held.zero_()
-    assert not torch.allclose(_first_action(policy, 1.0), _first_action(policy, 0.0), atol=1e-3)
+    with pytest.raises(
+        ValueError, match=r"observation\.environment_state\[1\] is 2e\+08 after normalisation"
+    ):
+        _first_action(policy, 1.0)
 
 
 def test_mean_std_holds_a_zero_std_dimension():
