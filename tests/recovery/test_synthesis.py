@@ -289,7 +289,8 @@ def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
     """A wrong --output.root or --dataset.root is named at once, not after minutes of loading and sampling."""
     recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL})
     missing_checkpoint = tmp_path / "no_such_checkpoint"
-    (tmp_path / "out").mkdir()
+    (tmp_path / "out").mkdir()  # an empty folder receives the dataset; one holding a user's file does not
+    (tmp_path / "out" / "notes.txt").write_text("mine")
     with pytest.raises(FileExistsError, match="out.*already exists"):
         synthesize_recovery_dataset(
             recipe,
