@@ -103,8 +103,22 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             "observation_width": observation_width,
             "observation_height": observation_height,
         }
-        small = {name: value for name, value in sizes.items() if not value >= 1}
         noise = {"init_noise": init_noise, "layout_noise": layout_noise}
+        # checked as numbers first: a quoted value ('3') would fail the comparisons below with numpy's words
+        kinds = [(sizes, int | np.integer), (noise, int | float | np.integer | np.floating)]
+        mistyped = {
+            name: value
+            for values, kind in kinds
+            for name, value in values.items()
+            if isinstance(value, bool) or not isinstance(value, kind)
+        }
+        if mistyped:
+            raise ValueError(
+                f"{mistyped}: the attempt budget and image sizes are whole numbers, the noise levels "
+                "numbers. Fix the env setting (--env.<name>, or the recipe's env_kwargs), written without "
+                "quotes."
+            )
+        small = {name: value for name, value in sizes.items() if not value >= 1}
         small |= {name: value for name, value in noise.items() if not (np.isfinite(value) and value >= 0)}
         if small:
             raise ValueError(

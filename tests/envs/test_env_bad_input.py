@@ -2,6 +2,8 @@
 the lite arm to NaN (and lerobot-eval scored the episode a plain failure) or stopped the Panda's IK with an
 SVD error, and a zero budget or image size built an env that failed later or never."""
 
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -89,3 +91,16 @@ def test_an_action_that_is_not_numbers_is_refused_as_given():
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"finite action of shape \(4,\).*got 'left'"):
         env.step("left")
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [{"init_noise": "1e9"}, {"layout_noise": "nan"}, {"render_width": "320"}, {"max_failures": True}],
+)
+def test_an_env_setting_that_is_not_a_number_is_named(settings):
+    """gym.make(id, init_noise="1e9") (YAML reads 1e9 as text) failed in numpy: "ufunc 'isfinite' not
+    supported for the input types"."""
+    with pytest.raises(
+        ValueError, match=re.escape(f"{settings}: the attempt budget and image sizes are whole")
+    ):
+        gym.make("lerobot_ccdp/DoorOpening-lite-v0", **settings)
