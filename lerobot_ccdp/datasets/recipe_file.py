@@ -73,6 +73,13 @@ class RecordRecipe:
                 f"{', '.join(unknown)}; it accepts {', '.join(accepted)} (the step limit is "
                 "record.max_episode_steps)"
             )
+        for name, value in recipe.env_kwargs.items():
+            if not _has_type(value, accepted[name]):
+                raise ValueError(
+                    f"{at}record.env_kwargs.{name} must be {_type_name(accepted[name])}, got {value!r} "
+                    f"({type(value).__name__}); write it without quotes, and without decimals where a whole "
+                    "number is meant (YAML reads 1e9 as text: write 1.0e+9)"
+                )
         if recipe.fps != CONTROL_FPS:
             raise ValueError(
                 f"{at}record.fps must be {CONTROL_FPS} (the tasks' control rate), got {recipe.fps}"
@@ -158,23 +165,21 @@ class RecoveryRecipe:
         return {name: getattr(self, name) for name in names}
 
 
-def env_arguments(env_class: type) -> list[str]:
-    """The keyword arguments an env class's constructor takes, following `**kwargs` up to its base classes."""
-    names: list[str] = []
+def env_arguments(env_class: type) -> dict[str, Any]:
+    """The keyword arguments an env class's constructor takes, following `**kwargs` up to its base classes,
+    each with its annotation (Any where it has none)."""
+    arguments: dict[str, Any] = {}
     for klass in env_class.__mro__:
         if "__init__" not in vars(klass):
             continue
+        hints = typing.get_type_hints(klass.__init__)
         parameters = inspect.signature(klass.__init__).parameters.values()
-        names += [
-            p.name
-            for p in parameters
-            if p.name != "self"
-            and p.name not in names
-            and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-        ]
+        for p in parameters:
+            if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+                arguments.setdefault(p.name, hints.get(p.name, Any))
         if not any(p.kind is p.VAR_KEYWORD for p in parameters):
             break
-    return names
+    return arguments
 
 
 def _build(cls: type, values: dict[str, Any], section: str, at: str):
@@ -219,7 +224,7 @@ def _has_type(value: Any, hint: Any) -> bool:
         return hint is bool
     if hint is float:
         return isinstance(value, int | float)
-    if origin is list:
+    if origin in (list, tuple):  # YAML has lists only; a tuple argument takes one
         return isinstance(value, list) and all(_has_type(v, args[0]) for v in value)
     if origin is dict:
         return isinstance(value, dict)

@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from lerobot_ccdp.datasets.configs import RecordConfig, parse_cli
 from lerobot_ccdp.datasets.recipe_file import RecordRecipe
-from lerobot_ccdp.datasets.staging import staged_dataset_root
+from lerobot_ccdp.datasets.staging import check_output_root, staged_dataset_root
 from lerobot_ccdp.envs.base import ACTION_NAMES, AGENT_POS_NAMES, CCDPTaskEnv
 from lerobot_ccdp.envs.scripted import Episode, Expert, run_episode
 from lerobot_ccdp.envs.tasks import gym_id
@@ -37,6 +37,11 @@ logger = logging.getLogger(__name__)
 PRIMITIVE = "primitive"
 HIDDEN_PARAM = "hidden_param"
 RECIPE_COPY = "meta/ccdp_record_recipe.yaml"
+
+
+class RecordingRefused(RuntimeError):
+    """Env settings the env refuses, or an expert that failed more episodes than were asked for: the message
+    names the cause and its fix, and the command prints it as its one line."""
 
 
 def dataset_features(env: CCDPTaskEnv) -> dict[str, dict]:
@@ -94,7 +99,10 @@ def record_dataset(
     recipe: RecordRecipe, repo_id: str, root: str | Path, overwrite: bool = False, progress: bool = True
 ) -> Path:
     """Record `recipe.n_episodes` expert successes into a LeRobot dataset at `root`; return `root`."""
-    env = gym.make(gym_id(recipe.task), **_env_kwargs(recipe))
+    try:
+        env = gym.make(gym_id(recipe.task), **_env_kwargs(recipe))
+    except ValueError as error:  # a setting out of range (the recipe checked the names and types)
+        raise RecordingRefused(f"record.env_kwargs: {error}") from error
     try:
         with staged_dataset_root(root, overwrite) as staging:
             discarded = _record_into(staging, recipe, repo_id, env, progress)
@@ -136,7 +144,7 @@ def _record_into(path: Path, recipe: RecordRecipe, repo_id: str, env: gym.Env, p
                     episode.hidden_param,
                 )
                 if discarded > recipe.n_episodes:
-                    raise RuntimeError(
+                    raise RecordingRefused(
                         f"The {recipe.task} expert failed {discarded} times; giving up. "
                         + _why_the_expert_failed(recipe, env, timed_out == discarded)
                     )
@@ -185,7 +193,17 @@ def main(args: list[str] | None = None) -> None:
     cfg = parse_cli(RecordConfig, args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     start = time.perf_counter()
-    record_dataset(cfg.record, cfg.dataset.repo_id, cfg.dataset.root, overwrite=cfg.overwrite)
+    # A root it cannot use (checked before the env is made) and an expert that gives up are named in one
+    # line, as a recipe error is, and so are env settings the env refuses; a failure while writing keeps its
+    # traceback.
+    try:
+        check_output_root(cfg.dataset.root, cfg.overwrite)
+    except (OSError, ValueError) as error:
+        raise SystemExit(f"{RecordConfig.command}: error: {error}") from None
+    try:
+        record_dataset(cfg.record, cfg.dataset.repo_id, cfg.dataset.root, overwrite=cfg.overwrite)
+    except RecordingRefused as error:
+        raise SystemExit(f"{RecordConfig.command}: error: {error}") from None
     logger.info("Done in %.1f s", time.perf_counter() - start)
 
 

@@ -58,18 +58,25 @@ def check_output_root(root: str | Path, overwrite: bool, overwrite_flag: str = "
         _check_parent_writable(root)
         return
     resolved, cwd = root.resolve(), Path.cwd().resolve()
-    holds_cwd = resolved == cwd or resolved in cwd.parents
-    if not (holds_cwd or root.is_symlink()) and root.is_dir() and not any(root.iterdir()):
+    if resolved == cwd or resolved in cwd.parents:  # an empty root flag spells the working directory
+        raise ValueError(
+            f"The dataset root {root} is or holds the working directory, which the dataset would replace. "
+            "Name the dataset's own folder, e.g. data/<name>."
+        )
+    if not root.is_symlink() and root.is_dir() and not any(root.iterdir()):
         return
-    if not overwrite:
+    ours = owner(root) == CREATED_BY
+    if not overwrite and ours:
         raise FileExistsError(
             f"{root} already exists; pass {overwrite_flag} to replace it, or choose another root"
         )
-    if holds_cwd:
-        raise ValueError(
-            f"--overwrite refuses {root}: it holds the working directory. Name the dataset's own folder."
+    if not overwrite:  # offering --overwrite would only lead to the refusal below
+        raise FileExistsError(
+            f"{root} already exists and is not a dataset lerobot_ccdp wrote at this same path (marked by "
+            f"{MARKER}), so {overwrite_flag} would not replace it either. Choose a new root, or move or "
+            "remove it yourself if it is yours to lose."
         )
-    if owner(root) != CREATED_BY:
+    if not ours:
         raise ValueError(
             f"--overwrite only replaces a dataset that lerobot_ccdp wrote at this same path "
             f"(marked by {MARKER}); {root} is not one, so nothing was deleted. Choose a "

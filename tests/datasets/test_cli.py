@@ -82,7 +82,7 @@ def test_a_dotted_override_changes_what_is_recorded(tmp_path):
     flags = [f"--config_path={DOOR}", "--dataset.repo_id=local/door", f"--dataset.root={root}"]
     record.main([*flags, "--record.n_episodes=2"])
     assert LeRobotDataset("local/door", root=root).num_episodes == 2
-    with pytest.raises(FileExistsError, match="--overwrite=true"):
+    with pytest.raises(SystemExit, match="already exists; pass --overwrite=true to replace it"):
         record.main([*flags, "--record.n_episodes=1"])
     record.main([*flags, "--record.n_episodes=1", "--overwrite=true"])
     assert LeRobotDataset("local/door", root=root).num_episodes == 1

@@ -102,7 +102,7 @@ def test_overwrite_refuses_a_folder_that_only_looks_like_a_dataset(tmp_path):
     (fake / "meta").mkdir(parents=True)
     (fake / "meta" / "info.json").write_text("{}")
     (fake / "thesis.tex").write_text("years of work")
-    with pytest.raises(ValueError, match=rf"{fake} is not one, so nothing was deleted. Choose a new root"):
+    with pytest.raises(SystemExit, match=rf"{fake} is not one, so nothing was deleted. Choose a new root"):
         record.main(record_flags(fake, "--overwrite=true"))
     assert listing(fake) == {"meta/info.json": 2, "thesis.tex": 13}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"], "no staging folder left"
@@ -118,7 +118,7 @@ def test_overwrite_replaces_only_the_dataset_it_wrote_at_that_same_path(tmp_path
     (tmp_path / "link").symlink_to(original, target_is_directory=True)
     for root in (copy, moved, tmp_path / "link"):
         before = listing(root)
-        with pytest.raises(ValueError, match="nothing was deleted"):
+        with pytest.raises(SystemExit, match="nothing was deleted"):
             record.main(record_flags(root, "--overwrite=true", n_episodes=2))
         assert listing(root) == before
     record.main(record_flags(original, "--overwrite=true", n_episodes=2))
@@ -151,7 +151,7 @@ def test_a_root_under_a_file_is_refused_before_recording(tmp_path, monkeypatch):
     (tmp_path / "notes.txt").write_text("keep me")
     monkeypatch.setattr(record, "run_episode", lambda *args, **kwargs: pytest.fail("recorded first"))
     root = tmp_path / "notes.txt" / "demos"
-    with pytest.raises(NotADirectoryError, match=rf"Cannot create the dataset {root}: .*notes.txt is a file"):
+    with pytest.raises(SystemExit, match=rf"Cannot create the dataset {root}: .*notes.txt is a file"):
         record.main(record_flags(root))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
@@ -160,7 +160,7 @@ def test_a_root_under_a_file_is_refused_before_recording(tmp_path, monkeypatch):
 def test_a_read_only_parent_is_refused_before_recording(tmp_path):
     locked = tmp_path / "locked"
     locked.mkdir(mode=0o555)
-    with pytest.raises(PermissionError, match=rf"the dataset {locked}/sub/demos: {locked} is not writable"):
+    with pytest.raises(SystemExit, match=rf"the dataset {locked}/sub/demos: {locked} is not writable"):
         record.main(record_flags(locked / "sub" / "demos"))
     assert list(locked.iterdir()) == []
 
@@ -218,6 +218,12 @@ def test_a_file_size_limit_is_named_by_the_console_script(tmp_path):
         ("--record.max_episode_steps=-5", "record.max_episode_steps must be a positive integer, got -5"),
         ("--record.env_kwargs={init_noise: .nan}", "record.env_kwargs.init_noise must be a finite number"),
         ("--record.seed=-1", r"record.seed must be >= 0 \(gymnasium's seeds\), got -1"),
+        # YAML reads 1e9 as text, which the env compared with numbers in numpy's words (issue 110)
+        (
+            "--record.env_kwargs={init_noise: 1e9}",
+            r"record.env_kwargs.init_noise must be float, got '1e9' \(str\); write it without quotes",
+        ),
+        ("--record.env_kwargs={render_width: 2.5}", "record.env_kwargs.render_width must be int, got 2.5"),
     ],
 )
 def test_record_recipe_errors_are_named_before_any_env_is_made(tmp_path, monkeypatch, flag, message):
@@ -258,9 +264,10 @@ def test_a_checkpoint_of_another_layout_is_refused_naming_both(door, reaching_ro
 
 def test_a_step_limit_too_short_for_the_expert_is_named_with_the_tasks_own(tmp_path):
     with pytest.raises(
-        RuntimeError,
-        match=r"expert failed 2 times; giving up\. Every failed episode ran to its step limit of 3 steps "
-        r"\(record.max_episode_steps\).*raise --record.max_episode_steps \(the task's own limit: 150\) or "
+        SystemExit,
+        match=r"^lerobot-ccdp-record: error: The DoorOpening-lite-v0 expert failed 2 times; giving up\. "
+        r"Every failed episode ran to its step limit of 3 steps \(record.max_episode_steps\).*raise "
+        r"--record.max_episode_steps \(the task's own limit: 150\) or "
         r"leave it unset",
     ):
         record.main(record_flags(tmp_path / "demos", "--record.max_episode_steps=3"))
@@ -271,7 +278,7 @@ def test_a_dangling_symlink_root_is_named_as_one(tmp_path):
     link = tmp_path / "demos"
     link.symlink_to(tmp_path / "gone")
     with pytest.raises(
-        FileExistsError, match=rf"{link} is a symlink to {tmp_path / 'gone'}, which does not exist"
+        SystemExit, match=rf"error: {link} is a symlink to {tmp_path / 'gone'}, which does not exist"
     ):
         record.main(record_flags(link))
     assert link.is_symlink() and sorted(p.name for p in tmp_path.iterdir()) == ["demos"]
@@ -296,3 +303,47 @@ def test_the_reaching_data_command_names_an_existing_root(tmp_path, capsys):
     assert last.endswith(f"{root} already exists; pass --overwrite to replace it, or choose another root")
     reaching2d.main(["--root", str(root), "--n-episodes", "10", "--overwrite"])
     assert LeRobotDataset("local/reaching2d", root=root).num_episodes == 10 and owner(root) == CREATED_BY
+
+
+@pytest.mark.parametrize("spelling", ["", ".", ".."])
+@pytest.mark.parametrize("overwrite", [[], ["--overwrite=true"]])
+def test_a_root_spelling_the_working_directory_is_refused_with_or_without_overwrite(
+    tmp_path, monkeypatch, spelling, overwrite
+):
+    """An empty --dataset.root is the working directory: it was reported as "already exists; pass
+    --overwrite=true", which would then be refused too (issue 110)."""
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "notes.txt").write_text("keep me")
+    monkeypatch.chdir(work)
+    with pytest.raises(
+        SystemExit,
+        match=r"^lerobot-ccdp-record: error: The dataset root \.{1,2} is or holds the working directory, "
+        r"which the dataset would replace\. Name the dataset's own folder",
+    ):
+        record.main(record_flags(Path(spelling), *overwrite))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["work"] and listing(work) == {"notes.txt": 7}
+
+
+def test_a_users_file_as_root_is_refused_without_offering_overwrite(tmp_path):
+    """--overwrite=true would be refused on it as well, so the first refusal says so."""
+    mine = tmp_path / "notes.txt"
+    mine.write_text("keep me")
+    with pytest.raises(SystemExit) as refused:
+        record.main(record_flags(mine))
+    assert str(refused.value.code) == (
+        f"lerobot-ccdp-record: error: {mine} already exists and is not a dataset lerobot_ccdp wrote at this "
+        f"same path (marked by {MARKER}), so --overwrite=true would not replace it either. Choose a new "
+        "root, or move or remove it yourself if it is yours to lose."
+    )
+    assert mine.read_text() == "keep me"
+
+
+def test_an_env_setting_out_of_range_is_one_line(tmp_path):
+    with pytest.raises(
+        SystemExit,
+        match=r"^lerobot-ccdp-record: error: record.env_kwargs: \{'max_failures': 0\}: the attempt budget .* "
+        r"must be >= 1",
+    ):
+        record.main(record_flags(tmp_path / "demos", "--record.env_kwargs={max_failures: 0}"))
+    assert list(tmp_path.iterdir()) == []
