@@ -45,7 +45,9 @@ from lerobot_ccdp.policy.observations import (
     observation_frames,
     refuse_non_finite_batch,
     refuse_non_finite_stats,
+    refuse_unfit_noise,
     refuse_unknown_cameras,
+    reported_failure_features,
 )
 from lerobot_ccdp.policy.rollout_memory import RolloutMemory
 from lerobot_ccdp.policy.samplers import SAMPLERS, PlanRows
@@ -211,18 +213,10 @@ class CCDPPolicy(PreTrainedPolicy):
         mask = self._failed_rows(index, rows)
         if not mask.any():
             return  # an empty list of rows: nothing failed
-        dim = self.config.failure_feature_dim
-        z = None if z is None else torch.as_tensor(z, dtype=torch.float32, device=mask.device)
-        if z is not None and (z.shape[-1:] != (dim,) or z.numel() != int(mask.sum()) * dim):
-            raise ValueError(
-                f"report_failure(z=...) got shape {tuple(z.shape)}; it takes one normalised z per failed "
-                f"row, ({int(mask.sum())}, {dim}) here ({self.config.failure_feature} feature). Leave z out "
-                "to use the attempt's own failure feature."
-            )
-        if z is not None and not bool(torch.isfinite(z).all()):
-            raise ValueError(
-                f"report_failure(z=...) holds NaN or inf ({z.tolist()}): a failure feature must be finite. "
-                "Check the detector that computed it, or leave z out to use the attempt's own."
+        if z is not None:
+            cfg = self.config
+            z = reported_failure_features(
+                z, int(mask.sum()), cfg.failure_feature_dim, cfg.failure_feature, mask.device
             )
         self._record_failures(mask, z)
 
@@ -272,7 +266,7 @@ class CCDPPolicy(PreTrainedPolicy):
             frame = frame[:, -1]
         flag = batch.get(FAILURE_FLAG_KEY)
         failed = None if flag is None else failure_flags(flag, frame.shape[0]).to(frame.device)
-        self._refuse_unfit_noise(noise, frame.shape[0])
+        refuse_unfit_noise(noise, (frame.shape[0], self.config.horizon, self.config.action_dim))
         fresh = self._memory is None or self._memory.batch_size != frame.shape[0]
         if fresh:
             if self._failures is not None and bool((self._failures.count > 0).any()):
@@ -354,21 +348,6 @@ class CCDPPolicy(PreTrainedPolicy):
         if not bool(torch.isfinite(chunks).all()):
             self._refuse_non_finite_plan(rows, chunks, plan, mode)
         return chunks
-
-    def _refuse_unfit_noise(self, noise: Tensor | None, batch_size: int) -> None:
-        """The caller's initial noise must be one finite (B, horizon, A) chunk per row: it is the start of
-        every reverse diffusion, and NaN in it makes NaN actions."""
-        if noise is None:
-            return
-        shape = (batch_size, self.config.horizon, self.config.action_dim)
-        if not isinstance(noise, Tensor) or tuple(noise.shape) != shape:
-            got = f"shape {tuple(noise.shape)}" if isinstance(noise, Tensor) else type(noise).__name__
-            raise ValueError(
-                f"noise= got {got}; it is the initial noise of one chunk per row, a tensor of shape {shape} "
-                "(batch, horizon, action dim). Leave it out to draw it."
-            )
-        if not bool(torch.isfinite(noise).all()):
-            raise ValueError("noise= holds NaN or inf: draw it with torch.randn, or leave it out.")
 
     def _refuse_non_finite_plan(self, rows: Tensor, chunks: Tensor, plan: PlanRows, mode: str) -> None:
         """Non-finite actions are never returned: name what made them (damaged tensors, non-finite

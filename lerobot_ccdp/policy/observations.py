@@ -122,8 +122,9 @@ def observation_frames(
                 f"{key!r} has shape {tuple(value.shape)}; the policy takes a batch (B, {expected}), as "
                 "LeRobot's preprocessor makes it. Add the batch dimension: value.unsqueeze(0)."
             )
-        if not value.is_floating_point():
-            value = value.float()  # a robot's integer encoder counts, normalised by no preprocessor
+        # the networks are float32: a robot's integer encoder counts (normalised by no preprocessor), or a
+        # float64/float16 reading, made "mat1 and mat2 must have the same dtype" deep in the UNet
+        value = value.float()
         if value.shape[-1] != expected:
             raise ValueError(
                 f"{key!r} has {value.shape[-1]} dims on its last axis; the policy expects {expected}."
@@ -170,7 +171,13 @@ def failure_flags(flag: Tensor, batch_size: int) -> Tensor:
     """`observation.failure` as one bool per row (B,). A flag is 0 (no failure) or 1 (the row's attempt just
     failed), shaped (B, 1) as LeRobot's env wrapper makes it, or (B,); anything else is refused rather than
     read: NaN is not "no failure", and a flag of another shape cannot be matched to the rows."""
-    flag = torch.as_tensor(flag)
+    try:
+        flag = torch.as_tensor(flag)
+    except (TypeError, ValueError, RuntimeError):
+        raise ValueError(
+            f"{FAILURE_FLAG_KEY!r} is {flag!r}; it takes numbers, one flag per row (1: the attempt failed, "
+            f"0: it did not), as a tensor of shape ({batch_size}, 1) or ({batch_size},)."
+        ) from None
     if flag.numel() != batch_size or flag.ndim > 2 or (flag.ndim == 2 and flag.shape[1] != 1):
         raise ValueError(
             f"{FAILURE_FLAG_KEY!r} has shape {tuple(flag.shape)}; the policy takes one flag per row, shape "
@@ -186,6 +193,63 @@ def failure_flags(flag: Tensor, batch_size: int) -> Tensor:
             "not). Check the failure detector or env that sets it."
         )
     return values == 1
+
+
+def refuse_unfit_noise(noise: Tensor | None, shape: tuple[int, ...]) -> None:
+    """The caller's initial noise must be one finite float32 chunk per row, of `shape` (B, horizon, A), within
+    +-MAX_NORMALISED_INPUT: it starts every reverse diffusion, and NaN in it made NaN actions, another dtype
+    a dtype error deep in the UNet, and 1e30 an overflow blamed on the weights."""
+    if noise is None:
+        return
+    if not isinstance(noise, Tensor) or tuple(noise.shape) != shape or noise.dtype != torch.float32:
+        got = (
+            f"shape {tuple(noise.shape)} of {noise.dtype}"
+            if isinstance(noise, Tensor)
+            else type(noise).__name__
+        )
+        raise ValueError(
+            f"noise= got {got}; it is the initial noise of one chunk per row, a float32 tensor of shape "
+            f"{shape} (batch, horizon, action dim), e.g. torch.randn(shape). Leave it out to draw it."
+        )
+    if not bool(torch.isfinite(noise).all()):
+        raise ValueError("noise= holds NaN or inf: draw it with torch.randn, or leave it out.")
+    if bool((noise.abs() > MAX_NORMALISED_INPUT).any()):
+        raise ValueError(
+            f"noise= holds {noise.abs().max().item():.3g}, beyond +-{MAX_NORMALISED_INPUT:g}: the initial "
+            "noise is standard normal (torch.randn), within +-6 in practice. Draw it with torch.randn, or "
+            "leave it out."
+        )
+
+
+def reported_failure_features(z: object, rows: int, dim: int, feature: str, device: torch.device) -> Tensor:
+    """`report_failure(z=...)` as a float32 tensor (rows, dim): one finite normalised z per failed row, within
+    +-MAX_NORMALISED_INPUT like every normalised input (a z of 1e30 was taken, and overflowed in the recovery
+    head). Anything else is refused before any failure is recorded."""
+    taken = f"it takes one normalised z per failed row, ({rows}, {dim}) here ({feature} feature)"
+    try:
+        value = torch.as_tensor(z, dtype=torch.float32, device=device)
+    except (TypeError, ValueError, RuntimeError):
+        raise ValueError(
+            f"report_failure(z={z!r}) got a {type(z).__name__}; {taken}, as numbers. Leave z out to use the "
+            "attempt's own failure feature."
+        ) from None
+    if value.shape[-1:] != (dim,) or value.numel() != rows * dim:
+        raise ValueError(
+            f"report_failure(z=...) got shape {tuple(value.shape)}; {taken}. Leave z out to use the "
+            "attempt's own failure feature."
+        )
+    if not bool(torch.isfinite(value).all()):
+        raise ValueError(
+            f"report_failure(z=...) holds NaN or inf ({value.tolist()}): a failure feature must be finite. "
+            "Check the detector that computed it, or leave z out to use the attempt's own."
+        )
+    if bool((value.abs() > MAX_NORMALISED_INPUT).any()):
+        raise ValueError(
+            f"report_failure(z=...) holds {value.abs().max().item():.4g}, beyond the "
+            f"+-{MAX_NORMALISED_INPUT:g} the policy acts on: z is normalised (as the preprocessor normalises "
+            "the feature it describes), so failures lie near 0: normalise it, or leave z out."
+        )
+    return value.reshape(rows, dim)
 
 
 def refuse_unknown_cameras(config: CCDPConfig, batch: dict[str, Tensor]) -> None:

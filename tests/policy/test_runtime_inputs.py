@@ -107,6 +107,36 @@ def test_initial_noise_that_is_not_finite_or_of_another_shape_is_refused():
         policy.predict_action_chunk(state, noise=torch.full((2, 16, 2), float("nan")))
 
 
+@pytest.mark.parametrize(
+    ("noise", "message"),
+    [
+        (
+            torch.zeros(2, 16, 2, dtype=torch.float64),
+            r"noise= got shape \(2, 16, 2\) of torch.float64.*float32",
+        ),
+        (torch.zeros(2, 16, 2, dtype=torch.long), r"of torch.int64.*float32"),
+        (torch.full((2, 16, 2), 1e30), r"noise= holds 1e\+30.*standard normal"),
+    ],
+)
+def test_initial_noise_of_another_dtype_or_far_from_normal_is_refused(noise, message):
+    """Before: float64 or integer noise failed deep in the UNet ("Input type (double) and bias type (float)"),
+    and noise of 1e30 made NaN actions blamed on the weights w_s, w_h, w_z."""
+    with pytest.raises(ValueError, match=message):
+        make_policy().select_action({OBS_STATE: torch.zeros(2, 2)}, noise=noise)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float16])
+def test_a_state_of_another_dtype_is_read_as_float32(dtype):
+    """Before: a float64 or float16 state (numpy's default, a half-precision sensor driver) failed in the
+    UNet ("mat1 and mat2 must have the same dtype") or in the rollout memory."""
+    policy = make_policy()
+    torch.manual_seed(0)
+    expected = policy.select_action({OBS_STATE: torch.tensor([[1.0, -2.0]])})
+    policy.reset()
+    torch.manual_seed(0)
+    assert torch.equal(policy.select_action({OBS_STATE: torch.tensor([[1.0, -2.0]], dtype=dtype)}), expected)
+
+
 # ----- the failure flag ----------------------------------------------------------------------------------
 
 
@@ -135,7 +165,30 @@ def test_a_failure_flag_of_another_shape_names_the_shape_it_takes(untrained_prim
     assert policy.failure_count().tolist() == [0, 3]
 
 
+def test_a_failure_flag_that_is_not_numbers_is_named():
+    """Before: torch's "new(): invalid data type 'str'"."""
+    policy = make_policy()
+    with pytest.raises(ValueError, match=rf"'{FLAG}' is 'yes'; it takes numbers, one flag per row"):
+        policy.select_action({OBS_STATE: torch.zeros(1, 2), FLAG: "yes"})
+
+
 # ----- report_failure --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("z", "message"),
+    [
+        ("abc", r"report_failure\(z='abc'\) got a str; it takes one normalised z per failed row, \(1, 32\)"),
+        (torch.full((1, 32), 1e30), r"report_failure\(z=...\) holds 1e\+30, beyond the \+-1000.*normalised"),
+    ],
+)
+def test_report_failure_names_a_z_that_is_not_numbers_or_far_outside(z, message):
+    """Before: a str gave torch's "new(): invalid data type 'str'", and z = 1e30 was recorded as a failure."""
+    policy = make_policy()
+    policy.select_action({OBS_STATE: torch.zeros(1, 2)})
+    with pytest.raises(ValueError, match=message):
+        policy.report_failure(z=z)
+    assert policy.failure_count().tolist() == [0]
 
 
 def test_report_failure_names_the_forms_rows_takes(untrained_primitive_checkpoint):
