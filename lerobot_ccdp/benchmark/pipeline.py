@@ -94,6 +94,8 @@ BIN = Path(sys.executable).parent
 CHECKPOINT = Path("checkpoints/last/pretrained_model")
 # Per-episode outcomes of every method, with the command and commit (`lerobot_ccdp.benchmark.results`).
 RUN_FILE = "episodes.json"
+# What write_report writes into --out and into each task's folder in it.
+REPORT_FILES = ("report.md", "summary.json", RUN_FILE, "comparison.png")
 # lerobot-train's periodic log line: seconds per step spent updating and waiting for data.
 STEP_TIMES = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
 # A tqdm bar's state: description, percentage, count and timing, without the bar itself.
@@ -750,14 +752,14 @@ def write_report(
         time_breakdown(runs),
     ]
     if chart:
-        bar_chart(results, out / "comparison.png")
+        bar_chart(results, out / REPORT_FILES[3])
         parts.insert(3, "![comparison](comparison.png)")
     report = "\n\n".join(parts) + "\n"
-    (out / "report.md").write_text(report)
+    (out / REPORT_FILES[0]).write_text(report)
     summary = {
         task: {m: metrics.as_dict() for m, metrics in methods.items()} for task, methods in results.items()
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out / REPORT_FILES[1]).write_text(json.dumps(summary, indent=2))
     save_run(out / RUN_FILE, episodes, labels, command, runs[0].eval_seed if runs else 0)
     return report
 
@@ -936,6 +938,10 @@ def main(argv: list[str] | None = None) -> None:
             "as .json and .png)"
         )
     tasks = expand_tasks(args.tasks)
+    for flag, names in (("--tasks", tasks), ("--methods", args.methods)):
+        twice = sorted({name for name in names if names.count(name) > 1})
+        if twice:  # the same stage twice: with --jobs, two runs writing one folder at once
+            parser.error(f"{flag} names {', '.join(twice)} more than once; name each once")
     try:
         files = [
             TaskFiles.locate(t, args.configs, args.recipes, args.out, args.obs_type, args.label_free)
@@ -945,6 +951,11 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(str(error))
     for f in files:  # checked here: a stage clears its output before its command would refuse the seed
         seeds = f.seeds(args.eval_seed, args.eval_episodes)
+        if len(seeds) > SEED_LIMIT:
+            parser.error(
+                f"--eval-episodes {len(seeds)}: more episodes than numpy has seeds (lerobot-eval seeds numpy "
+                f"with each episode's own); evaluate at most {SEED_LIMIT}"
+            )
         if seeds.start < 0 or seeds.stop > SEED_LIMIT:
             source = "--eval-seed" if args.eval_seed is not None else f"{f.eval}'s seed"
             parser.error(
@@ -956,6 +967,14 @@ def main(argv: list[str] | None = None) -> None:
         argv if argv is not None else sys.argv[1:]
     )
     start = time.perf_counter()
+    own = {folder / name for folder in [args.out, *(f.out for f in files)] for name in REPORT_FILES}
+    for report, flag in published_reports(args, [f.task for f in files]):
+        for copy in (report, report.with_suffix(".json"), report.with_suffix(".png")):
+            if Path(os.path.realpath(copy)) in own:  # copied onto itself (after the whole run), or replaced
+                parser.error(
+                    f"{flag} {report} would publish onto {copy}, a file the pipeline writes there itself; "
+                    "choose another name or folder"
+                )
     try:
         for report, flag in published_reports(args, [f.task for f in files]):
             check_report_targets(report, flag, chart=not args.no_chart)

@@ -301,6 +301,29 @@ BAD_INPUTS = {
         ["--eval-seed", str(2**32 - 5), "--eval-episodes", "10"],
         r"seeds 4294967291 to 4294967300, outside numpy's seed range.*a first seed from 0 to 4294967286",
     ),
+    # suggested "a first seed from 0 to -95705032704"
+    "more episodes than numpy has seeds": (
+        "out",
+        ["--eval-episodes", str(10**11)],
+        rf"--eval-episodes {10**11}: more episodes than numpy has seeds .*evaluate at most {2**32}$",
+    ),
+    # a task or method named twice ran its stages twice, with --jobs two evaluations in one folder at once
+    "a task named twice": ("out", ["--tasks", TASK, TASK], rf"--tasks names {TASK} more than once"),
+    "a method named twice": ("out", ["--methods", "dp", "ccdp", "dp"], r"--methods names dp more than once"),
+    # its run file and chart were copied onto the run's own (shutil.SameFileError after the whole run), or
+    # the run file onto its summary.json
+    **{
+        f"--publish onto the run's {name}": (
+            "out",
+            ["--publish", f"out/{stem}.md"],
+            rf"--publish out/{stem}.md would publish onto out/{name}, a file the pipeline writes there",
+        )
+        for stem, name in (
+            ("episodes", "episodes.json"),
+            ("comparison", "comparison.png"),
+            ("summary", "summary.json"),
+        )
+    },
 }
 
 
