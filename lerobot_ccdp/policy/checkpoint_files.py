@@ -26,7 +26,9 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.processor import ProcessorStep, ProcessorStepRegistry
 from lerobot.utils.constants import POLICY_POSTPROCESSOR_DEFAULT_NAME, POLICY_PREPROCESSOR_DEFAULT_NAME
 from safetensors import SafetensorError, safe_open
+from safetensors.torch import load_file
 
+from lerobot_ccdp.policy.config_checks import refuse_mistyped_json
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.policy.observations import vector_keys
 
@@ -71,11 +73,17 @@ def check_checkpoint(path: str | Path) -> None:
     mixed = mixed_config_error(folder)
     if mixed is not None:
         raise mixed
+    if config["type"] == CCDPConfig.get_choice_name(CCDPConfig):
+        lacking = [k for k in ("input_features", "output_features") if not isinstance(config.get(k), dict)]
+        if lacking:
+            raise _damaged(folder / CONFIG_FILE, f"it has no {' or '.join(lacking)}")
+        refuse_mistyped_json(config, str(folder / CONFIG_FILE))
     for file in sorted(folder.glob("*.safetensors")):
         _check_safetensors(file)
     for name in PROCESSOR_FILES:
         if (folder / name).is_file():
             check_processor_steps(folder / name)
+            check_processor_stats(folder / name)
 
 
 def mixed_config_error(folder: str | Path) -> ValueError | None:
@@ -123,6 +131,44 @@ def check_processor_steps(file: Path) -> None:
                 f"{file}: step {index} names {_step_name(entry)!r}, which is not a processor step of LeRobot "
                 "or lerobot_ccdp. LeRobot would import and run that class when loading the checkpoint, so it "
                 "was refused and nothing from it ran. Checkpoints are code: load only ones you trust."
+            )
+
+
+# Per normalisation entry, the pairs of stats (low, high) whose order is fixed, and those that are >= 0.
+ORDERED_STATS = (("min", "max"), ("q01", "q99"), ("q10", "q90"))
+NON_NEGATIVE_STATS = ("std",)
+
+
+def check_processor_stats(file: Path) -> None:
+    """Refuse a processor's saved stats of the features it (un)normalises that are non-finite or out of
+    order (a max below its min, a negative std): LeRobot loads them as they are, and NaN unnormaliser stats
+    made every action NaN, an inverted range mirrored every input, with no error."""
+    for entry in _read_json(file)["steps"]:
+        state_file = entry.get("state_file") if isinstance(entry, dict) else None
+        features = (entry.get("config") or {}).get("features") if state_file else None
+        if not isinstance(features, dict) or not (file.parent / state_file).is_file():
+            continue
+        stats = load_file(file.parent / state_file)
+        used = {k: v for k, v in stats.items() if k.rpartition(".")[0] in features}
+        wrong = [f"{k} holds NaN or inf" for k, v in used.items() if not bool(torch.isfinite(v).all())]
+        wrong += [
+            f"{key}.{high} < {key}.{low}"
+            for key in features
+            for low, high in ORDERED_STATS
+            if f"{key}.{low}" in used
+            and f"{key}.{high}" in used
+            and bool((used[f"{key}.{high}"] < used[f"{key}.{low}"]).any())
+        ]
+        wrong += [
+            f"{k} < 0"
+            for k, v in used.items()
+            if k.rpartition(".")[2] in NON_NEGATIVE_STATS and (v < 0).any()
+        ]
+        if wrong:
+            raise _damaged(
+                file.parent / state_file,
+                f"its normalisation stats are wrong: {'; '.join(wrong[:3])}{'; ...' * (len(wrong) > 3)}; "
+                "inputs or actions passed through them would be NaN or mirrored",
             )
 
 
@@ -225,6 +271,19 @@ def refuse_other_checkpoint(config: Any, saved: dict, path: str | Path) -> None:
     """Refuse a checkpoint of another policy type, or one whose action size differs from the dataset's or
     env's (LeRobot sets the output features from them), naming both layouts instead of a state-dict size
     mismatch."""
+    if saved.get("type") == CCDPConfig.get_choice_name(CCDPConfig) and not (
+        isinstance(config, CCDPConfig) and config.input_features and config.output_features
+    ):
+        what = (
+            f"a {type(config).__name__}"
+            if not isinstance(config, CCDPConfig)
+            else "a CCDPConfig without features"
+        )
+        raise ValueError(
+            f"{path} is a ccdp checkpoint, and the config given to load it is {what}. Pass the "
+            "checkpoint's own config, edited as needed: config = PreTrainedConfig.from_pretrained(path); "
+            "config.<field> = ...; CCDPPolicy.from_pretrained(path, config=config)."
+        )
     if not isinstance(config, CCDPConfig):
         raise ValueError(
             f"{path} is a {saved.get('type')!r} checkpoint, not a ccdp one. Load it with its own policy "
@@ -326,6 +385,29 @@ def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, 
             "the networks moved under `model.` (lerobot_ccdp before the policy/model split) or with other "
             "network settings cannot be loaded: retrain it, or load it with the lerobot_ccdp version that "
             "saved it."
+        )
+
+
+def refuse_unloadable_weights(state: dict, file: str | Path) -> None:
+    """Before the weights in `file` are copied into the policy's `state`: refuse tensors whose shape differs
+    (torch lists size mismatches without the cause) and floating weights saved as integers (torch copies
+    the truncated values without a word, and the policy acts on them)."""
+    wrong = []
+    with safe_open(file, framework="pt") as saved:
+        for key in sorted(set(saved.keys()) & set(state)):
+            tensor = saved.get_slice(key)
+            shape, dtype = tuple(tensor.get_shape()), tensor.get_dtype()
+            # the outcome table's buffers are empty until loaded, then take the saved shapes
+            if shape != tuple(state[key].shape) and state[key].numel():
+                wrong.append(f"{key} has shape {shape}, the config makes {tuple(state[key].shape)}")
+            elif state[key].is_floating_point() and not dtype.startswith(("F", "BF")):
+                wrong.append(f"{key} holds {dtype}, not floats")
+    if wrong:
+        raise ValueError(
+            f"The weights in {file} do not fit the ccdp policy its config describes: "
+            f"{_listed(wrong, 'tensor(s)')}. If the checkpoint's config.json was edited (input_features, "
+            "output_features, down_dims, kernel_size, ...), restore the values lerobot-train saved; "
+            "otherwise the weights file was altered: train again, or copy or download the checkpoint again."
         )
 
 

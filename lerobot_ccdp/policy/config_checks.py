@@ -8,9 +8,12 @@ away for every config class by `lerobot_ccdp/compat/config_help.py`.
 
 from __future__ import annotations
 
+import json
 import math
+import numbers
 import os
 from dataclasses import fields
+from types import UnionType
 from typing import TYPE_CHECKING, Literal, get_args, get_origin
 
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
@@ -169,6 +172,15 @@ def _check_numbers(config: CCDPConfig) -> None:
     for f in fields(config):
         value = getattr(config, f.name)
         values = value if isinstance(value, (list, tuple)) else [value]
+        kind = _number_kind(f.type)
+        if kind is not None and not all(v is None or _is(kind, v) for v in values):
+            what = {int: "a whole number", float: "a number", bool: "true or false"}[kind]
+            each = " in each entry" if isinstance(value, (list, tuple)) else ""
+            raise ValueError(
+                f"`{f.name}` takes {what}{each}; got {value!r} "
+                f"({type(value).__name__}). A config edited in Python, or a config.json, is used as it is "
+                f"(no flag parsing converts it): write {f.name} as {what}."
+            )
         if any(isinstance(v, float) and not math.isfinite(v) for v in values):
             raise ValueError(
                 f"`{f.name}` must be a finite number; got {value}. Set --policy.{f.name} to a "
@@ -203,6 +215,44 @@ def _check_numbers(config: CCDPConfig) -> None:
             f"`failure_guard_steps` ({config.failure_guard_steps}) exceeds the {steps} reverse steps: "
             "lower it."
         )
+
+
+def refuse_mistyped_json(saved: dict, file: str) -> None:
+    """Refuse a ccdp config.json whose numbers are written as true/false or strings, or whose switches as
+    numbers or strings: draccus converts them as it reads the file ("w_z": true became w_z 1.0, "horizon":
+    "16" horizon 16), so the checks made after it cannot see what the file says."""
+    from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+
+    for f in fields(CCDPConfig):
+        kind, value = _number_kind(f.type), saved.get(f.name)
+        values = value if isinstance(value, list) else [value]
+        allowed = (bool,) if kind is bool else (int, float)
+        if kind is None or all(v is None or type(v) in allowed for v in values):
+            continue
+        what = {int: "a whole number", float: "a number", bool: "true or false"}[kind]
+        raise ValueError(
+            f'{file} says "{f.name}": {json.dumps(value)}; it takes {what}. A hand-edited value: write it '
+            "as a JSON number (or true/false for a switch), without quotes."
+        )
+
+
+def _number_kind(annotation: object) -> type | None:
+    """int, float or bool for a field holding such values (alone, optional, or in a list or tuple)."""
+    args = [a for a in get_args(annotation) if a not in (type(None), Ellipsis)]
+    if annotation in (int, float, bool):
+        return annotation
+    if get_origin(annotation) in (list, tuple, UnionType) and args and len(set(args)) == 1:
+        return _number_kind(args[0])
+    return None
+
+
+def _is(kind: type, value: object) -> bool:
+    """Whether `value` is a `kind`: a bool is no number (true for a weight was read as 1), a float no
+    whole number (horizon=16.0 failed in torch.zeros), an int is a float."""
+    if kind is bool:
+        return isinstance(value, bool)
+    wanted = numbers.Integral if kind is int else numbers.Real
+    return isinstance(value, wanted) and not isinstance(value, bool)
 
 
 def _check_memory(config: CCDPConfig) -> None:

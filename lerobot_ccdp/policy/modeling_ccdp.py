@@ -25,6 +25,7 @@ from lerobot_ccdp.policy.checkpoint_files import (
     ignore_saved_signal_file,
     refuse_other_checkpoint,
     refuse_unfit_weights,
+    refuse_unloadable_weights,
     saved_config,
 )
 from lerobot_ccdp.policy.configuration_ccdp import (
@@ -138,6 +139,12 @@ class CCDPPolicy(PreTrainedPolicy):
                 policy.state_dict(), bool(policy.model.recovery_trained), pretrained_name_or_path, **hub
             )
             return policy
+
+    @classmethod
+    def _load_as_safetensor(cls, model: "CCDPPolicy", model_file: str, map_location: str, strict: bool):
+        """LeRobot's load, after `refuse_unloadable_weights` (shapes and dtypes named, not truncated)."""
+        refuse_unloadable_weights(model.state_dict(), model_file)
+        return super()._load_as_safetensor(model, model_file, map_location, strict)
 
     def generate_model_card(
         self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None

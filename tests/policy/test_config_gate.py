@@ -245,3 +245,40 @@ def test_non_finite_weights_are_refused_at_load_naming_the_tensor(
         ValueError, match=rf"hold NaN or inf in 1 tensor\(s\) \({tensor}\).*earlier checkpoint"
     ):
         CCDPPolicy.from_pretrained(folder)
+
+
+# ----- item: values of another type, configs of another kind, edits after loading --------------------------
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "message"),
+    [
+        ("horizon", 16.0, r"`horizon` takes a whole number; got 16.0 \(float\)"),
+        ("n_action_steps", 2.5, r"`n_action_steps` takes a whole number; got 2.5"),
+        ("w_z", True, r"`w_z` takes a number; got True \(bool\)"),
+        ("down_dims", (32, 64.0), r"`down_dims` takes a whole number in each entry"),
+    ],
+)
+def test_a_value_of_another_type_in_an_edited_config_is_named(
+    untrained_primitive_checkpoint, name, value, message
+):
+    """Before: horizon=16.0 or n_action_steps=2.5 passed every check and failed in torch.zeros at the first
+    action; w_z=True was taken as 1."""
+    config = PreTrainedConfig.from_pretrained(untrained_primitive_checkpoint)
+    setattr(config, name, value)
+    with pytest.raises(ValueError, match=message):
+        CCDPPolicy.from_pretrained(untrained_primitive_checkpoint, config=config)
+
+
+@pytest.mark.parametrize(
+    "config", [DiffusionConfig(), {"w_z": 2.0}, CCDPConfig()], ids=["diffusion", "dict", "bare"]
+)
+def test_a_config_that_is_not_the_checkpoints_own_is_named_with_the_fix(
+    untrained_primitive_checkpoint, config
+):
+    """Before: a DiffusionConfig or a dict was told the ccdp checkpoint "is a 'ccdp' checkpoint, not a ccdp
+    one", and a CCDPConfig() without features that the dataset lacked observation.state."""
+    with pytest.raises(
+        ValueError, match=r"is a ccdp checkpoint, and the config given.*PreTrainedConfig.from_pretrained"
+    ):
+        CCDPPolicy.from_pretrained(untrained_primitive_checkpoint, config=config)

@@ -3,11 +3,13 @@ reads it: through CCDPPolicy.from_pretrained (also what lerobot-eval and lerobot
 lerobot-ccdp-synthesize."""
 
 import json
+import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+import torch
 from lerobot.processor import ProcessorStep, ProcessorStepRegistry
 
 from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
@@ -140,3 +142,84 @@ def test_processor_steps_named_by_lerobot_class_path_are_accepted(untrained_prim
         CCDPPolicy.from_pretrained(damaged_copy(untrained_primitive_checkpoint, tmp_path, spell_out_classes))
         is not None
     )
+
+
+# ----- issue 110, second round: what LeRobot's loaders take as they are ------------------------------------
+
+
+def _edit_tensors(file: Path, edit: Callable[[dict], dict]) -> None:
+    from safetensors.torch import load_file, save_file
+
+    save_file(edit(load_file(file)), file)
+
+
+POST_STATS = "policy_postprocessor_step_0_unnormalizer_processor.safetensors"
+PRE_STATS = "policy_preprocessor_step_3_normalizer_processor.safetensors"
+
+
+@pytest.mark.parametrize(
+    ("file", "edit", "named"),
+    [
+        (POST_STATS, lambda s: {**s, "action.max": s["action.max"] * float("nan")}, "action.max holds NaN"),
+        (
+            PRE_STATS,
+            lambda s: {**s, "observation.state.max": s["observation.state.min"] - 1},
+            "observation.state.max < observation.state.min",
+        ),
+    ],
+)
+def test_a_processors_wrong_stats_are_refused_at_load(
+    untrained_primitive_checkpoint, tmp_path, file, edit, named
+):
+    """Before: NaN unnormaliser stats loaded, and the README's robot loop returned NaN actions; a max below
+    its min mirrored every input. LeRobot loads the processors' stats as they are."""
+    copy = damaged_copy(untrained_primitive_checkpoint, tmp_path, lambda f: _edit_tensors(f / file, edit))
+    with pytest.raises(ValueError, match=rf"{file} is damaged .*{named}"):
+        CCDPPolicy.from_pretrained(copy)
+
+
+@pytest.mark.parametrize(
+    ("edit", "named"),
+    [
+        (lambda t: t.to(torch.int32), r"holds I32, not floats"),
+        (lambda t: torch.zeros(3, 3), r"has shape \(3, 3\), the config makes \(128, 32\)"),
+    ],
+)
+def test_weights_of_another_dtype_or_shape_are_named_before_they_are_copied(
+    untrained_primitive_checkpoint, tmp_path, edit, named
+):
+    """Before: integer weights were copied truncated into the float networks, without a word; a wrong shape
+    gave torch's size-mismatch list."""
+    key = "model.base.unet.diffusion_step_encoder.1.weight"
+    copy = damaged_copy(
+        untrained_primitive_checkpoint,
+        tmp_path,
+        lambda f: _edit_tensors(f / "model.safetensors", lambda s: {**s, key: edit(s[key])}),
+    )
+    with pytest.raises(
+        ValueError, match=rf"do not fit the ccdp policy.*{re.escape(key)} {named}.*config.json"
+    ):
+        CCDPPolicy.from_pretrained(copy)
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"w_z": True}, r'says "w_z": true; it takes a number'),
+        ({"horizon": "16"}, r'says "horizon": "16"; it takes a whole number'),
+        ({"input_features": None}, r"is damaged \(it has no input_features\)"),
+    ],
+)
+def test_a_config_json_with_mistyped_or_missing_entries_is_named(
+    untrained_primitive_checkpoint, tmp_path, fields, message
+):
+    """Before: draccus read "w_z": true as 1.0 and "horizon": "16" as 16 without a word, and a config.json
+    without input_features was reported as a dataset without observation.state."""
+
+    def edit(folder: Path) -> None:
+        config = json.loads((folder / "config.json").read_text())
+        config.update(fields)
+        (folder / "config.json").write_text(json.dumps({k: v for k, v in config.items() if v is not None}))
+
+    with pytest.raises(ValueError, match=message):
+        CCDPPolicy.from_pretrained(damaged_copy(untrained_primitive_checkpoint, tmp_path, edit))
