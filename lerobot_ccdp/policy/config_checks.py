@@ -8,6 +8,7 @@ away for every config class by `lerobot_ccdp/compat/config_help.py`.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import numbers
@@ -215,6 +216,75 @@ def _check_numbers(config: CCDPConfig) -> None:
             f"`failure_guard_steps` ({config.failure_guard_steps}) exceeds the {steps} reverse steps: "
             "lower it."
         )
+
+
+# What a policy is built from: its networks' sizes, the noise schedule, the failure feature's layout, the
+# watched file. A change to one of them after the policy is made cannot take effect.
+BUILT_FROM = (
+    "input_features",
+    "output_features",
+    "n_obs_steps",
+    "horizon",
+    "n_action_steps",
+    "history_length",
+    "down_dims",
+    "kernel_size",
+    "n_groups",
+    "diffusion_step_embed_dim",
+    "use_film_scale_modulation",
+    "vision_backbone",
+    "vision_backbone_stages",
+    "resize_shape",
+    "crop_ratio",
+    "spatial_softmax_num_keypoints",
+    "use_separate_rgb_encoder_per_camera",
+    "use_group_norm",
+    "noise_scheduler_type",
+    "num_train_timesteps",
+    "beta_schedule",
+    "beta_start",
+    "beta_end",
+    "prediction_type",
+    "clip_sample",
+    "clip_sample_range",
+    "recovery_head",
+    "failure_feature",
+    "failure_state_key",
+    "failure_state_dims",
+    "failure_action_steps",
+    "failure_action_dims",
+    "num_primitives",
+    "z_fourier_octaves",
+    "failure_signal_file",
+)
+
+
+def settings_of(config: CCDPConfig) -> dict:
+    """A copy of every field of `config`, to see later whether it was edited (`edited_since`)."""
+    return {f.name: copy.deepcopy(getattr(config, f.name)) for f in fields(config)}
+
+
+def edited_since(config: CCDPConfig, settings: dict) -> bool:
+    """Whether `config` was edited since `settings` (`settings_of`) were taken; an edit is checked as
+    `CCDPConfig()` checks its settings, and one the policy cannot take is refused. Edits after loading
+    (`policy.config.recovery_mode = "dp"`) are how the tests and benchmarks switch modes, and went unchecked:
+    recovery_mode "foo" raised KeyError 'foo', n_action_steps 0 an IndexError, and a new w_z was ignored."""
+    edited = [name for name, value in settings.items() if getattr(config, name) != value]
+    if not edited:
+        return False
+    fixed = [
+        f"{name} ({settings[name]!r} -> {getattr(config, name)!r})" for name in edited if name in BUILT_FROM
+    ]
+    if fixed:
+        raise ValueError(
+            f"policy.config was edited after the policy was made: {', '.join(fixed)}. The policy was built "
+            "with the old value (network sizes, noise schedule, failure feature, the watched file), so the "
+            "edit cannot take effect. Edit the config before loading: config = "
+            "PreTrainedConfig.from_pretrained(path); config.<field> = ...; "
+            "CCDPPolicy.from_pretrained(path, config=config)."
+        )
+    check_settings(config)
+    return True
 
 
 def refuse_mistyped_json(saved: dict, file: str) -> None:

@@ -28,6 +28,7 @@ from lerobot_ccdp.policy.checkpoint_files import (
     refuse_unloadable_weights,
     saved_config,
 )
+from lerobot_ccdp.policy.config_checks import edited_since, settings_of
 from lerobot_ccdp.policy.configuration_ccdp import (
     FAILURE_FEATURE_KEY,
     FAILURE_FLAG_KEY,
@@ -113,6 +114,7 @@ class CCDPPolicy(PreTrainedPolicy):
         # rollouts begun since the policy was made: with row_noise_streams, part of each row's seed
         self._rollouts = 0
         self._streams: list[torch.Generator] | None = None
+        self._settings = settings_of(config)  # to check and apply an edit of policy.config after this
         self.reset()
 
     @classmethod
@@ -268,6 +270,9 @@ class CCDPPolicy(PreTrainedPolicy):
     def _observe(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> RolloutMemory:
         """Take in one observation per row: remember flagged failures, then push the frame. Every input (the
         frame, the failure flags, the caller's noise) is checked before anything is remembered."""
+        if edited_since(self.config, self._settings):  # e.g. policy.config.w_z = 3 after loading
+            self.model.set_weights()
+            self._settings = settings_of(self.config)
         frame = self.model.frames(batch)
         if frame.ndim == 3:  # (B, T, D) from a dataset: act on the latest frame
             frame = frame[:, -1]
@@ -442,9 +447,7 @@ class CCDPModel(nn.Module):
             prediction_type=config.prediction_type,
         )
         self.feature = FailureFeature(config)
-        self.weights = CompositionWeights(
-            config.w_s, config.w_h, config.w_z, config.z_reference, config.w_z_steps, config.w_z_from_step
-        )
+        self.set_weights()
         if dataset_stats is not None and config.training_stage == "base":
             refuse_non_finite_stats(config, dataset_stats)
             self.constant_inputs.fill(config, dataset_stats)
@@ -457,6 +460,11 @@ class CCDPModel(nn.Module):
         self._set_trainable()
 
     # ----- training -------------------------------------------------------------------------------------
+
+    def set_weights(self) -> None:
+        """The weights of eq. (4), from the config (again after it was edited)."""
+        c = self.config
+        self.weights = CompositionWeights(c.w_s, c.w_h, c.w_z, c.z_reference, c.w_z_steps, c.w_z_from_step)
 
     def _set_trainable(self) -> None:
         """The recovery stage trains eps_z only: the base network and the camera encoder are frozen."""

@@ -282,3 +282,27 @@ def test_a_config_that_is_not_the_checkpoints_own_is_named_with_the_fix(
         ValueError, match=r"is a ccdp checkpoint, and the config given.*PreTrainedConfig.from_pretrained"
     ):
         CCDPPolicy.from_pretrained(untrained_primitive_checkpoint, config=config)
+
+
+def _first_action(policy: CCDPPolicy) -> torch.Tensor:
+    with torch.inference_mode():
+        return policy.select_action({"observation.state": torch.zeros(1, 2)})
+
+
+def test_an_edit_of_policy_config_after_loading_is_checked_and_applied():
+    """Modes are switched by editing policy.config after loading (tests, benchmarks). Before, such an edit
+    was never checked (recovery_mode 'foo' raised KeyError 'foo', n_action_steps 0 an IndexError), and a new
+    weight was ignored: the weights of eq. (4) were read once, when the policy was made."""
+    policy = make_policy()
+    policy.config.w_z = 3.0
+    _first_action(policy)
+    assert policy.model.weights.w_z == 3.0
+    policy.config.recovery_mode = "foo"
+    with pytest.raises(ValueError, match=r"Unknown `recovery_mode` 'foo'"):
+        _first_action(policy)
+    policy.config.recovery_mode = "dp"
+    policy.config.horizon = 32
+    with pytest.raises(
+        ValueError, match=r"edited after the policy was made: horizon \(16 -> 32\).*config=config"
+    ):
+        _first_action(policy)
