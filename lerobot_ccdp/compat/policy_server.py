@@ -10,7 +10,9 @@ one of the robot's keys with an empty reply and the key alone in its log (`'y'`)
 """
 
 import functools
+import json
 import pickle  # nosec: LeRobot's async protocol pickles its messages
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -65,15 +67,15 @@ def allow_ccdp(server: ModuleType) -> None:
         supported.append(CCDPPolicy.name)
 
 
-def robot_keys(lerobot_features: dict[str, dict]) -> list[str]:
+def robot_keys(lerobot_features: dict[str, dict], cameras: bool = True) -> list[str]:
     """The keys of the robot's raw observation that LeRobot's server reads (`build_dataset_frame`): the name
-    of every value of a 1-D float feature, and each camera's name."""
+    of every value of a 1-D float feature, and (with `cameras`) each camera's name."""
     keys = []
     for key, feature in lerobot_features.items():
         if key in DEFAULT_FEATURES or not key.startswith(OBS_STR):
             continue
         if feature["dtype"] in ("image", "video"):
-            keys.append(key.removeprefix(f"{OBS_IMAGES}."))
+            keys += [key.removeprefix(f"{OBS_IMAGES}.")] if cameras else []
         elif feature["dtype"] == "float32" and len(feature["shape"]) == 1:
             keys.extend(feature["names"])
     return keys
@@ -88,13 +90,26 @@ def refuse_unfit_setup(specs: Any) -> None:
             f"actions_per_chunk={chunk!r}: the number of actions the server sends per observation must be an "
             "integer >= 1. Set the robot client's --actions_per_chunk."
         )
-    if specs.policy_type != CCDPPolicy.name:
-        return
     path = specs.pretrained_name_or_path
+    if specs.policy_type != CCDPPolicy.name:
+        if _local_type(path) == CCDPPolicy.name:  # LeRobot's class for the named type fails on its fields
+            raise ValueError(
+                f"The policy at {path} is a {CCDPPolicy.name} checkpoint, but the client asked for policy "
+                f"type {specs.policy_type!r}. Set the robot client's --policy_type={CCDPPolicy.name}."
+            )
+        return
     try:
         config = PreTrainedConfig.from_pretrained(path)
     except Exception as error:  # the config's own message, not draccus's "Couldn't instantiate"
-        raise ValueError(f"The policy at {path} cannot be served: {buried_error(error) or error}") from error
+        where = (
+            ""
+            if Path(path).exists()
+            else f" (no file or folder {path} exists on the server's machine: the client's "
+            "--pretrained_name_or_path names a checkpoint folder there, or a Hub repo id)"
+        )
+        raise ValueError(
+            f"The policy at {path} cannot be served: {buried_error(error) or error}{where}"
+        ) from error
     if not isinstance(config, CCDPConfig):
         return  # CCDPPolicy.from_pretrained names another policy type with the fix
     if chunk > config.n_action_steps:
@@ -121,6 +136,23 @@ def refuse_unfit_setup(specs: Any) -> None:
             "checkpoint trained on this robot's observations, or map the robot's keys with the client's "
             "rename_map."
         )
+
+
+def _local_type(path: str) -> str | None:
+    """The policy type a local checkpoint folder's config.json names (None for a Hub id or no such file)."""
+    try:
+        return json.loads((Path(path) / "config.json").read_text()).get("type")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _not_a_number(value: Any) -> bool:
+    """Whether a robot's value cannot be read as the float LeRobot's server makes of it."""
+    try:
+        float(value)
+    except (TypeError, ValueError):
+        return True
+    return isinstance(value, bool)
 
 
 @functools.cache
@@ -155,6 +187,16 @@ def checked_server(base: type) -> type:
                     f"The observation lacks {missing}: the client described the robot with the keys "
                     f"{expected}, and each observation must hold them all. Send every key, or set the "
                     "policy up again with the robot's features."
+                )
+            wrong = {
+                key: observation[key]
+                for key in robot_keys(self.lerobot_features, cameras=False)
+                if _not_a_number(observation[key])
+            }
+            if wrong:
+                raise ValueError(
+                    f"The observation's {wrong} are not numbers: each of the robot's state keys holds one "
+                    "number (a camera's key, an image). Send numbers."
                 )
 
         def _refuse(self, check, *args) -> None:

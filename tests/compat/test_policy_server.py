@@ -8,6 +8,7 @@ chunks), GetActions. The checks that need no network run on the entry point's se
 
 import json
 import pickle  # nosec: LeRobot's async protocol pickles its messages
+import re
 import shutil
 import socket
 import subprocess
@@ -243,3 +244,30 @@ def test_missing_grpc_names_the_extra_to_install(monkeypatch):
         SystemExit, match=r"needs the 'grpc' package: pip install 'lerobot_policy_ccdp\[async\]'"
     ):
         lerobot_policy_server()
+
+
+def test_a_ccdp_checkpoint_asked_for_as_another_policy_type_is_refused_with_the_type(checked, checkpoint):
+    """Before, LeRobot's diffusion class built itself from the ccdp config and died on a missing field
+    ("'CCDPConfig' object has no attribute 'compile_model'")."""
+    specs = RemotePolicyConfig("diffusion", str(checkpoint), ROBOT, ACTIONS_PER_CHUNK, "cpu")
+    with pytest.raises(ValueError, match=r"is a ccdp checkpoint, but the client asked for policy type "):
+        checked.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)), _Context())
+    assert checked.policy is None
+
+
+def test_a_checkpoint_path_that_does_not_exist_is_named_as_such(checked, tmp_path):
+    missing = tmp_path / "no_such_checkpoint"
+    with pytest.raises(ValueError, match=rf"no file or folder {missing} exists on the server's machine"):
+        _setup_in_process(checked, missing)
+
+
+@pytest.mark.parametrize("value", ["a", [1.0, 2.0], None])
+def test_an_observation_value_that_is_not_a_number_is_refused_naming_it(checked, checkpoint, value):
+    """Before, numpy's words: "could not convert string to float: 'a'", "setting an array element with a
+    sequence"; None became NaN."""
+    _setup_in_process(checked, checkpoint)
+    observation = TimedObservation(
+        timestamp=time.time(), timestep=0, observation={"x": value, "y": 0.2}, must_go=True
+    )
+    with pytest.raises(ValueError, match=re.escape(f"The observation's { ({'x': value}) } are not numbers")):
+        checked._enqueue_observation(observation)
