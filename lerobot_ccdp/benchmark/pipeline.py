@@ -56,6 +56,7 @@ from lerobot_ccdp.benchmark.results import ccdp_label, save_run
 from lerobot_ccdp.benchmark.run_lock import PipelineRunning, die_with_parent, exclusive
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.benchmark.targets import target_checks
+from lerobot_ccdp.compat.env_fit import NUMPY_SEEDS
 from lerobot_ccdp.datasets.ownership import MARKER, NotOwned, check_output_folder, claim_output_folder
 from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
@@ -102,8 +103,6 @@ STEP_TIMES = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
 PROGRESS = re.compile(r"([A-Za-z][\w ()=.-]*:\s+\d+%)\|[^|]*\|\s*(\d+/\d+ \[[^\]]*\])")
 # What the pipeline writes in the marker of its output folder (`lerobot_ccdp.datasets.ownership`).
 CREATED_BY = "lerobot_ccdp.benchmark.pipeline"
-# lerobot-eval seeds numpy with each episode's seed, which must lie in [0, 2**32).
-SEED_LIMIT = 2**32
 
 
 class PipelineError(RuntimeError):
@@ -951,17 +950,17 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(str(error))
     for f in files:  # checked here: a stage clears its output before its command would refuse the seed
         seeds = f.seeds(args.eval_seed, args.eval_episodes)
-        if len(seeds) > SEED_LIMIT:
+        if len(seeds) > NUMPY_SEEDS:
             parser.error(
                 f"--eval-episodes {len(seeds)}: more episodes than numpy has seeds (lerobot-eval seeds numpy "
-                f"with each episode's own); evaluate at most {SEED_LIMIT}"
+                f"with each episode's own); evaluate at most {NUMPY_SEEDS}"
             )
-        if seeds.start < 0 or seeds.stop > SEED_LIMIT:
+        if seeds.start < 0 or seeds.stop > NUMPY_SEEDS:
             source = "--eval-seed" if args.eval_seed is not None else f"{f.eval}'s seed"
             parser.error(
                 f"{source} {seeds.start}: its {len(seeds)} episodes would use seeds {seeds.start} to "
-                f"{seeds.stop - 1}, outside numpy's seed range 0 to {SEED_LIMIT - 1} (lerobot-eval seeds "
-                f"numpy with each); choose a first seed from 0 to {SEED_LIMIT - len(seeds)}"
+                f"{seeds.stop - 1}, outside numpy's seed range 0 to {NUMPY_SEEDS - 1} (lerobot-eval seeds "
+                f"numpy with each); choose a first seed from 0 to {NUMPY_SEEDS - len(seeds)}"
             )
     command = "python -m lerobot_ccdp.benchmark.pipeline " + shlex.join(
         argv if argv is not None else sys.argv[1:]

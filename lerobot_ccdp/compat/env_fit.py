@@ -18,6 +18,8 @@ from lerobot.configs.types import PolicyFeature
 
 from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
 
+NUMPY_SEEDS = 2**32  # np.random.seed takes 0 to 2**32 - 1
+
 if TYPE_CHECKING:
     from lerobot.configs.policies import PreTrainedConfig
 
@@ -106,13 +108,32 @@ def _with_task(env_cfg: CCDPEnvConfig, task: str) -> CCDPEnvConfig:
     )
 
 
+def refuse_unusable_seed(seed: Any) -> None:
+    """Refuse a `--seed` numpy cannot take (lerobot-eval seeds numpy with it first, and failed 130 lines into
+    numpy's `_legacy_seeding` with no flag named)."""
+    if seed is not None and not (isinstance(seed, int) and 0 <= seed < NUMPY_SEEDS):
+        raise ValueError(
+            f"--seed={seed}: lerobot-eval seeds numpy with it, which takes 0 to {NUMPY_SEEDS - 1}; choose a "
+            "seed in that range (episode i is seeded seed + i)."
+        )
+
+
 def install_env_fit_check() -> None:
-    """Wrap lerobot_eval.make_policy once (eval_main looks it up at call time); other envs pass through."""
+    """Wrap lerobot_eval.make_policy and set_seed once (eval_main looks them up at call time); other envs
+    pass through make_policy."""
     import lerobot.scripts.lerobot_eval as lerobot_eval
 
     original = lerobot_eval.make_policy
     if getattr(original, "_ccdp_env_fit", False):
         return
+    set_seed = lerobot_eval.set_seed
+
+    @functools.wraps(set_seed)
+    def set_usable_seed(seed: Any, *args: Any, **kwargs: Any) -> None:
+        refuse_unusable_seed(seed)
+        set_seed(seed, *args, **kwargs)
+
+    lerobot_eval.set_seed = set_usable_seed
 
     @functools.wraps(original)
     def make_policy_fitting_the_env(cfg: PreTrainedConfig, *args: Any, **kwargs: Any):

@@ -32,7 +32,7 @@ def door_checkpoint(tmp_path_factory) -> Path:
     )
 
 
-def _lerobot_eval(checkpoint: Path, task: str, out: Path, monkeypatch) -> None:
+def _lerobot_eval(checkpoint: Path, task: str, out: Path, monkeypatch, *extra: str) -> None:
     monkeypatch.setattr(
         sys,
         "argv",
@@ -48,6 +48,7 @@ def _lerobot_eval(checkpoint: Path, task: str, out: Path, monkeypatch) -> None:
             "--eval.n_episodes=1",
             "--eval.batch_size=1",
             f"--output_dir={out}",
+            *extra,
         ],
     )
     lerobot_eval.main()
@@ -115,3 +116,17 @@ def test_a_renamed_camera_fits():
         ValueError, match=r"observation.images.wrist \(shape \(3, 48, 48\) in the checkpoint\)"
     ):
         refuse_unfit_checkpoint(config, env)
+
+
+@pytest.mark.parametrize("seed", [-1, 2**32])
+def test_a_seed_numpy_cannot_take_is_named_before_the_env_is_made(
+    door_checkpoint, tmp_path, monkeypatch, seed
+):
+    """Before, numpy's "Seed must be between 0 and 2**32 - 1", 130 lines into a traceback, no flag named."""
+    monkeypatch.setattr(lerobot_eval, "make_env", lambda *args, **kwargs: pytest.fail("an env was made"))
+    with pytest.raises(
+        ValueError, match=rf"--seed={seed}: lerobot-eval seeds numpy with it, which takes 0 to "
+    ):
+        _lerobot_eval(
+            door_checkpoint, "DoorOpening-lite-v0", tmp_path / "eval", monkeypatch, f"--seed={seed}"
+        )
