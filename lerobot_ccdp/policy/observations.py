@@ -195,6 +195,23 @@ def failure_flags(flag: Tensor, batch_size: int) -> Tensor:
     return values == 1
 
 
+def refuse_unusable_weights(weight: Tensor) -> None:
+    """The networks act in float32 on a device that holds values; `weight` is one of them. After
+    `policy.to("meta")` the first action failed in "Tensor.item() cannot be called on meta tensors", after
+    `policy.half()` in "mat1 and mat2 must have the same dtype"."""
+    if weight.is_meta:
+        raise RuntimeError(
+            "The policy's weights are on the meta device, which holds shapes but no values "
+            "(policy.to('meta'), or a model made under torch.device('meta')): nothing can be computed. "
+            "Load it with CCDPPolicy.from_pretrained(path)."
+        )
+    if weight.dtype != torch.float32:
+        raise RuntimeError(
+            f"The policy's weights are {weight.dtype} (policy.half() or policy.to(dtype)); ccdp acts in "
+            "float32, as it was trained. Call policy.float()."
+        )
+
+
 def refuse_unfit_noise(noise: Tensor | None, shape: tuple[int, ...]) -> None:
     """The caller's initial noise must be one finite float32 chunk per row, of `shape` (B, horizon, A), within
     +-MAX_NORMALISED_INPUT: it starts every reverse diffusion, and NaN in it made NaN actions, another dtype
@@ -321,6 +338,12 @@ def _camera(config: CCDPConfig, batch: dict[str, Tensor], key: str, lead: torch.
             "height, width as in its training data). Render or resize this camera to that size (for a ccdp "
             "task: --env.observation_height/--env.observation_width), or train on images of this size."
         )
+    if not image.is_floating_point():  # the encoder's convolution failed: "expected scalar type Byte"
+        raise ValueError(
+            f"{key!r} holds {image.dtype} values; the policy takes float images in [0, 1], as LeRobot's "
+            "datasets and envs give them (a uint8 camera frame is 0-255: image.float() / 255)."
+        )
+    image = image.float()  # a float64 or float16 image failed in the encoder's float32 convolution
     _refuse_non_finite(key, image)
     _refuse_far_outside(image, [repr(key)])
     return image

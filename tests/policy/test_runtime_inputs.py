@@ -107,6 +107,45 @@ def test_initial_noise_that_is_not_finite_or_of_another_shape_is_refused():
         policy.predict_action_chunk(state, noise=torch.full((2, 16, 2), float("nan")))
 
 
+def test_a_camera_image_of_integers_is_named_and_one_of_float64_is_read_as_float32():
+    """Before: a uint8 camera frame or a float64 image failed in the encoder's convolution ("expected
+    scalar type Byte but found Float")."""
+    camera = f"{OBS_IMAGES}.front"
+    config = CCDPConfig(
+        input_features={
+            OBS_STATE: PolicyFeature(FeatureType.STATE, (2,)),
+            camera: PolicyFeature(FeatureType.VISUAL, (3, 32, 32)),
+        },
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))},
+        failure_feature="action",
+        vision_backbone_stages=1,
+        crop_shape=None,
+        down_dims=(32, 64),
+        device="cpu",
+    )
+    policy = CCDPPolicy(config).eval()
+    image = torch.full((1, 3, 32, 32), 200, dtype=torch.uint8)
+    with pytest.raises(ValueError, match=rf"'{camera}' holds torch.uint8 values.*image.float\(\) / 255"):
+        policy.select_action({OBS_STATE: torch.zeros(1, 2), camera: image})
+    action = policy.select_action({OBS_STATE: torch.zeros(1, 2), camera: image.double() / 255})
+    assert action.dtype == torch.float32 and torch.isfinite(action).all()
+
+
+@pytest.mark.parametrize(
+    ("move", "message"),
+    [
+        (lambda p: p.to("meta"), r"weights are on the meta device.*from_pretrained"),
+        (lambda p: p.half(), r"weights are torch.float16.*policy.float\(\)"),
+    ],
+)
+def test_a_policy_moved_to_meta_or_half_precision_is_named_before_acting(move, message):
+    """Before: "Tensor.item() cannot be called on meta tensors" and "mat1 and mat2 must have the same
+    dtype" from inside the networks."""
+    policy = move(make_policy())
+    with pytest.raises(RuntimeError, match=message):
+        policy.select_action({OBS_STATE: torch.zeros(1, 2)})
+
+
 @pytest.mark.parametrize(
     ("noise", "message"),
     [
