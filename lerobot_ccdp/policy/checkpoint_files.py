@@ -11,6 +11,7 @@ import contextlib
 import importlib
 import json
 import logging
+import os
 from collections.abc import Iterator
 from dataclasses import fields
 from pathlib import Path
@@ -59,6 +60,10 @@ def checkpoint_loading(path: str | Path) -> Iterator[None]:
 def check_checkpoint(path: str | Path) -> None:
     """Refuse a local checkpoint folder that is missing, not a checkpoint, damaged, or that names a processor
     step from outside LeRobot and this package. A name that is no folder but may be a Hub repo id passes."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(
+            f"The checkpoint is named by a str or Path; got {path!r}. {WHERE[0].upper()}{WHERE[1:]}."
+        )
     folder = Path(path)
     if not folder.is_dir():
         _refuse_unless_repo_id(path)
@@ -78,6 +83,15 @@ def check_checkpoint(path: str | Path) -> None:
         if lacking:
             raise _damaged(folder / CONFIG_FILE, f"it has no {' or '.join(lacking)}")
         refuse_mistyped_json(config, str(folder / CONFIG_FILE))
+    if (
+        config["type"] == CCDPConfig.get_choice_name(CCDPConfig)
+        and not (folder / SAFETENSORS_SINGLE_FILE).is_file()
+    ):
+        raise FileNotFoundError(
+            f"{folder} holds {CONFIG_FILE} but no {SAFETENSORS_SINGLE_FILE}: the checkpoint is incomplete (a "
+            "copy or download that stopped early, or a file removed). Copy or download it again, or use "
+            "another checkpoint (<output_dir>/checkpoints/<step>/pretrained_model)."
+        )
     for file in sorted(folder.glob("*.safetensors")):
         _check_safetensors(file)
     for name in PROCESSOR_FILES:

@@ -223,3 +223,19 @@ def test_a_config_json_with_mistyped_or_missing_entries_is_named(
 
     with pytest.raises(ValueError, match=message):
         CCDPPolicy.from_pretrained(damaged_copy(untrained_primitive_checkpoint, tmp_path, edit))
+
+
+def test_a_checkpoint_without_weights_or_named_by_none_is_named_with_the_fix(
+    untrained_primitive_checkpoint, tmp_path
+):
+    """Before: torch's bare "No such file or directory: .../model.safetensors", and pathlib's "expected str,
+    bytes or os.PathLike object, not NoneType"."""
+    copy = damaged_copy(
+        untrained_primitive_checkpoint, tmp_path, lambda f: (f / "model.safetensors").unlink()
+    )
+    with pytest.raises(FileNotFoundError, match=r"holds config.json but no model.safetensors: .*incomplete"):
+        CCDPPolicy.from_pretrained(copy)
+    with pytest.raises(
+        TypeError, match=r"named by a str or Path; got None. Pass the pretrained_model folder"
+    ):
+        CCDPPolicy.from_pretrained(None)
