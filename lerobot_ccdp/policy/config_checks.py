@@ -18,6 +18,7 @@ from types import UnionType
 from typing import TYPE_CHECKING, Literal, get_args, get_origin
 
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from lerobot.utils.utils import is_torch_device_available
 
 if TYPE_CHECKING:
     from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
@@ -100,6 +101,7 @@ def check_settings(config: CCDPConfig) -> None:
             "--policy.history_length to 1 or more, or --policy.w_h=0."
         )
     _check_choices(config)
+    _check_device(config)
     _check_vision(config)
     if config.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
         raise ValueError(
@@ -404,6 +406,21 @@ def _check_choices(config: CCDPConfig) -> None:
     for name, values in allowed.items():
         if getattr(config, name) not in values:
             raise ValueError(f"Unknown `{name}` {getattr(config, name)!r}; choose one of {list(values)}.")
+
+
+def _check_device(config: CCDPConfig) -> None:
+    """LeRobot's config checks the device only when it is made (and then replaces one this machine lacks);
+    set later, as in a config edited for `from_pretrained(path, config=...)`, "bogus" failed in safetensors
+    ("device bogus is invalid") and "cuda" on a machine without one in torch."""
+    try:
+        available = config.device is None or is_torch_device_available(config.device)
+    except ValueError as error:
+        raise ValueError(f"`device` {config.device!r} is no device LeRobot knows: {error}") from None
+    if not available:
+        raise ValueError(
+            f"`device` {config.device!r} is not available on this machine. Set device to 'cpu' or to one "
+            "this machine has (LeRobot picks one when the config is made with device None)."
+        )
 
 
 def _check_vision(config: CCDPConfig) -> None:

@@ -42,6 +42,8 @@ EDITS = [
     ("n_action_steps", 0, r"`n_action_steps` must be >= 1 \(got 0\)"),
     ("ccdp_redraws", -1, r"`ccdp_redraws` must be >= 0 \(got -1\)"),
     ("dp_star_candidates", 0, r"`dp_star_candidates` must be >= 1 \(got 0\)"),
+    # LeRobot checks the device only when a config is made: set later, "bogus" failed in safetensors
+    ("device", "bogus", r"`device` 'bogus' is no device LeRobot knows.*cuda, mps, xpu or cpu"),
 ]
 
 
