@@ -271,7 +271,7 @@ class CCDPPolicy(PreTrainedPolicy):
     def _observe(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> RolloutMemory:
         """Take in one observation per row: remember flagged failures, then push the frame. Every input (the
         frame, the failure flags, the caller's noise) is checked before anything is remembered."""
-        refuse_unusable_weights(next(self.model.parameters()))
+        refuse_unusable_weights(self.model.constant_inputs.value)  # moves and casts with the weights
         if edited_since(self.config, self._settings):  # e.g. policy.config.w_z = 3 after loading
             self.model.set_weights()
             self._settings = settings_of(self.config)

@@ -196,7 +196,8 @@ def failure_flags(flag: Tensor, batch_size: int) -> Tensor:
 
 
 def refuse_unusable_weights(weight: Tensor) -> None:
-    """The networks act in float32 on a device that holds values; `weight` is one of them. After
+    """The networks act in float32 on a device that holds values; `weight` is a tensor that moves and casts
+    with them (a buffer: test models of exact networks have no parameters). After
     `policy.to("meta")` the first action failed in "Tensor.item() cannot be called on meta tensors", after
     `policy.half()` in "mat1 and mat2 must have the same dtype"."""
     if weight.is_meta:
