@@ -178,7 +178,8 @@ def _check_numbers(config: CCDPConfig) -> None:
         kind = _number_kind(f.type)
         if kind is not None and not all(v is None or _is(kind, v) for v in values):
             what = {int: "a whole number", float: "a number", bool: "true or false"}[kind]
-            each = " in each entry" if isinstance(value, (list, tuple)) else ""
+            listed = any(get_origin(t) in (list, tuple) for t in (f.type, *get_args(f.type)))
+            each = " in each entry" if listed else ""
             raise ValueError(
                 f"`{f.name}` takes {what}{each}; got {value!r} "
                 f"({type(value).__name__}). A config edited in Python, or a config.json, is used as it is "
