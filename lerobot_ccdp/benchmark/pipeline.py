@@ -58,7 +58,7 @@ from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.benchmark.targets import target_checks
 from lerobot_ccdp.compat.env_fit import NUMPY_SEEDS
 from lerobot_ccdp.datasets.ownership import MARKER, NotOwned, check_output_folder, claim_output_folder
-from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
+from lerobot_ccdp.datasets.recipe_file import RecordRecipe, RecoveryRecipe
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 from lerobot_ccdp.envs.tasks import is_lite
@@ -146,6 +146,17 @@ def expand_tasks(names: list[str]) -> list[str]:
     return TASK_GROUPS[names[0]] if len(names) == 1 and names[0] in TASK_GROUPS else names
 
 
+def read_json(path: Path) -> dict[str, Any]:
+    """A settings file's JSON object; an error names the file."""
+    try:
+        content = json.loads(path.read_text())
+    except ValueError as error:
+        raise ValueError(f"{path} is not valid JSON: {error}") from None
+    if not isinstance(content, dict):
+        raise ValueError(f"{path} must hold a JSON object ({{...}}), not {type(content).__name__}")
+    return content
+
+
 @dataclass(frozen=True)
 class TaskFiles:
     """A task's settings files and where its outputs go."""
@@ -185,8 +196,21 @@ class TaskFiles:
                 f"{task}: missing settings file(s) {', '.join(missing)}; --configs and --recipes name the "
                 "folders that hold them"
             )
-        files.method_settings(METHODS[0])  # names unknown methods of methods.json now, not after training
-        env = files.eval_config()["env"]
+        # Checked now, not when the stage that reads them runs, minutes or hours in.
+        files.method_settings(METHODS[0])  # names unknown methods of methods.json
+        RecordRecipe.load(files.recipe)
+        RecoveryRecipe.load(files.recipe)
+        files.recovery_head()  # the base config parses
+        config = files.eval_config()
+        numbers = {  # name: (value, least)
+            "eval.n_episodes": (config.get("eval", {}).get("n_episodes"), 1),
+            "eval.batch_size": (config.get("eval", {}).get("batch_size", 1), 1),
+            "seed": (config.get("seed", 0), 0),
+        }
+        for name, (value, least) in numbers.items():
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise ValueError(f"{files.eval}: {name} must be an integer >= {least}, got {value!r}")
+        env = config["env"]
         if env.get("task") != task:
             raise ValueError(f"{files.eval} evaluates env.task={env.get('task')!r}, not {task!r}")
         if env.get("obs_type", "state") != obs_type:
@@ -196,7 +220,7 @@ class TaskFiles:
         return files
 
     def eval_config(self) -> dict[str, Any]:
-        return json.loads(self.eval.read_text())
+        return read_json(self.eval)
 
     def seeds(self, first: int | None = None, episodes: int | None = None) -> range:
         """The evaluation's seeds, episode i's at `first + i`: from `first` (None: the eval config's seed) for
@@ -208,14 +232,14 @@ class TaskFiles:
     def recovery_head(self) -> str:
         """The recovery head the base config builds (part of the checkpoint's architecture, so chosen there):
         the classifier head trains on the demonstrations, the others on a synthesised recovery dataset."""
-        return json.loads(self.train_base.read_text()).get("policy", {}).get("recovery_head", "unet")
+        return read_json(self.train_base).get("policy", {}).get("recovery_head", "unet")
 
     def method_settings(self, method: str) -> dict[str, Any]:
         """Policy fields with which `method` is evaluated, from the optional `methods.json` beside the eval
         config ({"dp_star": {"dp_star_candidates": 32}}): the baselines' own settings, which the shared
         checkpoint does not hold."""
         path = self.eval.with_name("methods.json")
-        settings = json.loads(path.read_text()) if path.is_file() else {}
+        settings = read_json(path) if path.is_file() else {}
         unknown = sorted(set(settings) - set(METHODS))
         if unknown:
             raise ValueError(f"{path} names unknown method(s) {unknown}; its keys are among {list(METHODS)}")

@@ -338,6 +338,53 @@ def test_a_bad_input_is_one_line_before_any_output_is_touched(root, stages, caps
     assert everything(root) == before and not stages.commands
 
 
+# Settings files that failed only when the stage reading them ran (the recovery section after training the
+# base, minutes in), or with a raw TypeError or a JSON error naming no file: (file, old, new, the one line)
+BAD_SETTINGS = {
+    "a NaN in the recovery recipe": (
+        f"recipes/{SLUG}.yaml",
+        "sigma: 0.02",
+        "sigma: .nan",
+        rf"recipes/{SLUG}.yaml: recovery.sigma must be a finite number",
+    ),
+    "a quoted number in the record recipe": (
+        f"recipes/{SLUG}.yaml",
+        "n_episodes: 100",
+        'n_episodes: "100"',
+        r"record.n_episodes must be int, got '100' \(str\)",
+    ),
+    "an eval config that is not JSON": (
+        f"configs/{SLUG}/eval.json",
+        '"seed": 4000',
+        '"seed": 4000,,',
+        rf"configs/{SLUG}/eval.json is not valid JSON: ",
+    ),
+    "a NaN eval seed": (
+        f"configs/{SLUG}/eval.json",
+        '"seed": 4000',
+        '"seed": NaN',
+        rf"configs/{SLUG}/eval.json: seed must be an integer >= 0, got nan",
+    ),
+    "a quoted eval seed": (f"configs/{SLUG}/eval.json", '"seed": 4000', '"seed": "4000"', r"got '4000'"),
+    "no episodes to evaluate": (
+        f"configs/{SLUG}/eval.json",
+        '"n_episodes": 100',
+        '"n_episodes": 0',
+        r"eval.n_episodes must be an integer >= 1, got 0",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_SETTINGS))
+def test_a_bad_settings_file_is_one_line_before_any_output_is_touched(root, stages, capsys, case):
+    name, old, new, message = BAD_SETTINGS[case]
+    path = root / "settings" / name
+    assert old in path.read_text()
+    path.write_text(path.read_text().replace(old, new))
+    assert re.search(message, refusal(capsys, "out"))
+    assert not (root / "out").exists() and not stages.commands
+
+
 def test_a_bad_eval_seed_loses_no_finished_evaluation(root, stages, capsys):
     """The evaluation stage cleared its finished output before lerobot-eval refused the seed."""
     run("out")
