@@ -17,6 +17,7 @@ from dataclasses import fields
 from types import UnionType
 from typing import TYPE_CHECKING, Literal, get_args, get_origin
 
+from lerobot.configs.parser import get_cli_overrides
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from lerobot.utils.utils import is_torch_device_available
 
@@ -71,6 +72,7 @@ SCHEDULE_BYTES_PER_STEP = 3 * FLOAT_BYTES + 8
 def check_settings(config: CCDPConfig) -> None:
     """Refuse settings the policy cannot run, naming the flag to change (`CCDPConfig.__post_init__`); derive
     `crop_shape` from `crop_ratio` as LeRobot's DiffusionConfig does."""
+    _check_number_flags(config)
     _check_numbers(config)
     if config.prediction_type != "epsilon":
         raise ValueError(
@@ -307,6 +309,24 @@ def refuse_mistyped_json(saved: dict, file: str) -> None:
             f'{file} says "{f.name}": {json.dumps(value)}; it takes {what}. A hand-edited value: write it '
             "as a JSON number (or true/false for a switch), without quotes."
         )
+
+
+def _check_number_flags(config: CCDPConfig) -> None:
+    """Refuse a --policy.<number>=<text> on the command line that is no number: draccus reads "true" and
+    "yes" as 1.0 and "0x10" as 16, so `--policy.w_z=true` ran with w_z 1 and said nothing."""
+    kinds = {f.name: _number_kind(f.type) for f in fields(config) if f.type in (int, float, int | None)}
+    defaults = {f.name: f.default for f in fields(config)}
+    for flag in get_cli_overrides("policy") or []:
+        name, _, text = flag.removeprefix("--").partition("=")
+        if kinds.get(name) is None or text.strip().lower() in ("none", "null"):
+            continue
+        try:
+            kinds[name](text)
+        except ValueError:
+            raise ValueError(
+                f"--policy.{name}={text} is no {'whole number' if kinds[name] is int else 'number'}. "
+                f"Write it in digits (its default: --policy.{name}={defaults[name]})."
+            ) from None
 
 
 def _number_kind(annotation: object) -> type | None:

@@ -121,6 +121,22 @@ def test_lerobot_eval_refuses_the_weight_while_parsing(untrained_primitive_check
     assert not (tmp_path / "eval").exists()
 
 
+@pytest.mark.parametrize("flag", ["--policy.w_z=true", "--policy.horizon=0x10"])
+def test_a_number_flag_that_is_no_number_is_refused_while_parsing(
+    untrained_primitive_checkpoint, monkeypatch, flag
+):
+    """Before: draccus read --policy.w_z=true as w_z 1.0 and 0x10 as 16, and the run went on."""
+    from lerobot.scripts import lerobot_eval
+
+    argv = ["lerobot-eval", f"--policy.path={untrained_primitive_checkpoint}", flag, "--policy.device=cpu"]
+    monkeypatch.setattr(sys, "argv", [*argv, "--env.type=ccdp", "--env.task=DoorOpening-lite-v0"])
+    with pytest.raises(Exception) as refused:
+        lerobot_eval.main()
+    assert re.match(
+        rf"{re.escape(flag)} is no (whole )?number\. Write it in digits", str(buried_error(refused.value))
+    )
+
+
 # ----- item: sizes that need more memory than the machine has -----------------------------------------------
 
 
