@@ -28,7 +28,7 @@ from lerobot_ccdp.envs.interface import (  # noqa: F401  (re-exported for record
     OBS_TYPES,
     OBSERVATION_SIZE,
 )
-from lerobot_ccdp.envs.scene import CAMERAS, WORKSPACE_HIGH, WORKSPACE_LOW, CartesianGripper
+from lerobot_ccdp.envs.scene import CAMERAS, OFFSCREEN_SIZE, WORKSPACE_HIGH, WORKSPACE_LOW, CartesianGripper
 
 # The keys reset's `options` may hold.
 RESET_OPTIONS = ("hidden_param",)
@@ -94,8 +94,9 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
         if obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {list(OBS_TYPES)}, got {obs_type!r}")
         unknown = sorted(set(cameras) - set(CAMERAS))
-        if unknown or not cameras:
-            raise ValueError(f"cameras must name one or more of {list(CAMERAS)}, got {list(cameras)}")
+        if unknown or not cameras or isinstance(cameras, str):
+            shown = repr(cameras) if isinstance(cameras, str) else list(cameras)
+            raise ValueError(f"cameras must name one or more of {list(CAMERAS)} in a list, got {shown}")
         sizes = {
             "max_failures": 1 if max_failures is None else max_failures,
             "render_width": render_width,
@@ -124,6 +125,17 @@ class CCDPTaskEnv(gym.Env, abc.ABC):
             raise ValueError(
                 f"{small}: the attempt budget and image sizes must be >= 1, the noise levels finite and "
                 ">= 0. Fix the env setting (--env.<name>, or the recipe's env_kwargs)."
+            )
+        large = {  # MuJoCo refused them at the first frame (a video's: after the first episode's steps)
+            name: value
+            for name, value in sizes.items()
+            if value > OFFSCREEN_SIZE[name.endswith("height")] and not name.startswith("max")
+        }
+        if large:
+            raise ValueError(
+                f"{large}: images are rendered at most {OFFSCREEN_SIZE[0]} wide and {OFFSCREEN_SIZE[1]} high "
+                "(the scene's offscreen buffer). Fix the env setting (--env.<name>, or the recipe's "
+                "env_kwargs)."
             )
         self.render_mode = render_mode
         self.max_failures = self.n_options if max_failures is None else max_failures

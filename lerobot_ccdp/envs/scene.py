@@ -19,8 +19,11 @@ WORKSPACE_HIGH = (0.4, 0.4, 0.3)
 FINGER_OPEN = 0.03  # finger travel in metres, fully open
 # Cameras of the scene: `front` looks at the table from the robot's side, `top` from above it.
 CAMERAS = ("front", "top")
+# The largest image (width, height) a camera or video renders: MuJoCo's offscreen buffer.
+OFFSCREEN_SIZE = (640, 480)
 # What the lite and the physics scenes share: the offscreen buffer, the table's texture and the light.
-WORLD_ASSETS = """<visual><global offwidth="640" offheight="480"/><quality shadowsize="1024"/></visual>
+WORLD_ASSETS = f"""<visual><global offwidth="{OFFSCREEN_SIZE[0]}" offheight="{OFFSCREEN_SIZE[1]}"/>
+  <quality shadowsize="1024"/></visual>
   <asset>
     <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.65 0.8" rgb2="0.15 0.15 0.2"
              width="32" height="32"/>

@@ -104,3 +104,23 @@ def test_an_env_setting_that_is_not_a_number_is_named(settings):
         ValueError, match=re.escape(f"{settings}: the attempt budget and image sizes are whole")
     ):
         gym.make("lerobot_ccdp/DoorOpening-lite-v0", **settings)
+
+
+@pytest.mark.parametrize(
+    "settings,named",
+    [
+        ({"obs_type": "pixels_agent_pos", "observation_width": 641}, "observation_width"),
+        ({"render_height": 481}, "render_height"),
+    ],
+)
+def test_an_image_larger_than_the_offscreen_buffer_is_refused_when_made(settings, named):
+    """MuJoCo refused it at the first frame ("Image width 641 > framebuffer width 640 ... specify a larger
+    offscreen framebuffer in the model XML"), for a video after the first episode's steps."""
+    with pytest.raises(ValueError, match=rf"'{named}': \d+}}: images are rendered at most 640 wide and 480"):
+        _make(task="DoorOpening-lite-v0", **settings)
+
+
+def test_cameras_given_as_one_string_are_named_as_given():
+    """Before: "got ['f', 'r', 'o', 'n', 't']"."""
+    with pytest.raises(ValueError, match=r"cameras must name one or more of .* in a list, got 'front'"):
+        gym.make("lerobot_ccdp/DoorOpening-lite-v0", obs_type="pixels_agent_pos", cameras="front")
