@@ -402,6 +402,45 @@ def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, 
         )
 
 
+OUTCOMES = "model.outcomes."
+
+
+def refuse_unfit_outcome_table(state: dict, config: CCDPConfig, path: str | Path) -> None:
+    """Refuse a loaded outcome table (`model.outcomes.*`, sized by the saved file) whose layout the config
+    does not make: chunks of another length, final states of another width, rows that differ in number, or
+    primitive labels outside 0..num_primitives-1. DP* and the failure features read it only after the first
+    failure, and died there in torch ("X1 and X2 must have the same number of columns", "Class values must
+    be smaller than num_classes")."""
+    chunks, finals, labels = (state[f"{OUTCOMES}{name}"] for name in ("chunks", "final_states", "primitives"))
+    if chunks.shape[0] == 0:
+        return  # no table: a failure feature that needs none, or a checkpoint that names the need when used
+    source = config.input_features.get(config.failure_state_key)
+    width = len(config.failure_state_dims) or (source.shape[0] if source is not None else finals.shape[-1])
+    wrong = [
+        f"{what} {tuple(tensor.shape)}, the config makes ({chunks.shape[0]}, {size})"
+        for what, tensor, size in (
+            ("chunks", chunks, config.horizon * config.action_dim),
+            ("final_states", finals, width),
+        )
+        if tuple(tensor.shape) != (chunks.shape[0], size)
+    ]
+    if labels.shape != (chunks.shape[0],):
+        wrong.append(f"primitives {tuple(labels.shape)} for {chunks.shape[0]} chunks")
+    elif config.failure_feature == "primitive" and not bool(
+        ((labels >= 0) & (labels < config.num_primitives)).all()
+    ):
+        wrong.append(
+            f"primitive labels {labels.min().item()}..{labels.max().item()}, "
+            f"not 0..{config.num_primitives - 1}"
+        )
+    if wrong:
+        raise ValueError(
+            f"The outcome table in {path} does not fit the policy its config describes: {'; '.join(wrong)}. "
+            "lerobot-train builds it from the dataset with the checkpoint's settings, so the weights file or "
+            "config.json was altered: train again, or copy or download the checkpoint again."
+        )
+
+
 def refuse_unloadable_weights(state: dict, file: str | Path) -> None:
     """Before the weights in `file` are copied into the policy's `state`: refuse tensors whose shape differs
     (torch lists size mismatches without the cause) and floating weights saved as integers (torch copies

@@ -24,6 +24,7 @@ from lerobot_ccdp.policy.checkpoint_files import (
     checkpoint_loading,
     ignore_saved_signal_file,
     refuse_other_checkpoint,
+    refuse_unfit_outcome_table,
     refuse_unfit_weights,
     refuse_unloadable_weights,
     saved_config,
@@ -141,6 +142,7 @@ class CCDPPolicy(PreTrainedPolicy):
             refuse_unfit_weights(
                 policy.state_dict(), bool(policy.model.recovery_trained), pretrained_name_or_path, **hub
             )
+            refuse_unfit_outcome_table(policy.state_dict(), policy.config, pretrained_name_or_path)
             return policy
 
     @classmethod

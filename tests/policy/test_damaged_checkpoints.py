@@ -239,3 +239,29 @@ def test_a_checkpoint_without_weights_or_named_by_none_is_named_with_the_fix(
         TypeError, match=r"named by a str or Path; got None. Pass the pretrained_model folder"
     ):
         CCDPPolicy.from_pretrained(None)
+
+
+@pytest.mark.parametrize(
+    ("edit", "named"),
+    [
+        (lambda s: {**s, "model.outcomes.chunks": s["model.outcomes.chunks"][:, :7]}, r"chunks \(\d+, 7\)"),
+        (
+            lambda s: {**s, "model.outcomes.primitives": s["model.outcomes.primitives"] * 0 + 99},
+            "labels 99..99",
+        ),
+    ],
+)
+def test_an_outcome_table_the_config_does_not_make_is_refused_at_load(
+    untrained_primitive_checkpoint, tmp_path, edit, named
+):
+    """Before: it loaded, and DP* died after the first failure in torch ("X1 and X2 must have the same number
+    of columns", "Class values must be smaller than num_classes")."""
+    copy = damaged_copy(
+        untrained_primitive_checkpoint,
+        tmp_path,
+        lambda f: _edit_tensors(
+            f / "model.safetensors", lambda s: {k: v.contiguous() for k, v in edit(s).items()}
+        ),
+    )
+    with pytest.raises(ValueError, match=rf"outcome table in .* does not fit the policy.*{named}.*altered"):
+        CCDPPolicy.from_pretrained(copy)
