@@ -22,6 +22,7 @@ import draccus
 import yaml
 from draccus.parsers.decoding import get_decoding_fn
 from draccus.utils import DecodingError, DraccusException
+from huggingface_hub.utils import validate_repo_id
 from lerobot.configs import parser
 
 from lerobot_ccdp.datasets.recipe_file import RecordRecipe, RecoveryRecipe, read_recipe_section
@@ -133,9 +134,26 @@ def parse_cli(config_class: type[T], args: Sequence[str] | None = None) -> T:
             path = Path(folder) / "config.yaml"
             path.write_text(yaml.safe_dump(file_values))
             with draccus.config_type("yaml"):  # the type draccus parses flag values with, as for the file
-                return draccus.parse(config_class, path, args=args, prog=config_class.command)
+                config = draccus.parse(config_class, path, args=args, prog=config_class.command)
+        _check_repo_ids(config)
+        return config
     except (DraccusException, ValueError, FileNotFoundError) as error:
         raise SystemExit(f"{config_class.command}: error: {error}") from None
+
+
+def _check_repo_ids(config: RecipeCommandConfig) -> None:
+    """Every dataset's repo id as the Hub and LeRobot's loaders take it: an empty or spaced one was recorded,
+    then refused by the training that read it."""
+    for f in dataclasses.fields(config):
+        dataset = getattr(config, f.name)
+        if isinstance(dataset, LocalDatasetConfig):
+            try:
+                validate_repo_id(dataset.repo_id)
+            except ValueError as error:
+                raise ValueError(
+                    f"--{f.name}.repo_id={dataset.repo_id!r} is not a repo id: {str(error).rstrip('.')}. "
+                    "Write namespace/name, e.g. local/door_opening"
+                ) from None
 
 
 def _required_fields(config_class: type, prefix: str = "") -> list[str]:

@@ -73,6 +73,11 @@ class RecordRecipe:
                 f"{', '.join(unknown)}; it accepts {', '.join(accepted)} (the step limit is "
                 "record.max_episode_steps)"
             )
+        if recipe.env_kwargs.get("render_mode") not in (None, "rgb_array"):  # gymnasium opens a window
+            raise ValueError(
+                f"{at}record.env_kwargs.render_mode={recipe.env_kwargs['render_mode']!r}: the recorder "
+                "renders nothing (cameras are recorded with obs_type: pixels_agent_pos); leave it out"
+            )
         for name, value in recipe.env_kwargs.items():
             if not _has_type(value, accepted[name]):
                 raise ValueError(

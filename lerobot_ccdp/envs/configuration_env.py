@@ -53,6 +53,11 @@ class CCDPEnvConfig(EnvConfig):
         cls = task_class(self.task)
         if self.fps != CONTROL_FPS:
             raise ValueError(f"ccdp tasks run at a fixed {CONTROL_FPS} fps, got --env.fps={self.fps}")
+        if self.render_mode not in (None, "rgb_array"):  # gymnasium wrapped "human" in a window
+            raise ValueError(
+                f"--env.render_mode must be rgb_array (lerobot-eval's videos) or null (none), got "
+                f"{self.render_mode!r}"
+            )
         if self.obs_type not in OBS_TYPES:
             raise ValueError(f"--env.obs_type must be one of {list(OBS_TYPES)}, got {self.obs_type!r}")
         if self.episode_length is None:

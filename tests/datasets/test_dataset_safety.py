@@ -224,6 +224,14 @@ def test_a_file_size_limit_is_named_by_the_console_script(tmp_path):
             r"record.env_kwargs.init_noise must be float, got '1e9' \(str\); write it without quotes",
         ),
         ("--record.env_kwargs={render_width: 2.5}", "record.env_kwargs.render_width must be int, got 2.5"),
+        # gymnasium wrapped the env in a pygame window, and the run died at exit in EGL's teardown
+        ("--record.env_kwargs={render_mode: human}", "record.env_kwargs.render_mode='human': the recorder "),
+        # recorded, then refused by the training that read it
+        (
+            "--dataset.repo_id=my demos",
+            "--dataset.repo_id='my demos' is not a repo id: .* Write namespace/name",
+        ),
+        ("--dataset.repo_id=", "--dataset.repo_id='' is not a repo id"),
     ],
 )
 def test_record_recipe_errors_are_named_before_any_env_is_made(tmp_path, monkeypatch, flag, message):

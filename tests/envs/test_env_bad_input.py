@@ -124,3 +124,9 @@ def test_cameras_given_as_one_string_are_named_as_given():
     """Before: "got ['f', 'r', 'o', 'n', 't']"."""
     with pytest.raises(ValueError, match=r"cameras must name one or more of .* in a list, got 'front'"):
         gym.make("lerobot_ccdp/DoorOpening-lite-v0", obs_type="pixels_agent_pos", cameras="front")
+
+
+def test_a_render_mode_the_env_cannot_serve_is_named_by_its_flag():
+    """gymnasium wrapped --env.render_mode=human in a pygame window (headless: EGL errors at exit)."""
+    with pytest.raises(ValueError, match=r"--env.render_mode must be rgb_array .* or null .*, got 'human'"):
+        CCDPEnvConfig(task="DoorOpening-lite-v0", render_mode="human")
