@@ -119,8 +119,8 @@ def refuse_unusable_seed(seed: Any) -> None:
 
 
 def install_env_fit_check() -> None:
-    """Wrap lerobot_eval.make_policy and set_seed once (eval_main looks them up at call time); other envs
-    pass through make_policy."""
+    """Wrap lerobot_eval.make_policy, set_seed and make_env once (eval_main looks them up at call time);
+    other envs pass through make_policy."""
     import lerobot.scripts.lerobot_eval as lerobot_eval
 
     original = lerobot_eval.make_policy
@@ -134,6 +134,18 @@ def install_env_fit_check() -> None:
         set_seed(seed, *args, **kwargs)
 
     lerobot_eval.set_seed = set_usable_seed
+    make_env = lerobot_eval.make_env
+
+    @functools.wraps(make_env)
+    def make_some_envs(env_cfg: Any, *args: Any, n_envs: int = 1, **kwargs: Any) -> Any:
+        if n_envs < 1:  # LeRobot's own words name `n_envs`, no flag
+            raise ValueError(
+                f"--eval.batch_size={n_envs}: lerobot-eval runs that many envs side by side; give at least 1 "
+                "(and at most --eval.n_episodes)."
+            )
+        return make_env(env_cfg, *args, n_envs=n_envs, **kwargs)
+
+    lerobot_eval.make_env = make_some_envs
 
     @functools.wraps(original)
     def make_policy_fitting_the_env(cfg: PreTrainedConfig, *args: Any, **kwargs: Any):

@@ -130,3 +130,13 @@ def test_a_seed_numpy_cannot_take_is_named_before_the_env_is_made(
         _lerobot_eval(
             door_checkpoint, "DoorOpening-lite-v0", tmp_path / "eval", monkeypatch, f"--seed={seed}"
         )
+
+
+def test_a_batch_of_no_envs_is_named_by_its_flag(door_checkpoint, tmp_path, monkeypatch):
+    """Before, LeRobot's "`n_envs` must be at least 1", naming no flag."""
+    with pytest.raises(
+        ValueError, match=r"--eval.batch_size=0: lerobot-eval runs that many envs side by side"
+    ):
+        _lerobot_eval(
+            door_checkpoint, "DoorOpening-lite-v0", tmp_path / "eval", monkeypatch, "--eval.batch_size=0"
+        )
