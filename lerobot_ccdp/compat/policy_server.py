@@ -20,6 +20,7 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType
 from lerobot.datasets.utils import DEFAULT_FEATURES, dataset_to_policy_features
 from lerobot.utils.constants import OBS_IMAGES, OBS_STR
+from lerobot.utils.utils import is_torch_device_available
 
 from lerobot_ccdp.compat.cli_errors import buried_error
 from lerobot_ccdp.compat.env_fit import described, feature_mismatches
@@ -83,12 +84,24 @@ def robot_keys(lerobot_features: dict[str, dict], cameras: bool = True) -> list[
 
 def refuse_unfit_setup(specs: Any) -> None:
     """Refuse the client's policy instructions before the server changes anything: `actions_per_chunk` out of
-    range, a ccdp config whose own checks fail, or a checkpoint whose inputs the robot's features lack."""
+    range, a device the machine lacks, a ccdp checkpoint asked for as another type, a ccdp config whose own
+    checks fail, or a checkpoint whose inputs the robot's features lack."""
     chunk = specs.actions_per_chunk
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(
             f"actions_per_chunk={chunk!r}: the number of actions the server sends per observation must be an "
             "integer >= 1. Set the robot client's --actions_per_chunk."
+        )
+    try:  # LeRobot's server moved the policy there and failed in torch's words ("Found no NVIDIA driver")
+        available = is_torch_device_available(specs.device)
+    except ValueError as error:  # a name torch does not know
+        raise ValueError(
+            f"device={specs.device!r}: {error} Set the robot client's --policy_device."
+        ) from None
+    if not available:
+        raise ValueError(
+            f"device={specs.device!r} is not available on the server's machine. Set the robot client's "
+            "--policy_device to one it has (cpu always is)."
         )
     path = specs.pretrained_name_or_path
     if specs.policy_type != CCDPPolicy.name:

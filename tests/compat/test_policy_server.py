@@ -271,3 +271,12 @@ def test_an_observation_value_that_is_not_a_number_is_refused_naming_it(checked,
     )
     with pytest.raises(ValueError, match=re.escape(f"The observation's { ({'x': value}) } are not numbers")):
         checked._enqueue_observation(observation)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="needs a machine without CUDA")
+def test_a_device_the_server_lacks_is_refused_before_loading(checked, checkpoint):
+    """Before, torch's "Found no NVIDIA driver on your system" from LeRobot's policy.to(device)."""
+    specs = RemotePolicyConfig("ccdp", str(checkpoint), ROBOT, ACTIONS_PER_CHUNK, "cuda:7")
+    with pytest.raises(ValueError, match=r"device='cuda:7' is not available on the server's machine"):
+        checked.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)), _Context())
+    assert checked.policy is None
