@@ -5,13 +5,16 @@ LeRobot's CLIs parse their configs with draccus, which turns the ValueError a co
 "Couldn't instantiate class CCDPConfig using the given arguments" and prints the real message 60 lines higher,
 in the middle of the traceback. The hook below, installed by importing the plugin, prints the traceback as
 before and then repeats that buried error as the last line. It acts only when the uncaught exception was
-raised while handling a ValueError or TypeError from this package's own code, so a LeRobot that stops burying
-the message (the error is then the top exception) leaves the output unchanged.
+raised while handling a ValueError, TypeError or missing-file error from this package's own code, or a
+ValueError of LeRobot's own config checks (`lerobot/configs/`: `--eval.n_episodes=0`) under draccus's
+ParsingError, so a LeRobot that stops burying the message (the error is then the top exception) leaves the
+output unchanged.
 
 Through the Python API (`PreTrainedConfig.from_pretrained(folder)`, which `CCDPPolicy.from_pretrained`,
 LeRobot's make_policy and `--policy.path` call) the buried error itself is raised instead of draccus's, so
 that its str() names the setting; so is the reason a ccdp checkpoint's config.json names another policy type
-than its fields (`checkpoint_files.mixed_config_error`).
+than its fields (`checkpoint_files.mixed_config_error`), and a `--policy.path` that is neither a folder nor a
+Hub repo id is named as the missing folder it is (the Hub's "Repo id must be in the form ..." before).
 """
 
 from __future__ import annotations
@@ -23,25 +26,41 @@ from types import TracebackType
 from typing import Any
 
 PACKAGE = Path(__file__).resolve().parents[1]  # lerobot_ccdp, whose code raised the buried error
+# The errors this package's checks raise for a setting or a path.
+OURS = (ValueError, TypeError, FileNotFoundError, NotADirectoryError)
 
 
 def buried_error(error: BaseException) -> BaseException | None:
-    """The ValueError or TypeError of this package's code that `error` was raised from or while handling, if
-    any."""
+    """The settings error (`OURS`) of this package's code that `error` was raised from or while handling, or
+    a ValueError of LeRobot's config checks under draccus's ParsingError, if any."""
     seen, link = {id(error)}, error.__cause__ or error.__context__
     while link is not None and id(link) not in seen:
-        if isinstance(link, (ValueError, TypeError)) and _raised_here(link):
+        if isinstance(link, OURS) and _raised_in(link, PACKAGE):
+            return link
+        if type(link) is ValueError and _raised_in(link, _lerobot_configs()) and _parsing_error(error):
             return link
         seen.add(id(link))
         link = link.__cause__ or link.__context__
     return None
 
 
-def _raised_here(error: BaseException) -> bool:
+def _raised_in(error: BaseException, folder: Path) -> bool:
     tb = error.__traceback__
     while tb is not None and tb.tb_next is not None:
         tb = tb.tb_next
-    return tb is not None and PACKAGE in Path(tb.tb_frame.f_code.co_filename).resolve().parents
+    return tb is not None and folder in Path(tb.tb_frame.f_code.co_filename).resolve().parents
+
+
+@functools.cache
+def _lerobot_configs() -> Path:
+    import lerobot.configs.default  # lerobot.configs is a namespace package: no __file__ of its own
+
+    return Path(lerobot.configs.default.__file__).resolve().parent
+
+
+def _parsing_error(error: BaseException) -> bool:
+    """draccus's "Couldn't instantiate class ..." (checked by name: draccus is LeRobot's dependency)."""
+    return type(error).__name__ == "ParsingError"
 
 
 def install_error_surfacing() -> None:
@@ -75,9 +94,13 @@ def _surface_in_from_pretrained() -> None:
         try:
             return original(cls, pretrained_name_or_path, *args, **kwargs)
         except Exception as error:
-            from lerobot_ccdp.policy.checkpoint_files import mixed_config_error  # imports torch
+            from lerobot_ccdp.policy.checkpoint_files import missing_checkpoint, mixed_config_error
 
-            clearer = buried_error(error) or mixed_config_error(pretrained_name_or_path)
+            clearer = (
+                buried_error(error)
+                or missing_checkpoint(pretrained_name_or_path)
+                or mixed_config_error(pretrained_name_or_path)
+            )
             if clearer is None:
                 raise
             raise clearer from None

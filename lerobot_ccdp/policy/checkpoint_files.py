@@ -219,12 +219,23 @@ def _in_trusted_package(module: str) -> bool:
 
 
 def _refuse_unless_repo_id(path: str | Path) -> None:
+    missing = missing_checkpoint(path)
+    if missing is not None:
+        raise missing
+
+
+def missing_checkpoint(path: object) -> OSError | None:
+    """The error naming `path` as a checkpoint folder that is not there (a file, or neither a folder nor a
+    Hub repo id), or None where it may be a checkpoint."""
+    if not isinstance(path, (str, os.PathLike)) or Path(path).is_dir():
+        return None
     if Path(path).exists():
-        raise NotADirectoryError(f"Checkpoint {path} is a file, not a folder; {WHERE}.")
+        return NotADirectoryError(f"Checkpoint {path} is a file, not a folder; {WHERE}.")
     try:
         validate_repo_id(str(path))
     except HFValidationError:
-        raise FileNotFoundError(_missing(path, "nor is it a Hub repo id")) from None
+        return FileNotFoundError(_missing(path, "nor is it a Hub repo id"))
+    return None
 
 
 def _missing(path: str | Path, detail: str) -> str:
