@@ -1,15 +1,19 @@
-"""Per-episode task metrics in lerobot-eval's eval_info.json: attempts, failures, repeated failures,
-preference.
+"""What lerobot-eval reports per mode: per-episode task metrics in eval_info.json (attempts, failures,
+repeated failures, preference), the results table's metrics on the console, and a job name for the mode.
 
 LeRobot's eval loop keeps only the reward and `is_success` of each episode, but the CCDP comparison (DESIGN
 section 8) needs the rest of the env's final `info`. This module wraps `lerobot_eval.eval_one` (installed on
 plugin import, so `lerobot-eval` and lerobot-train's periodic eval both use it): it watches the vector env,
 keeps each episode's final info, and adds one list per key of `EPISODE_INFO_KEYS` to the task's metrics,
 which lerobot-eval writes to eval_info.json under `per_task[i]["metrics"]`, in the same episode order as
-`successes`. Envs that report none of these keys are left alone.
+`successes`. It then logs the run's row of the results table (`lerobot_ccdp.benchmark.comparison`), named for
+the policy's `recovery_mode`. Envs that report none of these keys are left alone.
 
 It also saves LeRobot from rendering videos of envs that cannot render (`--env.render_mode=null`): LeRobot
 0.4 always renders 10 episodes, which on a CPU (software OpenGL, ~50 ms a frame) costs more than the rollouts.
+
+Without `--job_name`, LeRobot names every evaluation `<env>_<policy>` (`ccdp_ccdp`), so the three modes'
+output folders differ only by their time; `install_mode_job_name` appends the mode (`ccdp_ccdp_dp_star`).
 """
 
 from __future__ import annotations
@@ -96,18 +100,35 @@ class EpisodeInfoRecorder:
         self._batch = []
 
 
-def summary(metrics: dict[str, list]) -> str:
-    """One log line: success rate, mean attempts of successes, repeated-failure rate, preference adherence."""
-    success = np.asarray(metrics["successes"], dtype=bool)
-    attempts = np.asarray(metrics["attempts"], dtype=float)
-    repeated = np.asarray(metrics["repeated_failures"], dtype=float)
-    preference = np.asarray(metrics["preference_matched"], dtype=bool)
-    mean_attempts = attempts[success].mean() if success.any() else float("nan")
-    adherence = preference[success].mean() if success.any() else float("nan")
-    return (
-        f"success {success.mean():.3f}, attempts (successes) {mean_attempts:.2f}, repeated-failure rate "
-        f"{repeated.sum() / max(attempts.sum(), 1):.3f}, preference adherence (successes) {adherence:.3f}"
+def summary(metrics: dict[str, list], mode: str, task: str) -> str:
+    """The run's row of the results table, one metric a line under the table's labels, with the counts behind
+    the ratios: the console then says what `comparison.MethodMetrics` (and so the report) will say of this
+    eval_info.json, e.g. repeats per attempt after a failure, not the per-attempt rate alone."""
+    from lerobot_ccdp.benchmark.comparison import METHOD_LABELS, METRIC_LABELS, MethodMetrics
+    from lerobot_ccdp.benchmark.episodes import Episodes
+
+    episodes = Episodes.from_infos(
+        [
+            {"is_success": success, **{key: metrics[key][i] for key in EPISODE_INFO_KEYS}}
+            for i, success in enumerate(metrics["successes"])
+        ]
     )
+    row = MethodMetrics.of(episodes)
+    width = max(map(len, METRIC_LABELS.values()))
+    lines = [
+        f"Mode {mode} ({METHOD_LABELS.get(mode, mode)}) on {task}, {len(episodes)} episodes, as the results "
+        "table computes them (docs/evaluation.md):",
+        *(f"  {label:<{width}}  {getattr(row, name)}" for name, label in METRIC_LABELS.items()),
+        f"  attempts {int(episodes.attempts.sum())}, failures {int(episodes.failures.sum())}, "
+        f"attempts after a failure {int(episodes.attempts_after_failure.sum())}, "
+        f"repeated failures {int(episodes.repeated_failures.sum())}",
+    ]
+    return "\n".join(lines)
+
+
+def mode_of(policy_config: Any) -> str:
+    """What a run is named for: a ccdp policy's `recovery_mode` (ccdp, dp or dp_star), another's type."""
+    return getattr(policy_config, "recovery_mode", None) or policy_config.type
 
 
 def is_ccdp_env(env: gym.vector.VectorEnv) -> bool:
@@ -149,8 +170,58 @@ def install_episode_metrics(import_eval: bool = True) -> None:
         extra = recorder.metrics(len(metrics["successes"]))
         metrics.update(extra)
         if len(extra) == len(EPISODE_INFO_KEYS):
-            logger.info("Episode metrics: %s", summary(metrics))
+            from lerobot_ccdp.envs.tasks import GYM_NAMESPACE
+
+            task = env.get_attr("spec")[0].id.removeprefix(f"{GYM_NAMESPACE}/")
+            logger.info(summary(metrics, mode_of(kwargs["policy"].config), task))
         return metrics
 
     eval_one_with_episode_metrics._ccdp_episode_metrics = True
     lerobot_eval.eval_one = eval_one_with_episode_metrics
+    install_mode_job_name()
+
+
+class _DropMessage(logging.Filter):
+    def __init__(self, start: str):
+        super().__init__()
+        self.start = start
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith(self.start)
+
+
+def install_mode_job_name() -> None:
+    """Wrap EvalPipelineConfig.__post_init__ once: without `--job_name`, a ccdp policy's job is named
+    `<env>_<policy>_<mode>` (`ccdp_ccdp_dp_star`), and so is the default output folder
+    (`outputs/eval/<date>/<time>_<job name>`); an `--output_dir` given is kept. The policy's config, and so
+    its mode, is only known once LeRobot's own __post_init__ has read `--policy.path`, so the name is changed
+    after it, and LeRobot's "No job name provided, using ..." is said once, with the name used."""
+    import lerobot.configs.eval as eval_config
+
+    original = eval_config.EvalPipelineConfig.__post_init__
+    if getattr(original, "_ccdp_mode_job_name", False):
+        return
+    no_name = "No job name provided"
+
+    @functools.wraps(original)
+    def post_init_naming_the_mode(self: eval_config.EvalPipelineConfig) -> None:
+        named, placed = bool(self.job_name), bool(self.output_dir)
+        quiet = _DropMessage(no_name)
+        eval_config.logger.addFilter(quiet)
+        try:
+            original(self)
+        finally:
+            eval_config.logger.removeFilter(quiet)
+        if named:
+            return
+        default = self.job_name
+        if getattr(self.policy, "recovery_mode", None):
+            self.job_name = f"{default}_{mode_of(self.policy)}"
+            if not placed:  # LeRobot's `<time>_<job name>`, keeping its time
+                self.output_dir = self.output_dir.with_name(
+                    self.output_dir.name.removesuffix(default) + self.job_name
+                )
+        eval_config.logger.warning(f"{no_name}, using '{self.job_name}' as job name.")
+
+    post_init_naming_the_mode._ccdp_mode_job_name = True
+    eval_config.EvalPipelineConfig.__post_init__ = post_init_naming_the_mode
