@@ -9,7 +9,7 @@ import pytest
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-pytest_plugins = ["fixtures.reaching"]
+pytest_plugins = ["fixtures.reaching", "fixtures.lite_eval"]
 
 if "PYTEST_XDIST_WORKER" in os.environ:  # two workers on two cores: one thread each, for their CLIs too
     os.environ["OMP_NUM_THREADS"] = "1"

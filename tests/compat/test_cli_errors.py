@@ -2,27 +2,20 @@
 own config checks raised it under draccus's "Couldn't instantiate class ..." (compat/cli_errors.py)."""
 
 import sys
+from pathlib import Path
 
 import pytest
 
 import lerobot_ccdp  # noqa: F401  (installs the hook, as LeRobot's plugin discovery does)
 from lerobot_ccdp.compat.cli_errors import buried_error
 
+from fixtures.lite_eval import DOOR_LITE, run_lerobot_eval
 
-def refused_eval(monkeypatch: pytest.MonkeyPatch, *flags: str) -> BaseException:
+
+def refused_eval(monkeypatch: pytest.MonkeyPatch, checkpoint: Path | str, *flags: str) -> BaseException:
     """What lerobot-eval's own entry point raises, in-process, for `flags` on the DoorOpening-lite env."""
-    from lerobot.scripts import lerobot_eval
-
-    argv = [
-        "lerobot-eval",
-        *flags,
-        "--env.type=ccdp",
-        "--env.task=DoorOpening-lite-v0",
-        "--policy.device=cpu",
-    ]
-    monkeypatch.setattr(sys, "argv", argv)
     with pytest.raises(Exception) as refused:
-        lerobot_eval.main()
+        run_lerobot_eval(monkeypatch, checkpoint, DOOR_LITE, *flags)
     return refused.value
 
 
@@ -36,7 +29,7 @@ def test_a_policy_path_that_is_no_folder_is_named_as_missing(monkeypatch, capsys
     """Before: the Hub's "Repo id must be in the form 'repo_name' or 'namespace/repo_name'" under draccus's
     "Couldn't instantiate class EvalPipelineConfig"."""
     missing = tmp_path / "runs" / "no_such_checkpoint"
-    error = refused_eval(monkeypatch, f"--policy.path={missing}")
+    error = refused_eval(monkeypatch, missing)
     assert last_line(error, capsys) == (
         f"FileNotFoundError: Checkpoint folder {missing} does not exist (nor is it a Hub repo id): check the "
         "path, or pass the pretrained_model folder lerobot-train wrote "
@@ -47,9 +40,7 @@ def test_a_policy_path_that_is_no_folder_is_named_as_missing(monkeypatch, capsys
 def test_lerobots_own_config_check_ends_the_output(monkeypatch, capsys, untrained_primitive_checkpoint):
     """Before: `--eval.n_episodes=0` ended with "Couldn't instantiate class EvalConfig", LeRobot's reason 60
     lines higher."""
-    error = refused_eval(
-        monkeypatch, f"--policy.path={untrained_primitive_checkpoint}", "--eval.n_episodes=0"
-    )
+    error = refused_eval(monkeypatch, untrained_primitive_checkpoint, "--eval.n_episodes=0")
     assert isinstance(buried_error(error), ValueError)
     line = last_line(error, capsys)
     assert line.startswith("ValueError: The eval batch size is greater than the number of eval episodes")

@@ -3,7 +3,6 @@ lerobot-eval prints per mode, and the folder it names for the mode."""
 
 import logging
 import re
-import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -15,16 +14,13 @@ from lerobot.scripts import lerobot_eval
 from lerobot_ccdp.benchmark.comparison import METHOD_LABELS, METRIC_LABELS, MethodMetrics
 from lerobot_ccdp.benchmark.episodes import Episodes
 from lerobot_ccdp.compat.eval_metrics import EPISODE_INFO_KEYS, EpisodeInfoRecorder, is_ccdp_env, summary
-from lerobot_ccdp.datasets.recipe_file import RecordRecipe
-from lerobot_ccdp.datasets.record import record_dataset
 from lerobot_ccdp.envs import CCDPEnvConfig, gym_id
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 
 from fixtures.eval_runs import episodes
-from fixtures.policy_factory import untrained_checkpoint
+from fixtures.lite_eval import DOOR_LITE, run_lerobot_eval
 
 TASK = "ButtonSearch-lite-v0"
-DOOR = "DoorOpening-lite-v0"
 
 
 def _oracle_batch(vec: gym.vector.VectorEnv, seeds: list[int]) -> None:
@@ -73,16 +69,6 @@ def test_other_envs_are_left_to_lerobot():
     vec.close()
 
 
-@pytest.fixture(scope="module")
-def door_checkpoint(tmp_path_factory) -> Path:
-    """An untrained base checkpoint of one DoorOpening-lite demo: in 60 steps its rollouts fail attempts."""
-    tmp = tmp_path_factory.mktemp("door_modes")
-    record_dataset(RecordRecipe(task=DOOR, n_episodes=1, seed=0), "local/door_modes", tmp / "demos")
-    return untrained_checkpoint(
-        tmp / "demos", tmp / "ckpt", repo_id="local/door_modes", failure_feature="primitive", num_primitives=2
-    )
-
-
 @pytest.fixture
 def lerobot_eval_in(tmp_path, monkeypatch, capsys):
     """Run `lerobot-eval` (its console entry point, in-process) from `tmp_path` on the door checkpoint; return
@@ -92,24 +78,15 @@ def lerobot_eval_in(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
 
     def run(checkpoint: Path, *flags: str) -> str:
-        monkeypatch.setattr(
-            sys,
-            "argv",
-            [
-                "lerobot-eval",
-                f"--policy.path={checkpoint}",
-                "--policy.device=cpu",
-                "--policy.num_inference_steps=2",
-                "--env.type=ccdp",
-                f"--env.task={DOOR}",
-                "--env.render_mode=null",
-                "--env.episode_length=60",
-                "--eval.n_episodes=2",
-                "--eval.batch_size=2",
-                *flags,
-            ],
+        run_lerobot_eval(
+            monkeypatch,
+            checkpoint,
+            DOOR_LITE,
+            "--env.episode_length=60",
+            "--eval.n_episodes=2",
+            "--eval.batch_size=2",
+            *flags,
         )
-        lerobot_eval.main()
         captured = capsys.readouterr()
         return captured.out + captured.err
 
@@ -131,11 +108,11 @@ def _printed_rows(console: str, mode: str) -> list[list[str]]:
 
 @pytest.mark.parametrize("mode", ["ccdp", "dp", "dp_star"])
 def test_the_console_says_what_the_results_table_says_and_the_folder_names_the_mode(
-    door_checkpoint, lerobot_eval_in, tmp_path, mode
+    door_lite_checkpoint, lerobot_eval_in, tmp_path, mode
 ):
     """Before, one line, "repeated-failure rate 0.154" (the per-attempt rate), no mode, and every mode's
     folder `<time>_ccdp_ccdp`."""
-    console = lerobot_eval_in(door_checkpoint, f"--policy.recovery_mode={mode}")
+    console = lerobot_eval_in(door_lite_checkpoint, f"--policy.recovery_mode={mode}")
 
     (folder,) = (tmp_path / "outputs" / "eval").glob("*/*")
     assert re.fullmatch(rf"\d\d-\d\d-\d\d_ccdp_ccdp_{mode}", folder.name)
@@ -143,7 +120,7 @@ def test_the_console_says_what_the_results_table_says_and_the_folder_names_the_m
     assert "using 'ccdp_ccdp' as job name" not in console
     episodes = Episodes.from_eval_info(folder / "eval_info.json")
     row = MethodMetrics.of(episodes)
-    assert f" Mode {mode} ({METHOD_LABELS[mode]}) on {DOOR}, 2 episodes, as the results table" in console
+    assert f" Mode {mode} ({METHOD_LABELS[mode]}) on {DOOR_LITE}, 2 episodes, as the results table" in console
     *metrics, counts = _printed_rows(console, mode)
     assert dict(metrics) == {label: str(getattr(row, name)) for name, label in METRIC_LABELS.items()}
     attempts, failures, after, repeats = (
@@ -164,7 +141,7 @@ def test_the_console_gives_repeats_per_attempt_after_a_failure_not_per_attempt()
     metrics = {"successes": found.success.tolist()} | {
         key: getattr(found, key).tolist() for key in EPISODE_INFO_KEYS
     }
-    printed = summary(metrics, "ccdp", DOOR)
+    printed = summary(metrics, "ccdp", DOOR_LITE)
     assert "repeats per attempt after a failure  0.10 [" in printed
     assert "repeated-failure rate (per attempt)  0.07 [" in printed
     assert printed.endswith("attempts 300, failures 100, attempts after a failure 200, repeated failures 20")

@@ -4,7 +4,6 @@ Before, a DoorOpening-lite checkpoint evaluated on ButtonSearch-lite built the p
 died in LeRobot's normaliser ("size 8 vs 3"). The runs go through lerobot-eval's own entry point, in-process.
 """
 
-import sys
 from pathlib import Path
 
 import pytest
@@ -12,49 +11,28 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.scripts import lerobot_eval
 
 from lerobot_ccdp.compat.env_fit import refuse_unfit_checkpoint
-from lerobot_ccdp.datasets.recipe_file import RecordRecipe
-from lerobot_ccdp.datasets.record import record_dataset
 from lerobot_ccdp.envs import CCDPEnvConfig
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 
-from fixtures.policy_factory import untrained_checkpoint
-
-REPO_ID = "local/door_fit"
-
-
-@pytest.fixture(scope="module")
-def door_checkpoint(tmp_path_factory) -> Path:
-    """An untrained base checkpoint of one DoorOpening-lite demo (environment state of 3 values)."""
-    tmp = tmp_path_factory.mktemp("door_fit")
-    record_dataset(RecordRecipe(task="DoorOpening-lite-v0", n_episodes=1, seed=0), REPO_ID, tmp / "demos")
-    return untrained_checkpoint(
-        tmp / "demos", tmp / "ckpt", repo_id=REPO_ID, failure_feature="primitive", num_primitives=2
-    )
+from fixtures.lite_eval import run_lerobot_eval
 
 
 def _lerobot_eval(checkpoint: Path, task: str, out: Path, monkeypatch, *extra: str) -> None:
-    monkeypatch.setattr(
-        sys,
-        "argv",
-        [
-            "lerobot-eval",
-            f"--policy.path={checkpoint}",
-            "--policy.device=cpu",
-            "--policy.num_inference_steps=2",
-            "--env.type=ccdp",
-            f"--env.task={task}",
-            "--env.render_mode=null",
-            "--env.episode_length=2",
-            "--eval.n_episodes=1",
-            "--eval.batch_size=1",
-            f"--output_dir={out}",
-            *extra,
-        ],
+    run_lerobot_eval(
+        monkeypatch,
+        checkpoint,
+        task,
+        "--env.episode_length=2",
+        "--eval.n_episodes=1",
+        "--eval.batch_size=1",
+        f"--output_dir={out}",
+        *extra,
     )
-    lerobot_eval.main()
 
 
-def test_a_checkpoint_of_another_task_is_refused_before_the_rollout(door_checkpoint, tmp_path, monkeypatch):
+def test_a_checkpoint_of_another_task_is_refused_before_the_rollout(
+    door_lite_checkpoint, tmp_path, monkeypatch
+):
     rollouts, rollout = [], lerobot_eval.rollout
 
     def counted_rollout(*args, **kwargs):
@@ -63,9 +41,9 @@ def test_a_checkpoint_of_another_task_is_refused_before_the_rollout(door_checkpo
 
     monkeypatch.setattr(lerobot_eval, "rollout", counted_rollout)
     with pytest.raises(ValueError) as refused:
-        _lerobot_eval(door_checkpoint, "ButtonSearch-lite-v0", tmp_path / "eval", monkeypatch)
+        _lerobot_eval(door_lite_checkpoint, "ButtonSearch-lite-v0", tmp_path / "eval", monkeypatch)
     assert str(refused.value) == (
-        f"The checkpoint {door_checkpoint} does not fit --env.task=ButtonSearch-lite-v0 "
+        f"The checkpoint {door_lite_checkpoint} does not fit --env.task=ButtonSearch-lite-v0 "
         "(--env.obs_type=state): observation.environment_state has shape (3,) in the checkpoint and (8,) in "
         "the env. The checkpoint fits --env.task=DoorOpening-v0 or DoorOpening-lite-v0: evaluate it there, "
         "or use a checkpoint trained on ButtonSearch-lite-v0."
@@ -73,8 +51,8 @@ def test_a_checkpoint_of_another_task_is_refused_before_the_rollout(door_checkpo
     assert not rollouts
 
 
-def test_the_checkpoints_own_task_evaluates(door_checkpoint, tmp_path, monkeypatch):
-    _lerobot_eval(door_checkpoint, "DoorOpening-lite-v0", tmp_path / "eval", monkeypatch)
+def test_the_checkpoints_own_task_evaluates(door_lite_checkpoint, tmp_path, monkeypatch):
+    _lerobot_eval(door_lite_checkpoint, "DoorOpening-lite-v0", tmp_path / "eval", monkeypatch)
     assert (tmp_path / "eval" / "eval_info.json").is_file()
 
 
@@ -120,7 +98,7 @@ def test_a_renamed_camera_fits():
 
 @pytest.mark.parametrize("seed", [-1, 2**32])
 def test_a_seed_numpy_cannot_take_is_named_before_the_env_is_made(
-    door_checkpoint, tmp_path, monkeypatch, seed
+    door_lite_checkpoint, tmp_path, monkeypatch, seed
 ):
     """Before, numpy's "Seed must be between 0 and 2**32 - 1", 130 lines into a traceback, no flag named."""
     monkeypatch.setattr(lerobot_eval, "make_env", lambda *args, **kwargs: pytest.fail("an env was made"))
@@ -128,15 +106,15 @@ def test_a_seed_numpy_cannot_take_is_named_before_the_env_is_made(
         ValueError, match=rf"--seed={seed}: lerobot-eval seeds numpy with it, which takes 0 to "
     ):
         _lerobot_eval(
-            door_checkpoint, "DoorOpening-lite-v0", tmp_path / "eval", monkeypatch, f"--seed={seed}"
+            door_lite_checkpoint, "DoorOpening-lite-v0", tmp_path / "eval", monkeypatch, f"--seed={seed}"
         )
 
 
-def test_a_batch_of_no_envs_is_named_by_its_flag(door_checkpoint, tmp_path, monkeypatch):
+def test_a_batch_of_no_envs_is_named_by_its_flag(door_lite_checkpoint, tmp_path, monkeypatch):
     """Before, LeRobot's "`n_envs` must be at least 1", naming no flag."""
     with pytest.raises(
         ValueError, match=r"--eval.batch_size=0: lerobot-eval runs that many envs side by side"
     ):
         _lerobot_eval(
-            door_checkpoint, "DoorOpening-lite-v0", tmp_path / "eval", monkeypatch, "--eval.batch_size=0"
+            door_lite_checkpoint, "DoorOpening-lite-v0", tmp_path / "eval", monkeypatch, "--eval.batch_size=0"
         )
