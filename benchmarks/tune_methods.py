@@ -55,7 +55,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import shlex
 import shutil
 import subprocess
 import sys
@@ -83,7 +82,7 @@ from lerobot_ccdp.benchmark.pipeline import (
     TaskFiles,
     expand_tasks,
 )
-from lerobot_ccdp.benchmark.results import save_run
+from lerobot_ccdp.benchmark.results import command_line, save_run
 from lerobot_ccdp.benchmark.targets import NON_INFERIORITY
 from lerobot_ccdp.datasets.ownership import MARKER, owner
 
@@ -225,7 +224,7 @@ def publish(
         path,
         {task: {key[task][folder]: e for folder, e in by.items()} for task, by in found.items()},
         {task: {key[task][folder]: name for folder, name in by.items()} for task, by in labels.items()},
-        shlex.join(["benchmarks/tune_methods.py", *argv]),
+        command_line("benchmarks/tune_methods.py", argv),
         seed,
     )
     print(f"wrote {path}")

@@ -52,7 +52,7 @@ from lerobot_ccdp.benchmark.comparison import (
     markdown_table,
 )
 from lerobot_ccdp.benchmark.published import REPORT_NOTE, check_report_targets
-from lerobot_ccdp.benchmark.results import ccdp_label, save_run
+from lerobot_ccdp.benchmark.results import ccdp_label, command_line, save_run
 from lerobot_ccdp.benchmark.run_lock import PipelineRunning, die_with_parent, exclusive
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.benchmark.targets import target_checks
@@ -986,8 +986,8 @@ def main(argv: list[str] | None = None) -> None:
                 f"{seeds.stop - 1}, outside numpy's seed range 0 to {NUMPY_SEEDS - 1} (lerobot-eval seeds "
                 f"numpy with each); choose a first seed from 0 to {NUMPY_SEEDS - len(seeds)}"
             )
-    command = "python -m lerobot_ccdp.benchmark.pipeline " + shlex.join(
-        argv if argv is not None else sys.argv[1:]
+    command = command_line(
+        "python -m lerobot_ccdp.benchmark.pipeline", argv if argv is not None else sys.argv[1:]
     )
     start = time.perf_counter()
     own = {folder / name for folder in [args.out, *(f.out for f in files)] for name in REPORT_FILES}

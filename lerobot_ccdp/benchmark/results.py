@@ -77,6 +77,24 @@ def _to_json(values: np.ndarray) -> list[Any]:
     return [None if isinstance(v, float) and math.isnan(v) else v for v in values.tolist()]
 
 
+def command_line(program: str, argv: list[str]) -> str:
+    """`program` and `argv` as one shell line, each absolute path under the working directory (alone or as a
+    `--flag=` value) spelled relative to it: a published command names the repository's files, not the
+    checkout path of the machine that ran it."""
+    here = Path.cwd().resolve()
+
+    def portable(arg: str) -> str:
+        flag, equals, value = arg.partition("=") if arg.startswith("-") else ("", "", arg)
+        if not equals and flag:
+            return arg
+        path = Path(value)
+        if not path.is_absolute() or not path.resolve().is_relative_to(here):
+            return arg
+        return f"{flag}{equals}{os.path.relpath(path.resolve(), here)}"
+
+    return shlex.join([*shlex.split(program), *map(portable, argv)])
+
+
 def save_run(
     path: Path,
     episodes: dict[str, dict[str, Episodes]],
@@ -354,8 +372,8 @@ def main(argv: list[str] | None = None) -> None:
     try:
         refuse_unless_ours(args.out, is_results, f"holds no note {RESULTS_NOTE} ...", "--out", str(args.out))
         runs = [(title, Run.load(*map(Path, paths))) for title, *paths in args.run]
-        command = "python -m lerobot_ccdp.benchmark.results " + shlex.join(
-            argv if argv is not None else sys.argv[1:]
+        command = command_line(
+            "python -m lerobot_ccdp.benchmark.results", argv if argv is not None else sys.argv[1:]
         )
         write_results(runs, args.out, command, args.readme)
     except (OSError, ValueError, NotOwned) as error:

@@ -15,6 +15,7 @@ from lerobot_ccdp.benchmark.results import (
     Run,
     ccdp_label,
     claims_table,
+    command_line,
     commit,
     main,
     save_run,
@@ -209,3 +210,20 @@ def test_the_commit_is_marked_dirty_by_code_changes_only(tmp_path, monkeypatch):
     assert commit() == clean and "uncommitted" not in clean
     (tmp_path / "code.py").write_text("changed\n")
     assert commit() == f"{clean} + uncommitted changes"
+
+
+def test_a_published_command_names_no_checkout_path(tmp_path, monkeypatch):
+    """The published reports named the machine's checkout (`--out /work/main/outputs/...`): paths under the
+    working directory are spelled relative to it, others and non-path arguments kept as given."""
+    monkeypatch.chdir(tmp_path)
+    argv = [
+        "--out",
+        str(tmp_path / "outputs" / "b"),
+        f"--publish-each={tmp_path}/docs/x",
+        "--tasks",
+        "A B",
+        "/etc",
+    ]
+    assert command_line("python -m lerobot_ccdp.benchmark.pipeline", argv) == (
+        "python -m lerobot_ccdp.benchmark.pipeline --out outputs/b --publish-each=docs/x --tasks 'A B' /etc"
+    )
