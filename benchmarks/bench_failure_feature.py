@@ -33,10 +33,10 @@ import torch
 from lerobot_ccdp.benchmark.comparison import Episodes, MethodMetrics
 from lerobot_ccdp.envs import gym_id
 from lerobot_ccdp.envs.base import CCDPTaskEnv
+from lerobot_ccdp.policy.composition import CompositionWeights
+from lerobot_ccdp.policy.failure_features import FailureFeature
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.recovery.composition import CompositionWeights
-from lerobot_ccdp.recovery.failure_features import FailureFeature
-from lerobot_ccdp.recovery.outcome_index import options_after_failures
+from lerobot_ccdp.policy.outcome_index import options_after_failures
 
 SOURCES = ("first", "latest")
 

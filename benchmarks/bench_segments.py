@@ -25,8 +25,8 @@ from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_ccdp.benchmark.pipeline import BIN, expand_tasks, task_slug
-from lerobot_ccdp.recovery.demo_segments import SEGMENT_RULES, segment_ends, segment_final_states
-from lerobot_ccdp.recovery.outcome_table import read_columns
+from lerobot_ccdp.policy.demo_segments import SEGMENT_RULES, segment_ends, segment_final_states
+from lerobot_ccdp.policy.outcome_table import read_columns
 
 REPO = Path(__file__).resolve().parents[1]
 PINCH_XY = [0, 1]  # observation.state: pinch point x, y, z, closure

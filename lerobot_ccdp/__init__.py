@@ -1,4 +1,10 @@
-"""CCDP for LeRobot: importing this package registers the `ccdp` policy type and the `ccdp` env type."""
+"""CCDP for LeRobot: importing this package registers the `ccdp` policy type and the `ccdp` env type.
+
+Layers, lowest first; a module imports its own layer or lower ones, never a higher one (tests/test_layers.py):
+`policy` (what runs at every control step), `envs` (the tasks), `datasets` (recording, recipe files),
+`recovery` (synthesis over datasets and checkpoints), `benchmark`. `compat` holds LeRobot's patches, each
+written for the layer it adapts, beside the order.
+"""
 
 from lerobot_ccdp.compat.cli_errors import install_error_surfacing
 from lerobot_ccdp.compat.config_help import install_source_cache

@@ -758,7 +758,7 @@ def write_report(
         "## What ran",
         "Seeds: episode i of every method and of the oracle uses seed `first + i`, and every method draws "
         "episode i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). "
-        "The CCDP row of the composition is eq. (4) as `lerobot_ccdp/recovery/composition.py` computes it "
+        "The CCDP row of the composition is eq. (4) as `lerobot_ccdp/policy/composition.py` computes it "
         "with the evaluated checkpoint's weights (`docs/method.md`).",
         method_forms(runs),
         "## Targets",

@@ -165,7 +165,7 @@ def chunks_after_failures(
     """
     import torch
 
-    from lerobot_ccdp.recovery.outcome_index import options_after_failures
+    from lerobot_ccdp.policy.outcome_index import options_after_failures
 
     batch = preprocessor({"observation.state": torch.zeros(rows, 2)})
     chunks, _ = options_after_failures(policy, batch, failed_goals, seed)

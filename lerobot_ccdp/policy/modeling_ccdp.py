@@ -4,7 +4,7 @@ heads.
 Split as LeRobot splits DiffusionPolicy and DiffusionModel. `CCDPPolicy` keeps what a rollout needs
 (observation windows, plans, every row's failures, the failure signals) and hands each plan to the recovery
 mode's sampler (`samplers.py`). `CCDPModel` holds the networks, the losses of both stages and the one reverse
-diffusion the samplers call; eq. (4) itself, and which of its terms run, live in `recovery/composition.py`.
+diffusion the samplers call; eq. (4) itself, and which of its terms run, live in `policy/composition.py`.
 """
 
 import logging
@@ -29,6 +29,14 @@ from lerobot_ccdp.policy.checkpoint_files import (
     refuse_unloadable_weights,
     saved_config,
 )
+from lerobot_ccdp.policy.composition import (
+    CompositionWeights,
+    compose_eps,
+    compose_with_failure_set,
+    guide_away_from_failures,
+    log_no_repeat,
+    recovery_conditions,
+)
 from lerobot_ccdp.policy.config_checks import edited_since, settings_of
 from lerobot_ccdp.policy.configuration_ccdp import (
     FAILURE_FEATURE_KEY,
@@ -38,6 +46,14 @@ from lerobot_ccdp.policy.configuration_ccdp import (
     CCDPConfig,
 )
 from lerobot_ccdp.policy.denoisers import BaseDenoiser, make_recovery_denoiser
+from lerobot_ccdp.policy.failure_buffer import (
+    FailureBuffer,
+    distinct_failures,
+    draw_failure_sets,
+    draw_state_failure_sets,
+    stratum_weights,
+)
+from lerobot_ccdp.policy.failure_features import FailureFeature
 from lerobot_ccdp.policy.failure_signal import FailureSignalFile
 from lerobot_ccdp.policy.image_encoder import ImageEncoder
 from lerobot_ccdp.policy.model_card import make_model_card
@@ -53,27 +69,11 @@ from lerobot_ccdp.policy.observations import (
     refuse_unusable_weights,
     reported_failure_features,
 )
+from lerobot_ccdp.policy.outcome_index import OutcomeIndex
+from lerobot_ccdp.policy.outcome_table import build_outcome_table
 from lerobot_ccdp.policy.rollout_memory import RolloutMemory
 from lerobot_ccdp.policy.samplers import SAMPLERS, PlanRows
 from lerobot_ccdp.policy.training_checks import refuse_fresh_training
-from lerobot_ccdp.recovery.composition import (
-    CompositionWeights,
-    compose_eps,
-    compose_with_failure_set,
-    guide_away_from_failures,
-    log_no_repeat,
-    recovery_conditions,
-)
-from lerobot_ccdp.recovery.failure_buffer import (
-    FailureBuffer,
-    distinct_failures,
-    draw_failure_sets,
-    draw_state_failure_sets,
-    stratum_weights,
-)
-from lerobot_ccdp.recovery.failure_features import FailureFeature
-from lerobot_ccdp.recovery.outcome_index import OutcomeIndex
-from lerobot_ccdp.recovery.outcome_table import build_outcome_table
 
 logger = logging.getLogger(__name__)
 

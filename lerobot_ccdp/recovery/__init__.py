@@ -1,2 +1,3 @@
-"""The method's recovery side: eq. (4)'s composition, failure features and memory, outcomes, synthesis
-(eq. 5-7)."""
+"""Recovery data synthesis (eq. 5-7): the lerobot-ccdp-synthesize command over a demonstration dataset and a
+base checkpoint, and the recovery pairs it keeps. It sits above the policy: it imports the policy, never the
+reverse."""

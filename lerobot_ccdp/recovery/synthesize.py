@@ -68,12 +68,12 @@ from lerobot_ccdp.policy.configuration_ccdp import (
     SIBLING_FEATURES_KEY,
     CCDPConfig,
 )
+from lerobot_ccdp.policy.demo_segments import segment_ends
+from lerobot_ccdp.policy.failure_features import failure_feature_stats
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
+from lerobot_ccdp.policy.outcome_index import demo_chunks
+from lerobot_ccdp.policy.outcome_table import read_columns
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch, unnormalize_batch
-from lerobot_ccdp.recovery.demo_segments import segment_ends
-from lerobot_ccdp.recovery.failure_features import failure_feature_stats
-from lerobot_ccdp.recovery.outcome_index import demo_chunks
-from lerobot_ccdp.recovery.outcome_table import read_columns
 from lerobot_ccdp.recovery.recovery_pairs import pick_pairs, recovery_pair_mask
 
 logger = logging.getLogger(__name__)

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import torch
 
+from lerobot_ccdp.policy.failure_features import failure_feature_stats
+from lerobot_ccdp.policy.outcome_index import OutcomeIndex
 from lerobot_ccdp.policy.processor_ccdp import make_ccdp_pre_post_processors
-from lerobot_ccdp.recovery.failure_features import failure_feature_stats
-from lerobot_ccdp.recovery.outcome_index import OutcomeIndex
 
 from fixtures.policy_factory import make_policy
 

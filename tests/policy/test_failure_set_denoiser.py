@@ -7,7 +7,7 @@ import torch
 from torch import Tensor
 
 from lerobot_ccdp.policy.configuration_ccdp import SIBLING_COUNT_KEY, SIBLING_FEATURES_KEY
-from lerobot_ccdp.recovery.failure_buffer import draw_failure_sets, draw_state_failure_sets, stratum_weights
+from lerobot_ccdp.policy.failure_buffer import draw_failure_sets, draw_state_failure_sets, stratum_weights
 
 from fixtures.policy_factory import make_policy
 

@@ -10,7 +10,7 @@ import math
 import pytest
 import torch
 
-from lerobot_ccdp.recovery.composition import CompositionWeights, compose_eps
+from lerobot_ccdp.policy.composition import CompositionWeights, compose_eps
 
 # noise level of the step: high enough that every mode has weight at x (the mixture weights matter)
 SIGMA = 1.0

@@ -7,10 +7,10 @@ from lerobot.utils.constants import ACTION
 from torch import Tensor
 
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.demo_segments import segment_ends, segment_final_states
 from lerobot_ccdp.policy.observations import refuse_non_finite_stats
+from lerobot_ccdp.policy.outcome_index import demo_chunks
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch
-from lerobot_ccdp.recovery.demo_segments import segment_ends, segment_final_states
-from lerobot_ccdp.recovery.outcome_index import demo_chunks
 
 # Demonstrated chunks kept to look up the outcome of a sampled chunk (a random subset beyond it).
 OUTCOME_TABLE_SIZE = 20000

@@ -13,7 +13,7 @@ A segment never crosses an episode's end, and every episode's last frame ends on
 
 import numpy as np
 
-from lerobot_ccdp.recovery.outcome_index import episode_bounds
+from lerobot_ccdp.policy.outcome_index import episode_bounds
 
 SEGMENT_RULES = ("labels", "releases", "drops", "pauses")
 

@@ -13,7 +13,7 @@ from lerobot.utils.constants import OBS_STATE
 from torch import Tensor
 
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.recovery.outcome_index import OutcomeIndex
+from lerobot_ccdp.policy.outcome_index import OutcomeIndex
 
 
 class FailureFeature:

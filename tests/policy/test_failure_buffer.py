@@ -2,7 +2,7 @@
 
 import torch
 
-from lerobot_ccdp.recovery.failure_buffer import FailureBuffer, distinct_failures
+from lerobot_ccdp.policy.failure_buffer import FailureBuffer, distinct_failures
 
 
 def test_rows_are_independent_and_padded_masks_match_counts():

@@ -11,8 +11,8 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetad
 from lerobot.datasets.utils import dataset_to_policy_features
 
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.demo_segments import segment_ends, segment_final_states
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.recovery.demo_segments import segment_ends, segment_final_states
 
 REPO = Path(__file__).resolve().parents[2]
 
