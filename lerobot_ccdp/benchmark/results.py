@@ -36,6 +36,7 @@ from lerobot_ccdp.benchmark.paired import (
     success_rate,
 )
 from lerobot_ccdp.benchmark.published import RESULTS_NOTE, RUN_FORMAT, is_results, refuse_unless_ours
+from lerobot_ccdp.benchmark.rounds import EARLY, FAMILY_ROUNDS, NEXT_ROUND, PANDA, ROUNDS, Round, span
 from lerobot_ccdp.datasets.ownership import NotOwned
 
 FORMAT = RUN_FORMAT
@@ -315,6 +316,60 @@ def section(title: str, run: Run, out: Path) -> str:
     )
 
 
+def _config_title(config: str) -> str:
+    """`object_packing_label_free` as the tables name it: "ObjectPacking, no labels"."""
+    task, free, labels = config.removesuffix("_label_free"), config.endswith("_label_free"), "labels"
+    name = (
+        "".join(word.title() for word in task.split("_"))
+        .replace("Lite", "-lite")
+        .replace("Pixels", " pixels")
+    )
+    return f"{'the five Panda tasks' if task == 'panda' else name}, {'no labels' if free else labels}"
+
+
+def _round_row(round_: Round) -> str:
+    claims = (
+        ("missed: " + round_.outcome if round_.outcome else "all met") if round_.declared else round_.outcome
+    )
+    return f"| {_config_title(round_.config)} | {span(round_.seeds)} | `{round_.commit}` | {claims} |"
+
+
+def rounds_section() -> str:
+    """Every test round this project has run (`lerobot_ccdp.benchmark.rounds`), one line each, with the count
+    per task and label setting, so a published table is read beside how many rounds led to it."""
+    order = sorted(
+        ROUNDS, key=lambda r: (PANDA.index(r.config.removesuffix("_label_free")), r.config, r.first)
+    )
+    counts: dict[str, int] = {}
+    for round_ in order:
+        counts[_config_title(round_.config)] = counts.get(_config_title(round_.config), 0) + 1
+    header = "| task | seeds | commit | issue 50's claims |\n|---|---|---|---|"
+    family = "\n".join(
+        f"| {span(r.members)} | `{r.commit}` | {r.form} | {r.outcome} |" for r in FAMILY_ROUNDS
+    )
+    return "\n\n".join(
+        [
+            "## Every test round",
+            "A round evaluates settings frozen beforehand, once, on fresh seeds; a miss led to a change on "
+            "the development seeds and a new round, so a task's latest table above follows its earlier "
+            "misses. "
+            "Rounds per task and label setting: "
+            + "; ".join(f"{title} {n}" for title, n in counts.items())
+            + f'. The next round starts at seed {NEXT_ROUND} ([evaluation.md](evaluation.md), "Seeds"). '
+            "What each round changed: [benchmarks.md](benchmarks.md).",
+            header + "\n" + "\n".join(map(_round_row, order)),
+            "Before the declared rounds, the test seeds 2000-2099 were looked at after every change (spent, "
+            "not counted as rounds):",
+            header.replace("issue 50's claims", "what they showed")
+            + "\n"
+            + "\n".join(map(_round_row, EARLY)),
+            "The 2-D preference family's test rounds, on members (failed share / preference error after one "
+            "and two failures, the mean over 12 members; targets 0.01 / 0.05):",
+            "| members | commit | form | outcome |\n|---|---|---|---|\n" + family,
+        ]
+    )
+
+
 def write_results(runs: list[tuple[str, Run]], out: Path, command: str, readme: Path | None = None) -> str:
     """docs/results.md from `runs` (title, run), and, with `readme`, the first run's table between the
     README's results markers."""
@@ -326,6 +381,7 @@ def write_results(runs: list[tuple[str, Run]], out: Path, command: str, readme: 
             "with 95% bootstrap intervals; an interval that spans 0 is a tie. How the figures are computed: "
             "[evaluation.md](evaluation.md); what was tried on the way: [benchmarks.md](benchmarks.md).",
             *(section(title, run, out) for title, run in runs),
+            rounds_section(),
         ]
     )
     readme_text = with_block(readme, table(runs[0][1])) if readme is not None and runs else None

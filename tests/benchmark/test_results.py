@@ -22,6 +22,7 @@ from lerobot_ccdp.benchmark.results import (
     seeds,
     table,
 )
+from lerobot_ccdp.benchmark.rounds import EARLY, FAMILY_ROUNDS, ROUNDS
 
 
 def _episodes(success: list[bool], failures: list[float]) -> Episodes:
@@ -111,6 +112,29 @@ def test_a_round_published_task_by_task_is_one_table_that_names_each_file(tmp_pa
     )
     with pytest.raises(SystemExit, match="2"):
         main(["--run", "Round", "--out", str(out)])  # a title without a run file
+
+
+def test_the_results_list_every_test_round_with_its_count(tmp_path):
+    """Whatever runs make the tables, docs/results.md lists every round ever run, one line each, and how many
+    each task and label setting has had (the generator writes it, so `make results` keeps it)."""
+    _saved(tmp_path / "run.json", {"DoorOpening-v0": "CCDP"})
+    out = tmp_path / "results.md"
+    main(["--run", "Round", str(tmp_path / "run.json"), "--out", str(out)])
+    listed = out.read_text().split("## Every test round", 1)[1]
+    rows = [line for line in listed.splitlines() if line.startswith("| ") and not line.startswith("| task ")]
+    rows = [row for row in rows if not row.startswith("| members ")]
+    assert len(rows) == len(ROUNDS) + len(EARLY) + len(FAMILY_ROUNDS)
+    counted = dict(
+        item.rsplit(" ", 1)
+        for item in listed.split("Rounds per task and label setting: ")[1].split(".")[0].split("; ")
+    )
+    declared = rows[: len(ROUNDS)]
+    assert {title: int(n) for title, n in counted.items()} == {
+        title: sum(row.startswith(f"| {title} |") for row in declared) for title in counted
+    }
+    assert sum(map(int, counted.values())) == len(ROUNDS)
+    assert "| ObjectPacking, labels | 3000-3099 | `a036af1` | missed: non-inferiority -0.12" in listed
+    assert "| Bartender, no labels | 12400-12999 | `5a35c59` | all met |" in listed
 
 
 def test_one_table_never_mixes_ccdp_and_a_hybrid(tmp_path):
