@@ -5,7 +5,7 @@ draccus builds every LeRobot CLI's parser, and parses every saved config (`PreTr
 `draccus.wrappers.docstring.get_attribute_docstring` calls `inspect.getsource(cls)` once per field, and on
 Python 3.11 each call tokenizes the whole class again. A lerobot-train parser holds every registered
 policy's, env's, optimizer's and scheduler's fields (about 900), so on the slower 2-core machine parsing took
-6 of the 18 s of a ten-step `lerobot-train` run (docs/benchmarks.md, "A slower 2-core machine").
+6 of the 18 s of a ten-step `lerobot-train` run (docs/benchmarks.md, "Speed and cost").
 
 `install_source_cache` gives draccus's docstring module a `getsource` that keeps each class's text for the
 process: the same text, so the same help. Installed where that module reads source through its module-level

@@ -92,13 +92,10 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
 
 
 # Settings (train config, recipe and methods.json) a label-free run chose on its own development seeds:
-# the Bartender's base trains 7200 steps without labels (docs/benchmarks.md, "The Bartender's round from
-# 9000, without labels"), its set denoiser's failure sets are drawn at the state and weighed per stratum
-# ("After the round from 10000: failure sets drawn at the state"), its synthesis draws 128 base chunks per
-# state ("After the round from 10600: more of the base's draws per state"), CCDP guards its last 4
-# reverse steps ("After the round from 11200: where the preference goes"), and its demonstrated rows
-# carry their state's siblings, the head trained 12000 steps ("The demonstrations' rows weighed at their
-# state").
+# the Bartender's base trains 7200 steps without labels (docs/benchmarks.md, "The data and the base"), its
+# set denoiser's failure sets are drawn at the state and weighed per stratum, its synthesis draws 128 base
+# chunks per state, and its demonstrated rows carry their state's siblings, the head trained 12000 steps
+# ("The Bartender's failures and rows"); CCDP guards its last 4 reverse steps ("The guard").
 LABEL_FREE_OWN = {
     "Bartender-v0": (
         "steps",

@@ -5,8 +5,8 @@ one sample per plan after one and after two failures.
 The reduced form of `benchmarks/bench_preferences.py --set-denoiser`: the base and the head train in memory
 (`in_memory_training.py`, lerobot-train's step) for fewer steps, on fewer synthesised rows; the rows come from
 the real `lerobot-ccdp-synthesize`. Member 101 is a development member without labels (`final_state` z); the
-family's test members are listed in docs/benchmarks.md ("Seeds"). The default suite asserts the failed goals'
-share; the slow test, trained longer, also the proportions among the goals left (issue 50, item 7).
+family's test members are listed in docs/results.md ("Every test round"). The default suite asserts the failed
+goals' share; the slow test, trained longer, also the proportions among the goals left (issue 50, item 7).
 `pytest -s` prints the scores.
 """
 
@@ -47,7 +47,8 @@ FRACTION_OF_DP = {"1": 1 / 5, "2": 0.6}  # CCDP's failed share below this fracti
 # (2026-12-05, 2-core x86_64): failed share 0.001 / 0.021, preference error 0.122 / 0.026, a uniform draw's
 # 0.198 / 0.290. Asserted with margins 0.009 / 0.029 (failed) and 0.048 / 0.054 (error), and below the uniform
 # draw's error. The benchmark's head (24000 steps on 2048 states, over half an hour a member) scores 0.023 /
-# 0.005 on this member (docs/benchmarks.md, "Twice the head steps"), the family's mean 0.048 / 0.036.
+# 0.005 on this member (`git show 0032ef5:docs/benchmarks.md`, "Twice the head steps"), the family's mean
+# 0.048 / 0.036.
 LONG_FAILED_SHARE = {"1": 0.01, "2": 0.05}
 LONG_PREFERENCE_ERROR = {"1": 0.17, "2": 0.08}
 LONG_BASE_STEPS, LONG_HEAD_STEPS = 1000, 6000
