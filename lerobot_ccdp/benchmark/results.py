@@ -356,7 +356,7 @@ def rounds_section() -> str:
             "Rounds per task and label setting: "
             + "; ".join(f"{title} {n}" for title, n in counts.items())
             + f'. The next round starts at seed {NEXT_ROUND} ([evaluation.md](evaluation.md), "Seeds"). '
-            "What each round changed: [benchmarks.md](benchmarks.md).",
+            "Each setting a round froze, and the figure that chose it: [benchmarks.md](benchmarks.md).",
             header + "\n" + "\n".join(map(_round_row, order)),
             "Before the declared rounds, the test seeds 2000-2099 were looked at after every change (spent, "
             "not counted as rounds):",
