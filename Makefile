@@ -16,8 +16,8 @@ $(VENV)/.installed: pyproject.toml
 install: $(VENV)/.installed
 
 lint: install
-	$(VENV)/bin/ruff check lerobot_ccdp tests benchmarks lerobot_policy_ccdp.py
-	$(VENV)/bin/ruff format --check lerobot_ccdp tests benchmarks lerobot_policy_ccdp.py
+	$(VENV)/bin/ruff check lerobot_ccdp tests lerobot_policy_ccdp.py
+	$(VENV)/bin/ruff format --check lerobot_ccdp tests lerobot_policy_ccdp.py
 
 test: install
 	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=0 --durations-min=5

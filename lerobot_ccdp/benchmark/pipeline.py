@@ -940,7 +940,7 @@ def main(argv: list[str] | None = None) -> None:
         "--train-only",
         action="store_true",
         help="record, train and synthesise, evaluate nothing and write no report (e.g. to tune a "
-        "method's settings on the development seeds: benchmarks/tune_methods.py)",
+        "method's settings on the development seeds: python -m lerobot_ccdp.benchmark.tune_methods)",
     )
     args = parser.parse_args(argv)
     if args.train_only:

@@ -11,8 +11,8 @@ after the two most preferred goals failed ("after 2"), under torch.inference_mod
                        own error does not count against the recovery
 
 A chunk's goal is the goal whose demonstrated path from the start it lies nearest (`ReachingTask.option_of`),
-not the policy's own labeller. `benchmarks/bench_preferences.py` runs it over the seeded family of issue 17
-and `tests/recovery/test_preferences.py` asserts the targets on two members.
+not the policy's own labeller. `python -m lerobot_ccdp.benchmark.preference_family` runs it over the seeded
+family of issue 17 and `tests/recovery/test_preferences.py` asserts the targets on two members.
 """
 
 from typing import NamedTuple

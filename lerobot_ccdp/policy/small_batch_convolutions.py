@@ -1,8 +1,8 @@
 """Small CPU batches of LeRobot's diffusion UNet on ATen's own convolution kernel instead of oneDNN's.
 
 On CPU, oneDNN's 1-D convolution is slower than ATen's for this UNet at 2-4 rows with more than one thread
-(benchmarks/bench_policy.py); composed sampling runs exactly such small batches, one row per score term.
-`torch.backends.mkldnn.flags(enabled=False)` would select ATen's kernel, but it sets a process-wide flag
+(lerobot_ccdp.benchmark.policy_cost); composed sampling runs exactly such small batches, one row per score
+term. `torch.backends.mkldnn.flags(enabled=False)` would select ATen's kernel, but it sets a process-wide flag
 (ATen's global context, not thread-local): other threads' convolutions lose oneDNN meanwhile, and two threads
 saving and restoring it can leave it off for good. So the choice is made per call, inside the convolution
 modules: they call the 2-D kernel that convolution itself uses for a 1-D input with oneDNN off (same results,

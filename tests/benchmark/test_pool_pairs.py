@@ -1,21 +1,19 @@
-"""`benchmarks/pool_pairs.py` pools trainings seed by seed: each pair stays paired, and the pooled row is
-the pairs' episodes together, not an average of their differences."""
+"""`lerobot_ccdp.benchmark.pool_pairs` pools trainings seed by seed: each pair stays paired, and the pooled
+row is the pairs' episodes together, not an average of their differences."""
 
 import dataclasses
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from lerobot_ccdp.benchmark import pool_pairs as pool
+from lerobot_ccdp.benchmark import tune_methods as tune
 from lerobot_ccdp.datasets.ownership import claim_output_folder
 
 from fixtures.eval_runs import episodes, write_eval_info
 
 REPO = Path(__file__).resolve().parents[2]
-spec = importlib.util.spec_from_file_location("pool_pairs", REPO / "benchmarks" / "pool_pairs.py")
-pool = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(pool)
 
 
 def test_each_pair_and_their_pool_are_variant_minus_reference(tmp_path, capsys):
@@ -74,11 +72,8 @@ def test_pairs_of_other_seeds_or_no_evaluation_are_named(tmp_path):
 
 
 def test_a_published_record_pairs_as_its_folders_did_and_is_never_replaced(tmp_path, capsys):
-    """`tune_methods.py --publish` keeps a grid's episodes outside outputs/: pool_pairs reads an evaluation
+    """`tune_methods --publish` keeps a grid's episodes outside outputs/: pool_pairs reads an evaluation
     from the record exactly as from its folder, and an existing record is refused before anything runs."""
-    spec = importlib.util.spec_from_file_location("tune_methods", REPO / "benchmarks" / "tune_methods.py")
-    tune = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tune)
     out, task = tmp_path / "run", "DoorOpening-lite-v0"
     claim_output_folder(out, tune.CREATED_BY)
     files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", out)

@@ -1,19 +1,14 @@
-"""`benchmarks/bench_preferences.py --report-only` tabulates members whose results.json was carried between
-machines without its planned chunks ("positions", most of the file): the tables need only the shares, and the
-panel grid draws the members that kept their chunks; the header describes what the members were measured
-with."""
+"""`lerobot_ccdp.benchmark.preference_family --report-only` tabulates members whose results.json was carried
+between machines without its planned chunks ("positions", most of the file): the tables need only the shares,
+and the panel grid draws the members that kept their chunks; the header describes what the members were
+measured with."""
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
-SCRIPT = REPO / "benchmarks" / "bench_preferences.py"
-spec = importlib.util.spec_from_file_location("bench_preferences", SCRIPT)
-bench = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(bench)
+from lerobot_ccdp.benchmark import preference_family as bench
 
 NAMES = ("DP", "CCDP set denoiser")
 # What `measured_settings` kept for members measured before the Fourier octaves were recorded.

@@ -1,20 +1,13 @@
-"""`benchmarks/trace_failures.py` sorts a lost episode's causes: a repeat after a plan the lookup already
-placed on a failed option (the sampler chose it) or on another (lookup and env disagree), and a stall (no
-success, failures left) with the option switches of its last attempt."""
+"""`lerobot_ccdp.benchmark.trace_failures` sorts a lost episode's causes: a repeat after a plan the lookup
+already placed on a failed option (the sampler chose it) or on another (lookup and env disagree), and a stall
+(no success, failures left) with the option switches of its last attempt."""
 
-import importlib.util
-import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import torch
 
-REPO = Path(__file__).resolve().parents[2]
-spec = importlib.util.spec_from_file_location("trace_failures", REPO / "benchmarks" / "trace_failures.py")
-trace = importlib.util.module_from_spec(spec)
-sys.modules["trace_failures"] = trace  # its dataclasses look their module up
-spec.loader.exec_module(trace)
+from lerobot_ccdp.benchmark import trace_failures as trace
 
 A, B, C = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
 NONE = np.zeros((0, 3))

@@ -1,23 +1,20 @@
-"""`benchmarks/tune_methods.py` keeps the grid's first setting unless a paired interval says another is
-better: a higher mean that the development seeds cannot tell from noise is a tie, not a win (issue 17's honest
-comparison)."""
+"""`lerobot_ccdp.benchmark.tune_methods` keeps the grid's first setting unless a paired interval says another
+is better: a higher mean that the development seeds cannot tell from noise is a tie, not a win (issue 17's
+honest comparison)."""
 
 import dataclasses
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from lerobot_ccdp.benchmark import tune_methods as tune
 from lerobot_ccdp.benchmark.episodes import Episodes
 from lerobot_ccdp.datasets.ownership import claim_output_folder
 
 from fixtures.eval_runs import N, episodes, write_eval_info
 
 REPO = Path(__file__).resolve().parents[2]
-spec = importlib.util.spec_from_file_location("tune_methods", REPO / "benchmarks" / "tune_methods.py")
-tune = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(tune)
 
 FIRST, OTHER = ("recovery", (("w_z", 3),)), ("recovery", (("w_z", 1),))
 

@@ -2,21 +2,12 @@
 folder, a copy or a symlink of ours is refused, and the benchmark scripts that clear their folders follow the
 same rule."""
 
-import importlib.util
 from pathlib import Path
 
 import pytest
 
+from lerobot_ccdp.benchmark import tune_methods
 from lerobot_ccdp.datasets.ownership import MARKER, NotOwned, claim_output_folder, identity, mark, owner
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-def script(name: str):
-    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def users_folder(path: Path) -> Path:
@@ -51,5 +42,5 @@ def test_another_commands_folder_is_not_claimed(tmp_path):
 def test_tune_methods_writes_only_into_a_pipeline_output_folder(tmp_path):
     mine = users_folder(tmp_path / "mine")
     with pytest.raises(SystemExit, match="not an output folder of the pipeline.*--adopt"):
-        script("tune_methods").main(["--out", str(mine), "--tasks", "DoorOpening-lite-v0"])
+        tune_methods.main(["--out", str(mine), "--tasks", "DoorOpening-lite-v0"])
     assert sorted(p.name for p in mine.iterdir()) == ["thesis.tex"]

@@ -1,7 +1,6 @@
 """Where demonstrated options end without labels: at gripper releases or at pauses, never across an
 episode."""
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +9,7 @@ import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.utils import dataset_to_policy_features
 
+from lerobot_ccdp.benchmark import segment_agreement
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.policy.demo_segments import segment_ends, segment_final_states
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
@@ -142,10 +142,7 @@ def test_the_policy_gives_each_demonstrated_chunk_the_state_where_its_gripper_le
     )
 
 
-def test_bench_segments_scores_the_frames_whose_label_free_end_misses_their_labelled_one():
-    spec = importlib.util.spec_from_file_location("bench_segments", REPO / "benchmarks" / "bench_segments.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+def test_segment_agreement_scores_the_frames_whose_label_free_end_misses_their_labelled_one():
     labels = np.array([0, 0, 0, 0, 0, 1, 1, 1] + [2] * 5)  # labelled ends 4, 7, 12; releases end 4, 7, 10, 12
     columns = {
         "episode_index": EPISODES,
@@ -153,8 +150,8 @@ def test_bench_segments_scores_the_frames_whose_label_free_end_misses_their_labe
         "action": ACTIONS,
         "primitive": labels,
     }
-    share, per_episode = bench.agreement(columns, "releases", tolerance=0.02)
+    share, per_episode = segment_agreement.agreement(columns, "releases", tolerance=0.02)
     # frames 8-10 end at 1, their label's end at 2
     assert (share, per_episode) == (pytest.approx(10 / 13), 2.0)
     # Without labels, frames 0-4 end with their episode at 5, where their labelled option ends at 3.
-    assert bench.agreement(columns, "labels", tolerance=0.02) == (pytest.approx(8 / 13), 1.0)
+    assert segment_agreement.agreement(columns, "labels", tolerance=0.02) == (pytest.approx(8 / 13), 1.0)

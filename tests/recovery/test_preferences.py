@@ -2,13 +2,13 @@
 failure-set classifier guidance samples the failed goals a third as often as DP or less, and almost never with
 redraws.
 
-The reduced form of `benchmarks/bench_preferences.py`: the same members, measurement and settings, trained in
-memory (`in_memory_training.py`) instead of through lerobot-train so that CI can afford it. Member 0 carries
-`primitive` labels; member 1 has none and uses `final_state` z. Issue 17's failed-share target (<= 0.03) is
-asserted for CCDP with up to three redraws of a repeat; its preference-error target (<= 0.08) is not, as
-these short trainings leave some members and counts above it, even under the exact classifier's guidance: the
-scores are printed (`pytest -s -k preferences`), and docs/benchmarks.md has the family's figures and what was
-tried.
+The reduced form of `lerobot_ccdp.benchmark.preference_family`: the same members, measurement and settings,
+trained in memory (`in_memory_training.py`) instead of through lerobot-train so that CI can afford it. Member
+0 carries `primitive` labels; member 1 has none and uses `final_state` z. Issue 17's failed-share target
+(<= 0.03) is asserted for CCDP with up to three redraws of a repeat; its preference-error target (<= 0.08) is
+not, as these short trainings leave some members and counts above it, even under the exact classifier's
+guidance: the scores are printed (`pytest -s -k preferences`), and docs/benchmarks.md has the family's figures
+and what was tried.
 """
 
 from pathlib import Path
@@ -25,7 +25,7 @@ from fixtures.in_memory_training import train_stage
 
 EPISODES = 100
 BASE_STEPS = 300
-HEAD_STEPS = 600  # bench_preferences.py: 1000 and 3000
+HEAD_STEPS = 600  # preference_family: 1000 and 3000
 ROWS = 512
 # Issue 17 asks 0.03 on the family's mean, which one sample per plan does not meet (docs/benchmarks.md); this
 # bounds each member and count, where these checkpoints measured 0.000 to 0.104 (2026-11-28, each failure

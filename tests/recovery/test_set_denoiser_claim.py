@@ -2,12 +2,12 @@
 demonstrations -> base -> lerobot-ccdp-synthesize (the failure-set denoiser's rows) -> failure-set denoiser ->
 one sample per plan after one and after two failures.
 
-The reduced form of `benchmarks/bench_preferences.py --set-denoiser`: the base and the head train in memory
-(`in_memory_training.py`, lerobot-train's step) for fewer steps, on fewer synthesised rows; the rows come from
-the real `lerobot-ccdp-synthesize`. Member 101 is a development member without labels (`final_state` z); the
-family's test members are listed in docs/results.md ("Every test round"). The default suite asserts the failed
-goals' share; the slow test, trained longer, also the proportions among the goals left (issue 50, item 7).
-`pytest -s` prints the scores.
+The reduced form of `lerobot_ccdp.benchmark.preference_family --set-denoiser`: the base and the head train in
+memory (`in_memory_training.py`, lerobot-train's step) for fewer steps, on fewer synthesised rows; the rows
+come from the real `lerobot-ccdp-synthesize`. Member 101 is a development member without labels (`final_state`
+z); the family's test members are listed in docs/results.md ("Every test round"). The default suite asserts
+the failed goals' share; the slow test, trained longer, also the proportions among the goals left (issue 50,
+item 7). `pytest -s` prints the scores.
 """
 
 import subprocess
@@ -29,8 +29,8 @@ from fixtures.in_memory_training import train_stage
 MEMBER = 101
 EPISODES = 100
 BASE_STEPS = 300
-HEAD_STEPS = 600  # bench_preferences.py: 1000 and 3000
-# bench_preferences.SET_RECIPE with a quarter of the states: half at option starts, half along the demos.
+HEAD_STEPS = 600  # preference_family: 1000 and 3000
+# preference_family.SET_RECIPE with a quarter of the states: half at option starts, half along the demos.
 RECIPE = {"n_states": 128, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0, "demo_frames": 1024}
 ROWS = 512
 # Measured on these checkpoints (2026-11-29; 1500 head steps gave 0.021 and 0.201): CCDP 0.025 after one
@@ -43,7 +43,7 @@ FRACTION_OF_DP = {"1": 1 / 5, "2": 0.6}  # CCDP's failed share below this fracti
 # them), need a longer training than the default suite's: at 600 head steps the preference error (total
 # variation) was 0.174 / 0.134 after one / two failures (2026-11-29) and 0.180 / 0.090 (2026-12-05), where
 # drawing the goals left uniformly scores 0.159 after one failure. The slow test trains the base
-# LONG_BASE_STEPS and the head LONG_HEAD_STEPS on bench_preferences.SET_RECIPE's 512 states. Measured
+# LONG_BASE_STEPS and the head LONG_HEAD_STEPS on preference_family.SET_RECIPE's 512 states. Measured
 # (2026-12-05, 2-core x86_64): failed share 0.001 / 0.021, preference error 0.122 / 0.026, a uniform draw's
 # 0.198 / 0.290. Asserted with margins 0.009 / 0.029 (failed) and 0.048 / 0.054 (error), and below the uniform
 # draw's error. The benchmark's head (24000 steps on 2048 states, over half an hour a member) scores 0.023 /

@@ -1,16 +1,16 @@
 """Pool paired comparisons over several trainings: is a training change better across training seeds?
 
-    .venv/bin/python benchmarks/pool_pairs.py \
+    python -m lerobot_ccdp.benchmark.pool_pairs \
         --pair <run>/bartender/tune_ccdp/<A>_seed1000 <run>/bartender/tune_ccdp/<B>_seed1000 \
         --pair <C folder> <D folder> [...]
 
 Each --pair names two evaluations of the same seeds: folders holding lerobot-eval's `eval_info.json`, as
-`tune_methods.py` writes them, or `FILE.json:<task>/tune_<method>/<folder>`, one evaluation of a record that
-`tune_methods.py --publish FILE.json` wrote (e.g. under docs/development/). One is a reference (one training),
+`tune_methods` writes them, or `FILE.json:<task>/tune_<method>/<folder>`, one evaluation of a record that
+`tune_methods --publish FILE.json` wrote (e.g. under docs/development/). One is a reference (one training),
 the other a variant (the same training changed in one setting, say `--policy.stratum_weights=true`). Prints
 each pair's paired difference, variant minus reference, of success and of repeats per attempt after a failure,
 then the same over every pair's episodes pooled: a pair stays paired by seed, and the pooled interval
-resamples the episodes of all pairs together, as `tune_methods.py` pools tasks. `--preference` adds the
+resamples the episodes of all pairs together, as `tune_methods` pools tasks. `--preference` adds the
 paired difference of preference adherence on the episodes both evaluations solved (for a task whose
 demonstrations prefer one option: ObjectManipulation, ObjectPacking, Bartender). One training decides little
 (its seed moves the figures as much as a setting does); pooled pairs of trainings from different seeds say

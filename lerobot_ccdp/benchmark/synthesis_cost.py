@@ -1,9 +1,9 @@
 """Recovery synthesis and recovery training: throughput, recovery-set size, training time, and the paper's
 Fig. 2.
 
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_synthesis.py \
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.synthesis_cost \
         [--tasks reaching2d DoorOpening-v0 ...] [--base-steps 1000] [--recovery-steps 3000] [--w-z 3] \
-        [--base TASK=CHECKPOINT ...] [--work outputs/bench_synthesis]
+        [--base TASK=CHECKPOINT ...] [--work outputs/synthesis_cost]
 
 For every task: record the demos (`lerobot-ccdp-record`, or the 2-D recorder), train the base with
 `lerobot-train` (or take `--base TASK=<pretrained_model>`), run `lerobot-ccdp-synthesize` with the task's
@@ -16,6 +16,7 @@ Fig. 2). Everything is kept under --work (ignored by git).
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import platform
 import subprocess
@@ -25,13 +26,15 @@ from pathlib import Path
 
 import torch
 import yaml
+from lerobot.utils.utils import init_logging
 
-from lerobot_ccdp.benchmark.pipeline import TASK_GROUPS, task_slug
+from lerobot_ccdp.benchmark.pipeline import BIN, TASK_GROUPS, task_slug
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
 from lerobot_ccdp.envs.tasks import TASKS
 
-REPO = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
+logger = logging.getLogger(__name__)
+CREATED_BY = "lerobot_ccdp.benchmark.synthesis_cost"
+RECIPE_FOLDER = Path("datasets_recipes")  # the repository's, run from its root
 # Task -> its recipe's name: the 2-D task, and the five benchmark tasks and their lite versions by slug.
 RECIPES = {"reaching2d": "reaching2d", **{task: task_slug(task) for task in TASKS}}
 FIG2_ROWS = 96
@@ -81,7 +84,7 @@ def bench_task(
     task: str, work: Path, base: Path | None, base_steps: int, recovery_steps: int, w_z: float
 ) -> dict:
     name = RECIPES[task]
-    recipe_path = REPO / "datasets_recipes" / f"{name}.yaml"
+    recipe_path = RECIPE_FOLDER / f"{name}.yaml"
     recovery = yaml.safe_load(recipe_path.read_text())["recovery"]
     demos, row = work / name / "demos", {"task": task}
     if not demos.exists():
@@ -208,16 +211,18 @@ def main(argv: list[str] | None = None) -> None:
         default=3.0,
         help="composition weight of the recovery checkpoint, as the task configs",
     )
-    parser.add_argument("--work", type=Path, default=REPO / "outputs" / "bench_synthesis")
+    parser.add_argument("--work", type=Path, default=Path("outputs/synthesis_cost"))
     parser.add_argument(
         "--adopt",
         action="store_true",
-        help="take over a --work made by a version of this script from before ownership markers",
+        help="take over a --work made by an earlier version of this tool (benchmarks/bench_synthesis.py, "
+        "or before ownership markers)",
     )
     args = parser.parse_args(argv)
+    init_logging()
     bases = dict(item.split("=", 1) for item in args.base)
     try:
-        claim_output_folder(args.work, "benchmarks/bench_synthesis.py", adopt=args.adopt, flag="--work")
+        claim_output_folder(args.work, CREATED_BY, adopt=args.adopt, flag="--work")
     except NotOwned as error:
         sys.exit(str(error))
     rows = []
@@ -232,7 +237,7 @@ def main(argv: list[str] | None = None) -> None:
                 args.w_z,
             )
         )
-        print(f"{task}: {rows[-1]}", flush=True)
+        logger.info("%s: %s", task, rows[-1])
     print(
         f"\nMachine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
         f"{torch.get_num_threads()} threads; base {args.base_steps} steps, "

@@ -1,7 +1,7 @@
 """Benchmark of the five CCDP tasks: simulation speed, demo recording time, and the no-repeat oracle's
 metrics.
 
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_envs.py [--tasks DoorOpening-v0 ...]
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.task_stats [--tasks DoorOpening-v0 ...]
 
 Prints one markdown table. Steps/s times `env.step` alone (expert actions, gymnasium wrappers included);
 recording time is `lerobot-ccdp-record`'s work for `--record-episodes` episodes (dataset written to a
@@ -11,13 +11,13 @@ temporary folder); oracle figures are over `--episodes` seeded episodes with ran
 from __future__ import annotations
 
 import argparse
-import logging
 import tempfile
 import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+from lerobot.utils.utils import init_logging
 
 from lerobot_ccdp.datasets.recipe_file import RecordRecipe
 from lerobot_ccdp.datasets.record import record_dataset
@@ -73,14 +73,14 @@ def oracle_metrics(task: str, n_episodes: int) -> dict[str, float]:
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=list(TASKS))
     parser.add_argument("--steps", type=int, default=5000, help="env steps timed per task")
     parser.add_argument("--record-episodes", type=int, default=100)
     parser.add_argument("--episodes", type=int, default=500, help="oracle episodes per task")
-    args = parser.parse_args()
-    logging.basicConfig(level=logging.WARNING)
+    args = parser.parse_args(argv)
+    init_logging(console_level="WARNING")  # recording's progress lines would break the table
 
     print(
         f"| task | env steps/s | record {args.record_episodes} eps (s) | oracle success | oracle attempts "

@@ -1,6 +1,6 @@
 """Why a recovery method's episodes are lost: each attempt's outcome beside the plans that led to it.
 
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/trace_failures.py \
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.trace_failures \
         --checkpoint outputs/benchmark/button_search/recovery/checkpoints/last/pretrained_model \
         --eval-config configs/button_search/eval.json [--seed 1000] [--episodes 100] [--verbose] \
         [--policy.w_z=5 --policy.w_z_steps=3 ...]
@@ -34,6 +34,8 @@ import argparse
 import sys
 import tempfile
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -223,8 +225,9 @@ def probe_shares(
     return failed[0], failed[1], kept[0], kept[1]
 
 
-def install(tracer: Tracer, draws: int, checkpoint: Path) -> None:
-    """Wrap the env's step and the policy's reset and sampler (in this process only)."""
+@contextmanager
+def installed(tracer: Tracer, draws: int, checkpoint: Path) -> Iterator[None]:
+    """Wrap the env's step and the policy's reset and sampler while lerobot-eval runs in this process."""
     step, env_reset = CCDPTaskEnv.step, CCDPTaskEnv.reset
     reset, sample = modeling_ccdp.CCDPPolicy.reset, modeling_ccdp.CCDPPolicy._sample
 
@@ -272,13 +275,16 @@ def install(tracer: Tracer, draws: int, checkpoint: Path) -> None:
             tracer.plan(row, z[i], failures[i][mask[i]].cpu().numpy())
         return chunk
 
-    CCDPTaskEnv.step = traced_step
-    CCDPTaskEnv.reset = traced_env_reset
-    modeling_ccdp.CCDPPolicy.reset = traced_reset
-    modeling_ccdp.CCDPPolicy._sample = traced_sample
+    CCDPTaskEnv.step, CCDPTaskEnv.reset = traced_step, traced_env_reset
+    modeling_ccdp.CCDPPolicy.reset, modeling_ccdp.CCDPPolicy._sample = traced_reset, traced_sample
+    try:
+        yield
+    finally:
+        CCDPTaskEnv.step, CCDPTaskEnv.reset = step, env_reset
+        modeling_ccdp.CCDPPolicy.reset, modeling_ccdp.CCDPPolicy._sample = reset, sample
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -291,12 +297,12 @@ def main() -> None:
     parser.add_argument(
         "--probe", type=int, default=0, metavar="K", help="draw each first plan after a failure K more times"
     )
-    args, policy_flags = parser.parse_known_args()
+    args, policy_flags = parser.parse_known_args(argv)
     from lerobot.scripts.lerobot_eval import main as lerobot_eval
 
     tracer = Tracer(args.delta_z)
-    install(tracer, args.probe, Path(args.checkpoint))
-    with tempfile.TemporaryDirectory() as out:
+    argv_before = sys.argv
+    with tempfile.TemporaryDirectory() as out, installed(tracer, args.probe, Path(args.checkpoint)):
         sys.argv = [
             "lerobot-eval",
             f"--config_path={args.eval_config}",
@@ -308,7 +314,10 @@ def main() -> None:
             f"--output_dir={out}/eval",
             *policy_flags,
         ]
-        lerobot_eval()
+        try:
+            lerobot_eval()
+        finally:
+            sys.argv = argv_before
     tracer.new_batch()
     tracer.report(args.verbose)
 

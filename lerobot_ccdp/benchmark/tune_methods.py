@@ -1,12 +1,12 @@
 """Choose a recovery method's settings on the development seeds, with the same care for every method.
 
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/benchmark \
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.tune_methods --out outputs/benchmark \
         --method dp_star --grid dp_star_candidates=16,32 dp_star_rounds=1,4 [--seed 1000] [--write]
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/benchmark \
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.tune_methods --out outputs/benchmark \
         --tasks ButtonSearch-v0 --method ccdp --grid ccdp_redraws=0,3 [--write]
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/label_free \
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.tune_methods --out outputs/label_free \
         --label-free --tasks Bartender-v0 --method ccdp --grid w_z=1,2
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/tune_methods.py --out outputs/label_free \
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.tune_methods --out outputs/label_free \
         --label-free --tasks Bartender-v0 --method dp --checkpoint b7200=<recovery checkpoint>
 
 Evaluates `--method` (lerobot-eval's `--policy.recovery_mode`) with every combination of the `--grid` policy
@@ -42,7 +42,8 @@ adherence on the episodes both solved (issue 50 asks CCDP's to be non-inferior t
 `--publish FILE` also writes every evaluation's per-episode outcomes (in `lerobot_ccdp.benchmark.results`'
 run format, keyed `<task>` then `tune_<method>/<evaluation folder>`, with the command and commit) to FILE, for
 example under docs/development/, so development evidence outlives the machine whose outputs/ made it and
-`benchmarks/pool_pairs.py` can pair evaluations from it (`FILE:<task>/tune_<method>/<folder>`).
+`python -m lerobot_ccdp.benchmark.pool_pairs` can pair evaluations from it
+(`FILE:<task>/tune_<method>/<folder>`).
 
 `--baseline-run OTHER` pairs this run with another one (other demos, recipe or training seeds) that was tuned
 with the same grid on the same seeds: a third table gives each row's, and `--against`'s method's, paired
@@ -55,6 +56,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import logging
 import shutil
 import subprocess
 import sys
@@ -63,6 +65,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from lerobot.utils.utils import init_logging
 
 from lerobot_ccdp.benchmark.comparison import LOST_HEADER, MethodMetrics, has_preference, paired_cells
 from lerobot_ccdp.benchmark.episodes import Episodes, LostEpisodes
@@ -86,7 +89,8 @@ from lerobot_ccdp.benchmark.results import command_line, save_run
 from lerobot_ccdp.benchmark.targets import NON_INFERIORITY
 from lerobot_ccdp.datasets.ownership import MARKER, owner
 
-REPO = Path(__file__).resolve().parents[1]
+logger = logging.getLogger(__name__)
+CONFIGS, RECIPES = Path("configs"), Path("datasets_recipes")  # the repository's, run from its root
 Setting = tuple[tuple[str, Any], ...]  # ((field, value), ...) in the grid's order
 Row = tuple[str, Setting]  # (checkpoint name, setting): one row of the table
 
@@ -224,10 +228,10 @@ def publish(
         path,
         {task: {key[task][folder]: e for folder, e in by.items()} for task, by in found.items()},
         {task: {key[task][folder]: name for folder, name in by.items()} for task, by in labels.items()},
-        command_line("benchmarks/tune_methods.py", argv),
+        command_line("python -m lerobot_ccdp.benchmark.tune_methods", argv),
         seed,
     )
-    print(f"wrote {path}")
+    logger.info("Wrote %s", path)
 
 
 def against(episodes: Episodes, reference: Episodes, preference: bool) -> str:
@@ -310,6 +314,7 @@ def main(argv: list[str] | None = None) -> None:
         help="tabulate the evaluations of an earlier run of this grid under --out, running none",
     )
     args = parser.parse_args(argv)
+    init_logging()
     args.tasks = expand_tasks(args.tasks)
     if args.method == "dp" and args.grid:
         raise SystemExit(f"--grid {' '.join(args.grid)}: DP has no settings to tune; give no --grid.")
@@ -333,15 +338,10 @@ def main(argv: list[str] | None = None) -> None:
     rows_of = table_rows(parse_grid(args.grid), checkpoints, args.heads)
     heads = list(dict.fromkeys(name for name, _ in rows_of))
     files = {
-        t: TaskFiles.locate(
-            t, REPO / "configs", REPO / "datasets_recipes", args.out, label_free=args.label_free
-        )
-        for t in args.tasks
+        t: TaskFiles.locate(t, CONFIGS, RECIPES, args.out, label_free=args.label_free) for t in args.tasks
     }
     baselines = {
-        t: TaskFiles.locate(
-            t, REPO / "configs", REPO / "datasets_recipes", args.baseline_run, label_free=args.label_free
-        )
+        t: TaskFiles.locate(t, CONFIGS, RECIPES, args.baseline_run, label_free=args.label_free)
         for t in (args.tasks if args.baseline_run else ())
     }
     paths = {t: {name: checkpoint_path(f, checkpoints, name) for name in heads} for t, f in files.items()}
@@ -464,7 +464,7 @@ def main(argv: list[str] | None = None) -> None:
             current = json.loads(path.read_text()) if path.is_file() else {}
             current[args.method] = {**current.get(args.method, {}), **dict(chosen)}
             path.write_text(json.dumps(current, indent=2) + "\n")
-            print(f"wrote {path}")
+            logger.info("Wrote %s", path)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """How often a label-free segment ends where the demonstrated option ends (issue 17: `final_state` z without
 labels).
 
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_segments.py [--tasks all]
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.segment_agreement [--tasks all]
         [--episodes 100]
 
 Records `--episodes` demonstrations of each task with its recipe (lerobot-ccdp-record, into a fresh temporary
@@ -28,7 +28,7 @@ from lerobot_ccdp.benchmark.pipeline import BIN, expand_tasks, task_slug
 from lerobot_ccdp.policy.demo_segments import SEGMENT_RULES, segment_ends, segment_final_states
 from lerobot_ccdp.policy.outcome_table import read_columns
 
-REPO = Path(__file__).resolve().parents[1]
+RECIPES = Path("datasets_recipes")  # the repository's, run from its root
 PINCH_XY = [0, 1]  # observation.state: pinch point x, y, z, closure
 
 
@@ -48,7 +48,7 @@ def record(task: str, root: Path, episodes: int) -> dict[str, np.ndarray]:
     subprocess.run(
         [
             str(BIN / "lerobot-ccdp-record"),
-            f"--config_path={REPO / 'datasets_recipes' / f'{slug}.yaml'}",
+            f"--config_path={RECIPES / f'{slug}.yaml'}",
             f"--dataset.repo_id=local/{slug}",
             f"--dataset.root={root}",
             f"--record.n_episodes={episodes}",

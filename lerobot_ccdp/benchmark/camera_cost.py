@@ -1,13 +1,13 @@
 """CCDP versus LeRobot's stock DiffusionPolicy with a camera: planning latency and training step,
 side by side.
 
-    HF_HUB_OFFLINE=1 MUJOCO_GL=egl .venv/bin/python benchmarks/bench_cameras.py [--size 64] [--repeats 30]
+    HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.camera_cost [--size 64] [--repeats 30]
         [--train-steps 20] [--cli-steps 40 | --no-cli] [--threads 2]
-        [--out outputs/bench_cameras.json]
+        [--out outputs/camera_cost.json]
 
 Both policies see one camera of --size x --size pixels and the ccdp tasks' 4-D robot state, encoded by
 LeRobot's RGB encoder with the same settings (ResNet-18 with all 4 stages, 32 spatial-softmax keypoints, group
-norm, no crop), with bench_policy.py's UNet and sampling settings (SHARED).
+norm, no crop), with policy_cost's UNet and sampling settings (SHARED).
 
 (a) Planning latency: `predict_action_chunk` at batch 1 (the camera encoded once per plan), median over
     --repeats interleaved calls; CCDP at N = 0 and 4 failures (eps_z marked trained so the failure terms run).
@@ -23,19 +23,31 @@ norm, no crop), with bench_policy.py's UNet and sampling settings (SHARED).
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 from pathlib import Path
 
 import torch
-from bench_policy import SHARED, interleaved_medians, lerobot_train_speed, recorded_once, write_results
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+from lerobot.utils.utils import init_logging
 
+from lerobot_ccdp.benchmark.policy_cost import (
+    SHARED,
+    interleaved_medians,
+    lerobot_train_speed,
+    recorded_once,
+    write_results,
+)
+from lerobot_ccdp.benchmark.results import command_line
+from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
+logger = logging.getLogger(__name__)
+CREATED_BY = "lerobot_ccdp.benchmark.camera_cost"
 STATE, CAMERA, ACTION = "observation.state", "observation.images.front", "action"
 TASK, REPO_ID = "DoorOpening-lite-v0", "local/door_pixels_bench"
 LATENCY_TARGET, TRAIN_TARGET = 1.5, 1.1
@@ -194,7 +206,7 @@ def lerobot_train_runs(root: Path, work: Path, steps: int, batch_size: int) -> d
     }
     results = {}
     for name, extra in runs.items():
-        print(f"(b') lerobot-train {name} ...", flush=True)
+        logger.info("(b') lerobot-train %s ...", name)
         results[name] = lerobot_train_speed(name, work / "train", [*common, *extra])
     base = results["diffusion"]["steps_per_s"]
     return {name: {**r, "ratio_step_time": base / r["steps_per_s"]} for name, r in results.items()}
@@ -241,18 +253,29 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument(
         "--sizes", type=int, nargs="*", default=[48, 64, 96], help="render sizes for (c); none skips"
     )
-    parser.add_argument("--work", type=Path, default=Path("outputs/bench_cameras"))
-    parser.add_argument("--out", type=Path, default=Path("outputs/bench_cameras.json"))
+    parser.add_argument("--work", type=Path, default=Path("outputs/camera_cost"))
+    parser.add_argument("--out", type=Path, default=Path("outputs/camera_cost.json"))
+    parser.add_argument(
+        "--adopt",
+        action="store_true",
+        help="take over a --work made by an earlier version of this tool (benchmarks/bench_cameras.py, "
+        "or before ownership markers)",
+    )
     args = parser.parse_args(argv)
+    init_logging()
+    try:
+        claim_output_folder(args.work, CREATED_BY, adopt=args.adopt, flag="--work")
+    except NotOwned as error:
+        sys.exit(str(error))
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     torch.set_num_threads(args.threads)
-    results = {"command": " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])])}
-    print("(a) planning latency ...", flush=True)
+    results = {"command": command_line(f"python -m {CREATED_BY}", sys.argv[1:] if argv is None else argv)}
+    logger.info("(a) planning latency ...")
     results["latency"] = planning_latency(args.size, args.repeats, args.warmup)
-    print("(b) training step ...", flush=True)
+    logger.info("(b) training step ...")
     results["train_step"] = training_step_time(args.size, args.batch_size, args.train_steps, args.warmup)
     if args.sizes:
-        print("(c) render sizes ...", flush=True)
+        logger.info("(c) render sizes ...")
         results["render_sizes"] = render_sizes(args.sizes, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:
         from lerobot_ccdp.datasets.recipe_file import RecordRecipe

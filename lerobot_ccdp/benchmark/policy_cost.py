@@ -1,9 +1,9 @@
 """CCDP versus LeRobot's stock DiffusionPolicy: planning latency and training speed, side by side.
 
-    HF_HUB_OFFLINE=1 .venv/bin/python benchmarks/bench_policy.py [--repeats 50] [--train-steps 30]
+    HF_HUB_OFFLINE=1 python -m lerobot_ccdp.benchmark.policy_cost [--repeats 50] [--train-steps 30]
         [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|classifier|set_denoiser]
         [--plan-batch 1] [--horizon 16] [--w-z 1] [--w-z-steps K] [--guard-steps K]
-        [--out outputs/bench_policy.json]
+        [--out outputs/policy_cost.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
 kernel 5, 8 groups, n_obs_steps 1, horizon 16, n_action_steps 8, DDIM with 10 inference steps) and the same
@@ -21,8 +21,8 @@ inputs: a 2-D robot state plus a small environment state (stock diffusion needs 
 (b) Training: forward + backward + grad clipping + Adam step on batches of --batch-size (each policy's own
     batch layout: CCDP's base stage reads history_length extra frames), median over --train-steps interleaved
     steps; then, unless --no-cli, real `lerobot-train` runs of both policy types for --cli-steps steps on a
-    reaching2d dataset with an environment state (recorded once under outputs/bench_data), whose steps/s is
-    read from lerobot-train's own update/data-loading timers (log intervals after the first).
+    reaching2d dataset with an environment state (recorded once under --work), whose steps/s is read from
+    lerobot-train's own update/data-loading timers (log intervals after the first).
 
 Prints one table and writes the figures to --out (JSON).
 """
@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import logging
 import os
 import platform
 import re
@@ -48,11 +49,15 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+from lerobot.utils.utils import init_logging
 
+from lerobot_ccdp.benchmark.results import command_line
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
 from lerobot_ccdp.policy.configuration_ccdp import RECOVERY_HEADS, CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
+logger = logging.getLogger(__name__)
+CREATED_BY = "lerobot_ccdp.benchmark.policy_cost"
 STATE, ENV, ACTION = "observation.state", "observation.environment_state", "action"
 FAILURE_COUNTS = (0, 1, 2, 4, 8)
 OUTCOME_ROWS, OPTIONS = 10000, 4
@@ -108,7 +113,7 @@ def write_results(results: dict, out: Path) -> dict:
     print("\n" + results["table"])
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=2))
-    print(f"\nwrote {out}")
+    logger.info("Wrote %s", out)
     return results
 
 
@@ -453,29 +458,31 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")
     parser.add_argument("--cli-log-freq", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")
-    parser.add_argument("--work", type=Path, default=Path("outputs/bench_data"))
-    parser.add_argument("--out", type=Path, default=Path("outputs/bench_policy.json"))
+    parser.add_argument("--work", type=Path, default=Path("outputs/policy_cost"))
+    parser.add_argument("--out", type=Path, default=Path("outputs/policy_cost.json"))
     parser.add_argument(
         "--adopt",
         action="store_true",
-        help="take over a --work made by a version of this script from before ownership markers",
+        help="take over a --work made by an earlier version of this tool (benchmarks/bench_policy.py, "
+        "or before ownership markers)",
     )
     args = parser.parse_args(argv)
+    init_logging()
     try:
-        claim_output_folder(args.work, "benchmarks/bench_policy.py", adopt=args.adopt, flag="--work")
+        claim_output_folder(args.work, CREATED_BY, adopt=args.adopt, flag="--work")
     except NotOwned as error:
         sys.exit(str(error))
 
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     torch.set_num_threads(args.threads)
     results = {"args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}}
-    results["args"]["command"] = " ".join(
-        [Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])]
+    results["args"]["command"] = command_line(
+        f"python -m {CREATED_BY}", sys.argv[1:] if argv is None else argv
     )
 
-    print("(a) planning latency ...", flush=True)
+    logger.info("(a) planning latency ...")
     results["latency"] = planning_latency(args.env_dim, args.repeats, args.warmup, args)
-    print("(b) training step ...", flush=True)
+    logger.info("(b) training step ...")
     results["train_step"] = training_step_time(args.env_dim, args.batch_size, args.train_steps, args.warmup)
     if not args.no_cli:
         root = recorded_once(
@@ -483,7 +490,7 @@ def main(argv: list[str] | None = None) -> dict:
         )
         cli = {}
         for policy_type in ("diffusion", "ccdp"):
-            print(f"(b') lerobot-train --policy.type={policy_type} --steps={args.cli_steps} ...", flush=True)
+            logger.info("(b') lerobot-train --policy.type=%s --steps=%d ...", policy_type, args.cli_steps)
             cli["ccdp" if policy_type == "ccdp" else "diffusion"] = lerobot_train_speed(
                 policy_type,
                 args.work / f"train_{policy_type}",
