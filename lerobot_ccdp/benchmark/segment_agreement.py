@@ -4,19 +4,19 @@ labels).
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.segment_agreement [--tasks all]
         [--episodes 100]
 
-Records `--episodes` demonstrations of each task with its recipe (lerobot-ccdp-record, into a fresh temporary
-folder), then gives every frame the state its option reaches under each of `demo_segments.SEGMENT_RULES` with
-the labels hidden (`labels` then means the episode's end, today's label-free form) and compares it with the
-end of the frame's labelled option (the recorded `primitive` column, which the policy never reads here).
-Prints one markdown table: the share of frames whose label-free end lies within `--tolerance` metres (pinch
-point x, y) of their labelled end, and the segments per episode. A rule that splits an option (a grasp on the
-way to a crate) or merges two (a whole episode of two fills) scores low.
+Records `--episodes` demonstrations of each task with its recipe (as lerobot-ccdp-record, into a fresh
+temporary folder), then gives every frame the state its option reaches under each of
+`demo_segments.SEGMENT_RULES` with the labels hidden (`labels` then means the episode's end, today's
+label-free form) and compares it with the end of the frame's labelled option (the recorded `primitive` column,
+which the policy never reads here). Prints one markdown table: the share of frames whose label-free end lies
+within `--tolerance` metres (pinch point x, y) of their labelled end, and the segments per episode. A rule
+that splits an option (a grasp on the way to a crate) or merges two (a whole episode of two fills) scores low.
 """
 
 from __future__ import annotations
 
 import argparse
-import subprocess
+import dataclasses
 import tempfile
 from pathlib import Path
 
@@ -24,7 +24,9 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_ccdp.benchmark.pipeline import BIN, expand_tasks, task_slug
+from lerobot_ccdp.benchmark.pipeline import expand_tasks, task_slug
+from lerobot_ccdp.datasets.recipe_file import RecordRecipe
+from lerobot_ccdp.datasets.record import record_dataset
 from lerobot_ccdp.policy.demo_segments import SEGMENT_RULES, segment_ends, segment_final_states
 from lerobot_ccdp.policy.outcome_table import read_columns
 
@@ -44,17 +46,10 @@ def agreement(columns: dict[str, np.ndarray], rule: str, tolerance: float) -> tu
 
 
 def record(task: str, root: Path, episodes: int) -> dict[str, np.ndarray]:
+    """`episodes` demos of `task` recorded with its recipe's settings, as lerobot-ccdp-record records them."""
     slug = task_slug(task)
-    subprocess.run(
-        [
-            str(BIN / "lerobot-ccdp-record"),
-            f"--config_path={RECIPES / f'{slug}.yaml'}",
-            f"--dataset.repo_id=local/{slug}",
-            f"--dataset.root={root}",
-            f"--record.n_episodes={episodes}",
-        ],
-        check=True,
-    )
+    recipe = dataclasses.replace(RecordRecipe.load(RECIPES / f"{slug}.yaml"), n_episodes=episodes)
+    record_dataset(recipe, f"local/{slug}", root, progress=False)
     return read_columns(LeRobotDatasetMetadata(f"local/{slug}", root=root), [OBS_STATE, ACTION, "primitive"])
 
 
