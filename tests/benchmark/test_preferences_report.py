@@ -3,6 +3,7 @@ between machines without its planned chunks ("positions", most of the file): the
 and the panel grid draws the members that kept their chunks; the header describes what the members were
 measured with."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -124,3 +125,25 @@ def test_each_guard_weight_adds_the_guarded_forms_at_that_weight_and_leaves_the_
     assert forms["CCDP set denoiser guard last 4"].fields["failure_guard_weight"] == 1.0
     assert "failure_guard_weight" not in forms["CCDP set denoiser"].fields
     assert len(forms) == 4  # DP* at CCDP's cost, the unguarded form and the guarded one at each weight
+
+
+def test_report_only_merges_members_run_side_by_side_into_one_report(tmp_path: Path, capsys) -> None:
+    """`--report-only --merge`: members measured under their own --out folders are tabulated together into
+    --out (its results.json, preferences.md and panel grid), and nothing is trained or measured."""
+    for seed in (100, 101):
+        (tmp_path / f"member{seed}").mkdir()
+        results = {seed: {**member(seed, positions=seed == 100), "settings": SETTINGS}}
+        (tmp_path / f"member{seed}" / "results.json").write_text(json.dumps(results))
+    out = tmp_path / "family"
+    bench.main(
+        ["--report-only", "--members", "100", "101", "102", "--out", str(out)]
+        + ["--merge", str(tmp_path / "member100"), str(tmp_path / "member101")]
+    )
+    printed = capsys.readouterr().out
+    assert "| 100 |" in printed and "| 101 |" in printed and "| 102 |" not in printed  # 102: never measured
+    assert "Over the 2 members" in printed
+    assert sorted(json.loads((out / "results.json").read_text())) == ["100", "101"]
+    assert (
+        (out / "preferences.md").read_text().startswith("Failed share / preference error; members [100, 101]")
+    )
+    assert (out / "preferences.png").stat().st_size > 0  # member 100 kept its chunks

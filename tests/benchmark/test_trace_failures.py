@@ -8,6 +8,8 @@ import numpy as np
 import torch
 
 from lerobot_ccdp.benchmark import trace_failures as trace
+from lerobot_ccdp.envs.base import CCDPTaskEnv
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 A, B, C = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
 NONE = np.zeros((0, 3))
@@ -139,3 +141,21 @@ def test_a_repeats_attempt_and_a_stalled_last_attempt_show_where_the_end_effecto
     out = capsys.readouterr().out
     assert "a repeat's attempt, its end effector every 10 steps: [[0.0, 0.0, 0.0], [10.0, 10.0, 10.0]]" in out
     assert "its last attempt's end effector every 10 steps: [[0.5, 0.5, 0.5]]" in out
+
+
+def test_the_tool_traces_a_real_evaluation_and_leaves_the_policy_and_env_unwrapped(
+    door_lite_checkpoint, capsys
+):
+    """`python -m lerobot_ccdp.benchmark.trace_failures` in-process on a DoorOpening-lite checkpoint: every
+    episode is reported with every first plan after a failure probed, and the wrapped env and policy methods
+    are restored afterwards (a second run, or any later rollout, sees the originals)."""
+    originals = (CCDPTaskEnv.step, CCDPTaskEnv.reset, CCDPPolicy.reset, CCDPPolicy._sample)
+    trace.main(
+        ["--checkpoint", str(door_lite_checkpoint), "--eval-config", "configs/door_opening_lite/eval.json"]
+        + ["--episodes", "2", "--probe", "2", "--verbose", "--eval.batch_size=2"]
+        + ["--policy.device=cpu", "--policy.num_inference_steps=2"]
+    )
+    out = capsys.readouterr().out
+    assert "\n2 episodes, " in out and "episode 0: " in out and "episode 1: " in out  # --verbose: both
+    assert "probe: " in out and "first plans after a failure; share of draws on a failed option" in out
+    assert (CCDPTaskEnv.step, CCDPTaskEnv.reset, CCDPPolicy.reset, CCDPPolicy._sample) == originals
