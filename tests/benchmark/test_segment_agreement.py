@@ -2,7 +2,7 @@
 lerobot-ccdp-record and scores every rule of `demo_segments.SEGMENT_RULES` against the recorded labels."""
 
 from lerobot_ccdp.benchmark import segment_agreement
-from lerobot_ccdp.recovery.demo_segments import SEGMENT_RULES
+from lerobot_ccdp.policy.demo_segments import SEGMENT_RULES
 
 
 def test_an_expert_door_demo_is_one_option_so_its_episode_end_is_its_labelled_end(capsys):
