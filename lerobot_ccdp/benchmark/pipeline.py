@@ -70,6 +70,9 @@ METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp")
 # (MATCHED_DP_STAR unless methods.json names its own), so that CCDP - matched DP* shows what composition buys
 # over rejection at equal compute.
 RECOVERY_MODE = {"dp": "dp", "dp_star": "dp_star", "dp_star_matched": "dp_star", "ccdp": "ccdp"}
+# The methods that sample the recovery head; the others sample the base alone and are evaluated on the base's
+# checkpoint while the recovery stage is synthesised and trained beside them.
+HEAD_METHODS = ("ccdp",)
 MATCHED_DP_STAR = {"dp_star_candidates": 2, "dp_star_rounds": 1}
 # Every method's evaluation runs with `--env.render_mode=null`, so its wall time measures the method alone (on
 # the Panda each rendered frame costs about 40 ms, and LeRobot renders 10 envs at every step of the first
@@ -318,8 +321,11 @@ class TaskRun:
         jobs: int = 1,
     ):
         self.files = files
-        # Evaluations run `jobs` at a time, each on its share of the cores (`run_at_once`).
+        # Stages run `jobs` at a time (`run_at_once`, at most `jobs` commands at once), each with
+        # `stage_threads(jobs)` torch threads.
         self.jobs = jobs
+        self.slots = threading.Semaphore(jobs)
+        self.threads = stage_threads(jobs)
         self._book_lock = threading.Lock()
         seeds = files.seeds(eval_seed, eval_episodes)
         self.eval_seed, self.n_episodes = seeds.start, len(seeds)
@@ -349,6 +355,47 @@ class TaskRun:
         base, base_stamp = self._train(
             "train_base", f.train_base, f.out / "base", f"local/{self.slug}", f.demos, upstream=demos
         )
+
+        def evaluations(checkpoint: Path, upstream: str, names: list[str]) -> list[Callable[[], str]]:
+            """Each method's evaluation and videos stages on `checkpoint`."""
+            stages = [(f"eval_{m}", m, f.eval_dir(m), False) for m in names] + [
+                (f"videos_{m}", m, f.video_dir(m), True) for m in names if m in VIDEO_METHODS
+            ]
+            return [
+                functools.partial(
+                    self._stage,
+                    stage,
+                    out / "eval_info.json",
+                    f.eval_command(
+                        checkpoint,
+                        method,
+                        self.eval_seed,
+                        out,
+                        f.method_flags(method),
+                        videos=videos,
+                        episodes=self.eval_episodes,
+                    ),
+                    upstream=upstream,
+                    clear=out,
+                )
+                for stage, method, out, videos in stages
+            ]
+
+        def recovery_lane() -> None:
+            recovery, recovery_stamp = self._recovery(base, base_stamp)
+            heads = [m for m in methods if m in HEAD_METHODS]
+            run_at_once(self.jobs, evaluations(recovery, recovery_stamp, heads))
+
+        # The baselines sample the base alone, so they are evaluated on the base's checkpoint (the recovery
+        # checkpoint holds the same weights, frozen in its stage) while the recovery stage is made beside.
+        baselines = evaluations(base, base_stamp, [m for m in methods if m not in HEAD_METHODS])
+        run_at_once(self.jobs, [recovery_lane, *baselines])
+        return self.episodes(methods) if methods else {}
+
+    def _recovery(self, base: Path, base_stamp: str) -> tuple[Path, str]:
+        """Synthesise the recovery rows from `base` (unless the head learns from the demonstrations) and train
+        the recovery stage on them; return its checkpoint and stamp."""
+        f = self.files
         if f.recovery_head() == "classifier":  # learns from the demonstrations: nothing to synthesise
             recovery_repo, recovery_root, recovery_upstream = f"local/{self.slug}", f.demos, base_stamp
         else:
@@ -368,7 +415,7 @@ class TaskRun:
                 upstream=base_stamp,
                 clear=f.recovery_data,
             )
-        recovery, recovery_stamp = self._train(
+        return self._train(
             "train_recovery",
             f.train_recovery,
             f.out / "recovery",
@@ -378,32 +425,6 @@ class TaskRun:
             "--policy.training_stage=recovery",
             upstream=recovery_upstream,
         )
-        stages = [(f"eval_{m}", m, f.eval_dir(m), False) for m in methods] + [
-            (f"videos_{m}", m, f.video_dir(m), True) for m in methods if m in VIDEO_METHODS
-        ]
-        threads = max(1, (os.cpu_count() or 1) // self.jobs) if self.jobs > 1 else None
-        evaluations = [
-            functools.partial(
-                self._stage,
-                stage,
-                out / "eval_info.json",
-                f.eval_command(
-                    recovery,
-                    method,
-                    self.eval_seed,
-                    out,
-                    f.method_flags(method),
-                    videos=videos,
-                    episodes=self.eval_episodes,
-                ),
-                upstream=recovery_stamp,
-                clear=out,
-                threads=threads,
-            )
-            for stage, method, out, videos in stages
-        ]
-        run_at_once(self.jobs, evaluations)
-        return self.episodes(methods) if methods else {}
 
     def episodes(self, methods: list[str]) -> dict[str, Episodes]:
         """Every method's evaluated episodes, and the oracle's on the same seeds (run here if missing)."""
@@ -459,13 +480,12 @@ class TaskRun:
         command: list[str],
         upstream: str | None,
         clear: Path,
-        threads: int | None = None,
     ) -> str:
         """Run `command` unless `output` exists and was made from the same inputs; return the stage's stamp.
 
         `clear` (the stage's own output folder, stale or half-written) is removed before the command runs;
-        it must lie inside the task's folder, which lies in the --out this pipeline owns. `threads` sets the
-        command's torch threads (OMP_NUM_THREADS), for stages that run side by side."""
+        it must lie inside the task's folder, which lies in the --out this pipeline owns. The command runs in
+        one of the task's `jobs` slots, with `stage_threads(jobs)` torch threads."""
         task_out = self.files.out.resolve()
         if clear.resolve() == task_out or not clear.resolve().is_relative_to(task_out):
             raise PipelineError(
@@ -485,10 +505,14 @@ class TaskRun:
             shutil.rmtree(clear)
         log = self.logs / f"{name}.log"
         print(f"[{self.files.task}] {name}: {shlex.join(command)}", flush=True)
-        start = time.perf_counter()
-        returncode = run_with_progress(
-            [str(BIN / command[0]), *command[1:]], log, f"[{self.files.task}] {name}", threads=threads
-        )
+        with self.slots:
+            start = time.perf_counter()
+            returncode = run_with_progress(
+                [str(BIN / command[0]), *command[1:]],
+                log,
+                f"[{self.files.task}] {name}",
+                threads=self.threads,
+            )
         if returncode != 0 or not output.exists():
             tail = log.read_text()[-4000:]
             raise PipelineError(
@@ -529,6 +553,12 @@ class TaskRun:
             if found:
                 times[stage] = tuple(float(v) for v in found[-1])
         return times
+
+
+def stage_threads(jobs: int) -> int:
+    """Torch threads of each stage's command: the machine's cores shared among the `jobs` commands that may
+    run at once."""
+    return max(1, (os.cpu_count() or 1) // jobs)
 
 
 def run_at_once(jobs: int, calls: list[Callable[[], Any]]) -> None:

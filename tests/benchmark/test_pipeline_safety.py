@@ -7,6 +7,8 @@ import fcntl
 import os
 import re
 import shutil
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -456,3 +458,56 @@ def test_results_never_replace_a_users_file(root, capsys):
     shutil.copy(REPO / "docs" / "results.md", mine)
     results.main(["--run", "Labels", run_file, "--out", str(mine)])
     assert "| DoorOpening |" in mine.read_text()
+
+
+class SideBySide(FakeStages):
+    """Fake stages that count how many commands run at once; with `wait`, the synthesis waits until a
+    baseline's evaluation has started (or 20 s), so a run that evaluates the baselines only after the recovery
+    stage shows as none side by side."""
+
+    def __init__(self, wait: bool) -> None:
+        super().__init__()
+        self.wait = wait
+        self.running, self.most, self.threads = 0, 0, set()
+        self.lock, self.baseline_started = threading.Lock(), threading.Event()
+
+    def __call__(self, command: list[str], log: Path, label: str, threads: int | None = None) -> int:
+        with self.lock:
+            self.running += 1
+            self.most = max(self.most, self.running)
+            self.threads.add(threads)
+        name = Path(command[0]).name
+        if name == "lerobot-eval" and "--policy.recovery_mode=dp" in command:
+            self.baseline_started.set()
+        if name == "lerobot-ccdp-synthesize" and self.wait:
+            self.baseline_started.wait(timeout=20)
+        time.sleep(0.05)
+        with self.lock:
+            self.running -= 1
+        return super().__call__(command, log, label, threads)
+
+
+OUTPUTS["lerobot-eval"] = ("--output_dir", "eval_info.json")
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_baselines_are_evaluated_on_the_base_beside_the_recovery_stage(root, monkeypatch, jobs):
+    fake = SideBySide(wait=jobs > 1)
+    monkeypatch.setattr(pipeline, "run_with_progress", fake)
+    monkeypatch.setattr(TaskRun, "episodes", lambda self, methods: {})
+    files = TaskFiles.locate(TASK, Path("settings/configs"), Path("settings/recipes"), root / "out")
+    TaskRun(files, jobs=jobs).run(["dp", "dp_star", "ccdp"])
+    policy = {
+        next(a for a in c if a.startswith("--output_dir=")).split("/")[-1]: next(
+            a.split("=", 1)[1] for a in c if a.startswith("--policy.path=")
+        )
+        for c in fake.commands
+        if Path(c[0]).name == "lerobot-eval" and "--env.render_mode=null" in c
+    }
+    assert policy == {
+        "dp": str(files.out / "base" / CHECKPOINT),
+        "dp_star": str(files.out / "base" / CHECKPOINT),
+        "ccdp": str(files.out / "recovery" / CHECKPOINT),
+    }
+    assert fake.most == jobs  # side by side with 2 jobs, never more commands at once than jobs
+    assert fake.threads == {pipeline.stage_threads(jobs)}
