@@ -25,6 +25,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from tqdm import tqdm
 
+from lerobot_ccdp.compat.episode_writes import image_free_episodes
 from lerobot_ccdp.datasets.configs import RecordConfig, parse_cli
 from lerobot_ccdp.datasets.recipe_file import RecordRecipe
 from lerobot_ccdp.datasets.staging import check_output_root, staged_dataset_root
@@ -104,7 +105,7 @@ def record_dataset(
     except ValueError as error:  # a setting out of range (the recipe checked the names and types)
         raise RecordingRefused(f"record.env_kwargs: {error}") from error
     try:
-        with staged_dataset_root(root, overwrite) as staging:
+        with staged_dataset_root(root, overwrite) as staging, image_free_episodes():
             discarded = _record_into(staging, recipe, repo_id, env, progress)
     finally:
         env.close()

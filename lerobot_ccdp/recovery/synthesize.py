@@ -57,6 +57,7 @@ from lerobot.utils.utils import is_torch_device_available
 from torch import Tensor
 from tqdm import tqdm
 
+from lerobot_ccdp.compat.episode_writes import image_free_episodes
 from lerobot_ccdp.datasets.camera_windows import CameraWindows
 from lerobot_ccdp.datasets.configs import SynthesizeConfig, parse_cli
 from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
@@ -537,10 +538,11 @@ def _write(
     task = f"recover from a failure: {meta.tasks.index[0]}" if len(meta.tasks) else "recover from a failure"
     dataset = LeRobotDataset.create(repo_id, fps=meta.fps, features=features, root=path, use_videos=False)
     try:
-        for start in range(0, len(failure), EPISODE_ROWS):
-            for row in range(start, min(start + EPISODE_ROWS, len(failure))):
-                dataset.add_frame({**{k: v[row] for k, v in columns.items()}, "task": task})
-            dataset.save_episode()
+        with image_free_episodes():
+            for start in range(0, len(failure), EPISODE_ROWS):
+                for row in range(start, min(start + EPISODE_ROWS, len(failure))):
+                    dataset.add_frame({**{k: v[row] for k, v in columns.items()}, "task": task})
+                dataset.save_episode()
     finally:
         dataset.finalize()
     # The chunk columns' per-frame stats are meaningless for the normaliser: use the checkpoint's, per action
