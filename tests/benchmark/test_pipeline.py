@@ -590,3 +590,29 @@ def test_the_forms_table_names_the_set_denoisers_window_of_guided_steps_and_its_
     assert w_z_window(None, 0, 4) == "; its guard on the last 4 steps"
     assert w_z_window(3, 5, 2).endswith("1 elsewhere; its guard on the last 2 steps")
     assert w_z_window(None, 0, 8, 2.0) == "; its guard on the last 8 steps at weight 2"
+
+
+@pytest.mark.slow  # three trainings of 20 steps through lerobot-train
+def test_throughput_times_the_base_the_head_and_lerobots_diffusion_with_the_same_unet(
+    settings, pipeline_run, tmp_path, capsys
+):
+    from lerobot_ccdp.benchmark import throughput
+
+    out, _ = pipeline_run
+    configs, recipes = settings
+    throughput.main(
+        [
+            *("--task", TASK, "--run", str(out), "--configs", str(configs), "--recipes", str(recipes)),
+            *("--out", str(tmp_path / "throughput"), "--steps", "20", "--repeats", "1"),
+        ]
+    )
+    rows = [line.split("|")[1:-1] for line in capsys.readouterr().out.splitlines() if line.startswith("| ")]
+    assert [r[0].strip() for r in rows[1:]] == ["diffusion", "ccdp base", "ccdp recovery"]
+    assert all(float(r[1]) > 0 and r[2].strip().endswith("%") for r in rows[1:])
+    assert rows[1][3].strip() == "1.00x"
+    diffusion = json.loads(
+        (tmp_path / "throughput/train/diffusion/checkpoints/last/pretrained_model/config.json").read_text()
+    )
+    base = json.loads((out / SLUG / "base" / CHECKPOINT / "config.json").read_text())
+    assert diffusion["type"] == "diffusion"
+    assert all(diffusion[k] == base[k] for k in throughput.SHARED_FIELDS)
