@@ -14,7 +14,7 @@ import sys
 import tempfile
 import typing
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
@@ -36,6 +36,18 @@ class LocalDatasetConfig:
 
     repo_id: str  # required: its repo id, e.g. local/door_opening
     root: Path  # required: its folder
+
+
+@dataclass
+class OutputDatasetConfig:
+    """A LeRobot dataset this command writes on this machine."""
+
+    root: Path  # required: its folder
+    repo_id: str | None = None  # its repo id; null: local/<the root's folder name>
+
+    def __post_init__(self):
+        if self.repo_id is None:
+            self.repo_id = f"local/{Path(self.root).name}"
 
 
 @dataclass
@@ -76,13 +88,14 @@ class RecordConfig(RecipeCommandConfig):
 class SynthesizeConfig(RecipeCommandConfig):
     """lerobot-ccdp-synthesize: turn demonstrations and a base checkpoint into a recovery dataset (eq. 5-7).
 
-    --config_path=<recipe yaml> reads the file's `recovery:` section;
-    --recovery.<field>=... flags override it."""
+    Without --config_path every recovery field has its default and z is the base checkpoint's; a recipe file
+    (--config_path=<recipe yaml>, its `recovery:` section) or --recovery.<field>=... flags change them."""
 
-    recovery: RecoveryRecipe  # how to synthesise: the `recovery:` section of the recipe file
     dataset: LocalDatasetConfig  # the demonstrations the base was trained on
     policy: CheckpointConfig  # the base checkpoint, trained on `dataset`
-    output: LocalDatasetConfig  # where to write the recovery dataset
+    output: OutputDatasetConfig  # where to write the recovery dataset
+    # how to synthesise: the `recovery:` section of the recipe file; z defaults to the checkpoint's
+    recovery: RecoveryRecipe = field(default_factory=RecoveryRecipe)
     # replace output.root once the new dataset is complete, if it holds one lerobot_ccdp wrote at that path
     overwrite: bool = False
 
@@ -146,7 +159,7 @@ def _check_repo_ids(config: RecipeCommandConfig) -> None:
     then refused by the training that read it."""
     for f in dataclasses.fields(config):
         dataset = getattr(config, f.name)
-        if isinstance(dataset, LocalDatasetConfig):
+        if isinstance(dataset, LocalDatasetConfig | OutputDatasetConfig):
             try:
                 validate_repo_id(dataset.repo_id)
             except ValueError as error:

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from lerobot.utils.constants import OBS_STATE
 
 from lerobot_ccdp.envs.interface import CONTROL_FPS
 from lerobot_ccdp.envs.tasks import task_class
@@ -100,20 +99,20 @@ class RecordRecipe:
 class RecoveryRecipe:
     """How `lerobot-ccdp-synthesize` builds a recovery dataset (paper eq. 5-7).
 
-    The failure feature settings must be those the base checkpoint was trained with (they define z); the
-    other fields are the synthesis parameters. Distances are in the policy's normalised space.
+    The failure feature settings (`Z_FIELDS`) define z, so they are those the base checkpoint was trained
+    with: left null they are read from the checkpoint, and a value given must equal the checkpoint's (a
+    recipe written for one base is refused for another). The other fields are the synthesis parameters, so
+    a recipe with no field at all serves any base. Distances are in the policy's normalised space.
     """
 
-    # required: what z is, one of final_state, action, primitive (as --policy.failure_feature)
-    failure_feature: str
-    failure_state_key: str = OBS_STATE  # final_state z: the observation that forms z
-    failure_state_dims: list[int] = field(default_factory=list)  # final_state z: which of its dims; []: all
-    # action z: which steps of the chunk; []: all
-    failure_action_steps: list[int] = field(default_factory=list)
-    # action z: which action dims at each step; []: all
-    failure_action_dims: list[int] = field(default_factory=list)
-    primitive_key: str = "primitive"  # primitive z: the dataset column of the option label
-    num_primitives: int = 0  # primitive z: the number of options (z is one-hot)
+    # z settings, as --policy.<name>; null: the base checkpoint's.
+    failure_feature: str | None = None  # what z is, one of final_state, action, primitive
+    failure_state_key: str | None = None  # final_state z: the observation that forms z
+    failure_state_dims: list[int] | None = None  # final_state z: which of its dims; []: all
+    failure_action_steps: list[int] | None = None  # action z: which steps of the chunk; []: all
+    failure_action_dims: list[int] | None = None  # action z: which action dims at each step; []: all
+    primitive_key: str | None = None  # primitive z: the dataset column of the option label
+    num_primitives: int | None = None  # primitive z: the number of options (z is one-hot)
     n_states: int = 512  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
     chunks_per_state: int = 16  # chunks sampled around each x_s from eq. (7)
     sigma: float = 0.02  # std of the state noise xi_x (eq. 6)
@@ -134,7 +133,7 @@ class RecoveryRecipe:
         """The recipe of a `recovery:` mapping, checked; errors start with `source` (the file) where given."""
         at = f"{source}: " if source else ""
         recipe = _build(cls, values, "recovery", at)
-        if recipe.failure_feature not in FAILURE_FEATURES:
+        if recipe.failure_feature not in (None, *FAILURE_FEATURES):
             raise ValueError(
                 f"{at}recovery.failure_feature must be one of {list(FAILURE_FEATURES)}, "
                 f"got {recipe.failure_feature!r}"
@@ -160,14 +159,34 @@ class RecoveryRecipe:
         return cls.from_dict(read_recipe_section(path, "recovery"), source=str(path))
 
     def failure_settings(self) -> dict[str, Any]:
-        """The settings that define z, named as in CCDPConfig (`--policy.<name>`)."""
-        names = ["failure_feature"]
-        names += {
-            "final_state": ["failure_state_key", "failure_state_dims"],
-            "action": ["failure_action_steps", "failure_action_dims"],
-            "primitive": ["primitive_key", "num_primitives"],
-        }[self.failure_feature]
-        return {name: getattr(self, name) for name in names}
+        """The z settings this recipe names (`failure_feature` and those its kind of z reads; null ones
+        excluded), named as in CCDPConfig (`--policy.<name>`)."""
+        names = ["failure_feature", *Z_FIELDS_OF.get(self.failure_feature, Z_FIELDS[1:])]
+        return {name: value for name in names if (value := getattr(self, name)) is not None}
+
+    def for_checkpoint(self, config: Any, source: str) -> RecoveryRecipe:
+        """This recipe with every z setting the checkpoint's `config` (a CCDPConfig) was trained with; a z
+        setting the recipe names differently from the checkpoint is refused, naming both fixes."""
+        wanted = self.failure_settings()
+        mismatched = {k: (v, getattr(config, k)) for k, v in wanted.items() if getattr(config, k) != v}
+        if mismatched:
+            details = ", ".join(f"{k}: recipe {v!r} vs checkpoint {c!r}" for k, (v, c) in mismatched.items())
+            flags = " ".join(f"--policy.{k}={v}" for k, v in wanted.items())
+            raise ValueError(
+                f"The recipe {source} and the base checkpoint define z differently ({details}). Train the "
+                f"base with `{flags}`, or edit the recipe's `recovery:` section to match the checkpoint "
+                "(or leave its z settings out: they default to the checkpoint's)."
+            )
+        return dataclasses.replace(self, **{name: getattr(config, name) for name in Z_FIELDS})
+
+
+# The recipe's z settings (as CCDPConfig's), and those each kind of z reads besides `failure_feature`.
+Z_FIELDS_OF = {
+    "final_state": ("failure_state_key", "failure_state_dims"),
+    "action": ("failure_action_steps", "failure_action_dims"),
+    "primitive": ("primitive_key", "num_primitives"),
+}
+Z_FIELDS = ("failure_feature", *(name for names in Z_FIELDS_OF.values() for name in names))
 
 
 def env_arguments(env_class: type) -> dict[str, Any]:

@@ -180,19 +180,6 @@ def load_checkpoint(
     return policy, stats
 
 
-def check_recipe_matches(recipe: RecoveryRecipe, config: CCDPConfig, source: str) -> None:
-    """z is defined by the failure settings: the recipe and the checkpoint must agree on them."""
-    wanted = recipe.failure_settings()
-    mismatched = {k: (v, getattr(config, k)) for k, v in wanted.items() if getattr(config, k) != v}
-    if mismatched:
-        details = ", ".join(f"{k}: recipe {v!r} vs checkpoint {c!r}" for k, (v, c) in mismatched.items())
-        flags = " ".join(f"--policy.{k}={v}" for k, v in wanted.items())
-        raise ValueError(
-            f"The recipe {source} and the base checkpoint define z differently ({details}). Train the "
-            f"base with `{flags}`, or edit the recipe's `recovery:` section to match the checkpoint."
-        )
-
-
 def check_features_match(config: CCDPConfig, meta: LeRobotDatasetMetadata) -> None:
     """The checkpoint must be trained on data of the demos' layout, or sampling fails on a tensor size."""
     keys = [OBS_STATE, *([OBS_ENV_STATE] if config.env_state_feature else []), *config.image_features, ACTION]
@@ -410,7 +397,7 @@ def synthesize_recovery_dataset(
     check_demo_root(demo_root)
     policy, stats = load_checkpoint(policy_path, device)
     config = policy.config
-    check_recipe_matches(recipe, config, recipe_source)
+    recipe = recipe.for_checkpoint(config, recipe_source)  # z as the base was trained with
     if recipe.demo_siblings and config.recovery_head != "set_denoiser":
         raise ValueError(
             f"recovery.demo_siblings gives demonstrated rows the siblings that only the set denoiser's rows "

@@ -14,6 +14,7 @@ from lerobot_ccdp.datasets import record
 from lerobot_ccdp.datasets.configs import (
     CheckpointConfig,
     LocalDatasetConfig,
+    OutputDatasetConfig,
     RecordConfig,
     SynthesizeConfig,
     parse_cli,
@@ -52,7 +53,7 @@ def test_help_lists_every_field_with_its_default(config_class, recipe_class, cap
     nested = {
         config_class.section: recipe_class,
         "dataset": LocalDatasetConfig,
-        "output": LocalDatasetConfig,
+        "output": OutputDatasetConfig,
         "policy": CheckpointConfig,
     }
     expected = {}
@@ -104,7 +105,7 @@ def test_overrides_merge_with_the_own_section_of_the_recipe_file():
         {**file["recovery"], "sigma": 0.05, "failure_state_dims": [0, 1]}
     )
     assert cfg.policy == CheckpointConfig(path=Path("runs/base"), device="cpu")
-    assert cfg.output == LocalDatasetConfig("local/door_recovery", Path("data/rec")) and not cfg.overwrite
+    assert cfg.output == OutputDatasetConfig(Path("data/rec"), "local/door_recovery") and not cfg.overwrite
     cfg = parse_cli(RecordConfig, [f"--config_path={DOOR}", *DEMOS, "--overwrite=true"])
     assert cfg.record == RecordRecipe.from_dict(file["record"]) and cfg.overwrite
 
@@ -184,14 +185,13 @@ def test_missing_required_fields_name_their_flags(tmp_path):
         ),
     ):
         parse_cli(RecordConfig, ["--dataset.repo_id=local/door"])
-    with pytest.raises(SystemExit, match=r"missing required flag\(s\): --policy.path, --output.repo_id$"):
-        parse_cli(SynthesizeConfig, [f"--config_path={DOOR}", *DEMOS, "--output.root=data/rec"])
+    with pytest.raises(SystemExit, match=r"missing required flag\(s\): --policy.path, --output.root$"):
+        parse_cli(SynthesizeConfig, [f"--config_path={DOOR}", *DEMOS])
+    # The recovery section needs no field: z is the checkpoint's, the rest has defaults.
     recipe = tmp_path / "recipe.yaml"
     recipe.write_text(yaml.safe_dump({"recovery": {"sigma": 0.1}}))
-    with pytest.raises(SystemExit, match=r"`recovery:` is missing required field\(s\): failure_feature"):
-        parse_cli(SynthesizeConfig, [f"--config_path={recipe}", *SYNTHESIS])
-    assert parse_cli(
-        SynthesizeConfig, [f"--config_path={recipe}", *SYNTHESIS, "--recovery.failure_feature=action"]
+    assert parse_cli(SynthesizeConfig, [f"--config_path={recipe}", *SYNTHESIS]).recovery == RecoveryRecipe(
+        sigma=0.1
     )
 
 

@@ -239,6 +239,40 @@ def test_refuses_a_recipe_that_defines_z_differently(reaching_root, tmp_path):
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize("settings", ["final_state_1d", "primitive"])
+def test_without_a_recipe_z_is_the_checkpoints(reaching_root, tmp_path, settings):
+    """README's `lerobot-ccdp-synthesize --policy.path --dataset.* --output.root`: no recipe file and no z
+    flag; every z setting is read from the base checkpoint, and the rows are dataset local/<output folder>."""
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS[settings])
+    out = tmp_path / "my_rows"
+    small = [f"--recovery.{k}={v}" for k, v in SMALL.items()]
+    demos = [f"--dataset.repo_id={REACHING_REPO_ID}", f"--dataset.root={reaching_root}"]
+    synthesize.main([f"--policy.path={checkpoint}", *demos, f"--output.root={out}", *small])
+
+    config = CCDPPolicy.from_pretrained(checkpoint).config
+    record = yaml.safe_load((out / RECIPE_COPY).read_text())["recovery"]
+    z_fields = (
+        "failure_feature",
+        "failure_state_key",
+        "failure_state_dims",
+        "primitive_key",
+        "num_primitives",
+    )
+    assert {k: record[k] for k in z_fields} == {k: getattr(config, k) for k in z_fields}
+    assert LeRobotDataset("local/my_rows", root=out).num_frames > 0
+    assert_rows_store_the_policys_z(checkpoint, out)
+
+
+def test_a_recipe_naming_some_z_settings_takes_the_others_from_the_checkpoint():
+    config = CCDPConfig(failure_feature="final_state", failure_state_dims=[0, 2])
+    recipe = RecoveryRecipe.from_dict({"failure_state_dims": [0, 2], "sigma": 0.05})
+    resolved = recipe.for_checkpoint(config, "recipe.yaml")
+    assert resolved.failure_feature == "final_state" and resolved.failure_state_dims == [0, 2]
+    assert resolved.num_primitives == 0 and resolved.sigma == 0.05
+    with pytest.raises(ValueError, match=r"failure_state_dims: recipe \[1\] vs checkpoint \[0, 2\]"):
+        RecoveryRecipe(failure_state_dims=[1]).for_checkpoint(config, "recipe.yaml")
+
+
 def test_refuses_a_demo_dataset_without_the_named_feature(reaching_root, tmp_path):
     settings = {"failure_feature": "primitive", "num_primitives": 4, "primitive_key": "option"}
     checkpoint = untrained_checkpoint(
