@@ -73,7 +73,7 @@ from lerobot_ccdp.policy.outcome_index import OutcomeIndex
 from lerobot_ccdp.policy.outcome_table import build_outcome_table
 from lerobot_ccdp.policy.rollout_memory import RolloutMemory
 from lerobot_ccdp.policy.samplers import SAMPLERS, PlanRows
-from lerobot_ccdp.policy.training_checks import refuse_fresh_training
+from lerobot_ccdp.policy.training_checks import refuse_fresh_training, refuse_resume_with_nothing_to_train
 
 logger = logging.getLogger(__name__)
 
@@ -161,6 +161,9 @@ class CCDPPolicy(PreTrainedPolicy):
     # ----- training -------------------------------------------------------------------------------------
 
     def get_optim_params(self) -> list:
+        """lerobot-train's parameters to optimise (the base's are frozen in the recovery stage). Asked once
+        per run, before the first step: a resume that has nothing left to train is refused here."""
+        refuse_resume_with_nothing_to_train(self.config.pretrained_path)
         return [p for p in self.parameters() if p.requires_grad]
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:

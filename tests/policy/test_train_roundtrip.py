@@ -3,11 +3,13 @@ save_pretrained/from_pretrained of weights, config and processors."""
 
 import json
 import shutil
+import sys
 
 import pytest
 import torch
 from lerobot.policies.factory import make_pre_post_processors
 from lerobot.processor import PolicyProcessorPipeline
+from lerobot.scripts import lerobot_train
 
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
@@ -68,6 +70,22 @@ def test_lerobot_train_from_policy_path(trained_checkpoint, reaching_root, tmp_p
     args = [a for a in train_args(reaching_root, out, 20) if not a.startswith("--policy.")]
     run_cli(*args, f"--policy.path={trained_checkpoint}", "--policy.push_to_hub=false", "--save_freq=20")
     assert (out / "checkpoints" / "000020" / "pretrained_model" / "model.safetensors").is_file()
+
+
+@pytest.mark.parametrize("steps", [["--steps=40"], []], ids=["same-steps", "config-steps"])
+def test_a_resume_with_nothing_left_to_train_is_refused(trained_run, tmp_path, monkeypatch, steps):
+    """LeRobot's loop runs from the saved step to --steps: at 40 of 40 it would train nothing and exit 0."""
+    run = tmp_path / "run"
+    shutil.copytree(trained_run, run, symlinks=True)
+    config = run / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
+    config.write_text(json.dumps({**json.loads(config.read_text()), "output_dir": str(run)}))
+    argv = ["lerobot-train", f"--config_path={config}", "--resume=true", *steps]
+    monkeypatch.setattr(sys, "argv", argv)
+    with pytest.raises(
+        ValueError, match=r"saved at step 40, and --steps=40 .* nothing is left to train.*--steps=80"
+    ):
+        lerobot_train.main()
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["000020", "000040", "last"]
 
 
 def test_lerobot_train_resume(trained_run, tmp_path):
