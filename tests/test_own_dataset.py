@@ -4,9 +4,6 @@ the section's three commands as written (in-process, through the console scripts
 the step counts and sizes made small) to a checkpoint that recovers: its recovery head is trained and a
 reported failure changes the next plan."""
 
-import re
-import shlex
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,44 +11,18 @@ import torch
 import yaml
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import make_pre_post_processors
-from lerobot.scripts import lerobot_train
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_ccdp.datasets.camera_windows import video_backend
 from lerobot_ccdp.datasets.configs import SynthesizeConfig, parse_cli
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
-from lerobot_ccdp.recovery import synthesize
 from lerobot_ccdp.recovery.synthesize import RECIPE_COPY
+
+from fixtures.doc_commands import commands, run_command, sized
 
 REPO = Path(__file__).resolve().parent.parent
 CAMERA, SIZE, FPS = "observation.images.front", 64, 10
 SECTION = (REPO / "README.md").read_text().split("## Train on a local dataset\n", 1)[1].split("\n#", 1)[0]
-# Only the sizes change from the README: steps, batches and the synthesis pool.
-SMALL = {
-    "lerobot-train": {"--steps": "6", "--batch_size": "8", "--save_freq": "6", "--log_freq": "3"},
-    "lerobot-ccdp-synthesize": {
-        "--recovery.n_states": "8",
-        "--recovery.batch_states": "8",
-        "--recovery.demo_frames": "64",
-    },
-}
-
-
-def readme_commands() -> list[list[str]]:
-    """The section's shell commands, continuations joined and comments dropped, as argv lists."""
-    (block,) = re.findall(r"^```bash\n(.*?)^```", SECTION, flags=re.MULTILINE | re.DOTALL)
-    lines = block.replace("\\\n", " ").splitlines()
-    return [shlex.split(line, comments=True) for line in lines if line.strip()]
-
-
-def sized(argv: list[str]) -> list[str]:
-    """`argv` with the test's small sizes in place of the README's (or added)."""
-    small = dict(SMALL[argv[0]])
-    out = [
-        f"{arg.split('=')[0]}={small.pop(arg.split('=')[0])}" if arg.split("=")[0] in small else arg
-        for arg in argv
-    ]
-    return out + [f"{flag}={value}" for flag, value in small.items()]
 
 
 def record_with_lerobot(root: Path, repo_id: str) -> None:
@@ -76,17 +47,6 @@ def record_with_lerobot(root: Path, repo_id: str) -> None:
     dataset.finalize()
 
 
-def run_readme_command(argv: list[str], monkeypatch) -> None:
-    """One command of the section through its console script's entry point, in this process."""
-    if argv[0] == "lerobot-train":
-        monkeypatch.setattr(sys, "argv", argv)
-        lerobot_train.main()
-    elif argv[0] == "lerobot-ccdp-synthesize":
-        synthesize.main(argv[1:])
-    else:
-        raise AssertionError(f"the section runs a command this test does not know: {argv}")
-
-
 def first_plan(policy: CCDPPolicy, pre, observation: dict, failed: bool) -> torch.Tensor:
     """The first action of the plan drawn at `observation` (after one failed attempt if `failed`), from the
     same noise either way."""
@@ -102,19 +62,18 @@ def first_plan(policy: CCDPPolicy, pre, observation: dict, failed: bool) -> torc
 
 def test_the_readme_path_turns_a_lerobot_dataset_into_a_recovering_policy(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the README's relative paths, as typed from a clone's root
-    record, *commands = readme_commands()
-    root = Path(record[record.index("--root") + 1])
+    _, *typed = commands(SECTION)  # the README's dataset command: a dataset recorded with LeRobot instead
     train_base, synthesise, train_recovery = (
-        [arg.replace("reaching2d", "my_robot") for arg in argv] for argv in commands
+        [arg.replace("reaching2d", "my_robot") for arg in argv] for argv in typed
     )
     demos = Path(next(a for a in train_base if a.startswith("--dataset.root=")).split("=", 1)[1])
     record_with_lerobot(demos, "local/my_robot")
-    assert root.name == "reaching2d" and not (demos / "meta" / "info.json").read_text().count("primitive")
+    assert "primitive" not in (demos / "meta" / "info.json").read_text()  # no option label column
 
     # where torchcodec cannot load, the fix docs/troubleshooting.md gives
     train_base.append(f"--dataset.video_backend={video_backend()}")
     for argv in (train_base, synthesise, train_recovery):
-        run_readme_command(sized(argv), monkeypatch)
+        run_command(sized(argv), monkeypatch)
 
     base_path = Path("outputs/my_robot/base/checkpoints/last/pretrained_model")
     ccdp_path = Path("outputs/my_robot/ccdp/checkpoints/last/pretrained_model")
@@ -152,11 +111,11 @@ def test_the_readme_path_turns_a_lerobot_dataset_into_a_recovering_policy(tmp_pa
 def test_synthesis_needs_no_recipe_file():
     """The README's second command parses as written: every recovery setting has a default, z comes from the
     checkpoint (see test_synthesis's recipe-free run), and the rows' repo id is local/<output folder>."""
-    (synthesise,) = [argv for argv in readme_commands() if argv[0] == "lerobot-ccdp-synthesize"]
+    (synthesise,) = [argv for argv in commands(SECTION) if argv[0] == "lerobot-ccdp-synthesize"]
     cfg = parse_cli(SynthesizeConfig, synthesise[1:])
     assert cfg.recovery.failure_feature is None and cfg.recovery.failure_settings() == {}
     assert cfg.output.repo_id == "local/reaching2d_recovery"
-    (recovery,) = [argv for argv in readme_commands() if "--policy.training_stage=recovery" in argv]
+    (recovery,) = [argv for argv in commands(SECTION) if "--policy.training_stage=recovery" in argv]
     assert (
         f"--dataset.repo_id={cfg.output.repo_id}" in recovery
         and f"--dataset.root={cfg.output.root}" in recovery

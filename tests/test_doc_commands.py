@@ -1,0 +1,119 @@
+"""The commands of README "Train on a local dataset", docs/synthesis.md and docs/troubleshooting.md run as
+written after the steps before them, and the messages troubleshooting.md quotes are ones the code prints.
+
+Every command is parsed by its own CLI's parser (draccus, as lerobot-train and lerobot-ccdp-synthesize parse
+it); the short ones run: the README's dataset command (twice: a rerun is refused in one line) and, slow, the
+whole of docs/synthesis.md after the README's first two commands, with small step counts."""
+
+import ast
+import importlib
+import importlib.util
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import draccus
+import pytest
+from lerobot.configs import parser
+from lerobot.configs.train import TrainPipelineConfig
+from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+from lerobot_ccdp.datasets.configs import SynthesizeConfig, parse_cli
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+
+from fixtures.doc_commands import commands, run_command, sized
+
+REPO = Path(__file__).resolve().parent.parent
+README_SECTION = (
+    (REPO / "README.md").read_text().split("## Train on a local dataset\n", 1)[1].split("\n## ", 1)[0]
+)
+SYNTHESIS = (REPO / "docs" / "synthesis.md").read_text()
+TROUBLESHOOTING = (REPO / "docs" / "troubleshooting.md").read_text()
+DOCS = {"README.md#train-on-a-local-dataset": README_SECTION, "docs/synthesis.md": SYNTHESIS}
+# Where the messages a user meets come from: this plugin, and the libraries whose messages the docs quote.
+MESSAGE_SOURCES = ("lerobot_ccdp", "draccus", "torchcodec")
+
+
+def parse_train(args: list[str]) -> None:
+    """lerobot-train's parsing of `args` without running it: draccus over TrainPipelineConfig, and the
+    `--policy.*` overrides of a `--policy.path` checkpoint over CCDPConfig (LeRobot applies them on load)."""
+    draccus.parse(TrainPipelineConfig, args=parser.filter_path_args(["policy"], args))
+    if parser.get_path_arg("policy", args):
+        overrides = [f"--{a[len('--policy.') :]}" for a in args if a.startswith("--policy.")]
+        draccus.parse(CCDPConfig, args=[a for a in overrides if not a.startswith("--path=")])
+
+
+@pytest.mark.parametrize("doc", list(DOCS))
+def test_every_command_parses_as_written(doc):
+    found = commands(DOCS[doc])
+    assert found
+    for argv in found:
+        if argv[:2] == ["accelerate", "launch"]:  # `... $(which lerobot-train) <flags>`
+            argv = ["lerobot-train", *argv[argv.index("$(which") + 2 :]]
+        if argv[0] == "lerobot-train":
+            parse_train(argv[1:])
+        elif argv[0] == "lerobot-ccdp-synthesize":
+            parse_cli(SynthesizeConfig, argv[1:])
+        elif argv[:3] == ["python", "-m", "lerobot_ccdp.benchmark.reaching2d"]:
+            assert argv[3:] == ["--root", "data/reaching2d"]  # run below
+        else:
+            raise AssertionError(f"{doc} runs a command this test does not parse: {argv}")
+
+
+def test_the_readme_dataset_command_runs_and_a_rerun_is_refused_in_one_line(tmp_path, monkeypatch):
+    (record,) = [argv for argv in commands(README_SECTION) if argv[0] == "python"]
+    module, flags = record[2], record[3:]
+    monkeypatch.chdir(tmp_path)
+    importlib.import_module(module).main(flags)
+    assert LeRobotDatasetMetadata("local/reaching2d", root="data/reaching2d").total_episodes == 60
+    again = subprocess.run([sys.executable, *record[1:]], capture_output=True, text=True, check=False)
+    assert again.returncode == 2 and "Traceback" not in again.stderr
+    assert (
+        again.stderr.strip()
+        .splitlines()[-1]
+        .endswith("data/reaching2d already exists; pass --overwrite to replace it, or choose another root")
+    )
+
+
+def source_messages() -> list[str]:
+    """Every string literal and f-string of the message sources, with each formatted value (`{...}`, `%s`)
+    as a NUL: a quoted message must match the literal text between them."""
+    messages = []
+    for package in MESSAGE_SOURCES:
+        (folder,) = importlib.util.find_spec(package).submodule_search_locations
+        for file in Path(folder).rglob("*.py"):
+            for node in ast.walk(ast.parse(file.read_text())):
+                if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                    messages.append(re.sub(r"%[-\d.]*[sdrf]", "\0", node.value))
+                elif isinstance(node, ast.JoinedStr):
+                    parts = (v.value if isinstance(v, ast.Constant) else "\0" for v in node.values)
+                    messages.append("".join(parts))
+    return messages
+
+
+def test_troubleshooting_quotes_only_messages_the_code_prints():
+    """A quoted message is a bold code span; `<...>` in it stands where the message formats a value, and the
+    text around it must be a message's own text."""
+    quotes = re.findall(r"\*\*`([^`]+)`\*\*", TROUBLESHOOTING)
+    assert len(quotes) >= 10, quotes
+    messages = source_messages()
+    for quote in quotes:
+        text = "\0".join(re.split(r"<[^>]*>", quote))
+        assert any(text in m for m in messages), f"no message in {MESSAGE_SOURCES} prints {quote!r}"
+
+
+@pytest.mark.slow  # two short lerobot-train runs and two syntheses, in-process (about 40 s)
+def test_synthesis_doc_runs_as_written_after_the_readmes_first_commands(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a clone's root: its recipes, and the docs' data/ and outputs/
+    (tmp_path / "datasets_recipes").symlink_to(REPO / "datasets_recipes")
+    record, train_base, *_ = commands(README_SECTION)
+    importlib.import_module(record[2]).main(record[3:])
+    run_command(sized(train_base), monkeypatch)
+    doc = commands(SYNTHESIS)
+    assert len(doc) == 4
+    for argv in doc:
+        run_command(sized(argv), monkeypatch)
+    for out in ("reaching2d_recovery", "reaching2d_goals_recovery"):
+        assert (tmp_path / "data" / out / "meta" / "ccdp_recovery_recipe.yaml").is_file()
+    assert (tmp_path / "outputs" / "reaching2d" / "ccdp" / "checkpoints" / "last").exists()
