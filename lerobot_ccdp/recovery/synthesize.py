@@ -29,11 +29,13 @@ which the base encodes into the state condition of eq. (7); eq. (5)'s state dist
 low-dimensional state. The recovery stage reads only z and chunks, so no image is copied into the recovery
 dataset; it carries the cameras' normalisation stats, which the recovery checkpoint's preprocessor needs.
 
-    lerobot-ccdp-synthesize --config_path=datasets_recipes/door_opening.yaml \
+    lerobot-ccdp-synthesize --policy.path=<base run>/checkpoints/last/pretrained_model \
         --dataset.repo_id=local/door_opening --dataset.root=data/door_opening \
-        --policy.path=<base run>/checkpoints/last/pretrained_model \
-        --output.repo_id=local/door_opening_recovery --output.root=data/door_opening_recovery
-        [--recovery.sigma=0.05]
+        --output.root=data/door_opening_recovery
+        [--config_path=datasets_recipes/door_opening.yaml] [--recovery.sigma=0.05]
+
+Without a recipe file z is the checkpoint's (`RecoveryRecipe.for_checkpoint`) and the rows are written as
+local/<output folder>.
 """
 
 from __future__ import annotations
