@@ -28,12 +28,18 @@ test-slow: install
 clean:
 	rm -rf $(VENV) outputs .pytest_cache
 
+# README "Train on a local dataset": the base (DP), the recovery rows and the recovery stage (CCDP), in a folder
+# of its own per run.
 train-local: install
 	test -d data/reaching2d || $(PY) -m lerobot_ccdp.benchmark.reaching2d --root data/reaching2d
-	$(VENV)/bin/lerobot-train --policy.type=ccdp --policy.failure_feature=primitive --policy.num_primitives=4 \
-		--dataset.repo_id=local/reaching2d --dataset.root=data/reaching2d \
-		--output_dir=outputs/train/reaching2d-$$(date +%Y%m%d-%H%M%S) --steps=2000 --batch_size=64 \
-		--policy.push_to_hub=false --num_workers=0 --wandb.enable=false
+	run=outputs/train-local/$$(date +%Y%m%d-%H%M%S) && \
+	$(VENV)/bin/lerobot-train --policy.type=ccdp --dataset.repo_id=local/reaching2d --dataset.root=data/reaching2d \
+		--output_dir=$$run/base --steps=2000 --batch_size=64 --num_workers=0 --policy.push_to_hub=false && \
+	$(VENV)/bin/lerobot-ccdp-synthesize --policy.path=$$run/base/checkpoints/last/pretrained_model \
+		--dataset.repo_id=local/reaching2d --dataset.root=data/reaching2d --output.root=$$run/recovery_rows && \
+	$(VENV)/bin/lerobot-train --policy.path=$$run/base/checkpoints/last/pretrained_model \
+		--policy.training_stage=recovery --dataset.repo_id=local/recovery_rows --dataset.root=$$run/recovery_rows \
+		--output_dir=$$run/ccdp --steps=1500 --batch_size=64 --num_workers=0 --policy.push_to_hub=false
 
 # The main job end to end on one task (record, train base, synthesise, train recovery, evaluate CCDP vs DP), in
 # a folder of its own per task, so that a second task's report does not replace the first's.

@@ -9,6 +9,7 @@ import ast
 import importlib
 import importlib.util
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -117,3 +118,22 @@ def test_synthesis_doc_runs_as_written_after_the_readmes_first_commands(tmp_path
     for out in ("reaching2d_recovery", "reaching2d_goals_recovery"):
         assert (tmp_path / "data" / out / "meta" / "ccdp_recovery_recipe.yaml").is_file()
     assert (tmp_path / "outputs" / "reaching2d" / "ccdp" / "checkpoints" / "last").exists()
+
+
+def test_make_train_local_runs_the_readme_commands():
+    """`make train-local` types the section's three commands: the same flags and settings, its own folders."""
+    dry = subprocess.run(["make", "-n", "train-local"], cwd=REPO, capture_output=True, text=True, check=True)
+    parts = dry.stdout.replace("\\\n", " ").split("&&")
+    made = [shlex.split(part) for part in parts if re.search(r"bin/lerobot-", part)]
+    section = README_SECTION.split("\n### ", 1)[0]
+    typed = [argv for argv in commands(section) if argv[0].startswith("lerobot-")]
+    assert [Path(argv[0]).name for argv in made] == [argv[0] for argv in typed]
+    for make_argv, readme_argv in zip(made, typed, strict=True):
+        assert _settings(make_argv) == _settings(readme_argv)
+
+
+def _settings(argv: list[str]) -> dict[str, str | None]:
+    """A command's flags with their values, those naming a place (roots, paths, repo ids) by name only."""
+    flags = dict(arg.split("=", 1) for arg in argv if arg.startswith("--"))
+    places = ("root", "path", "output_dir", "repo_id")
+    return {k: None if k.endswith(places) else v for k, v in flags.items()}
