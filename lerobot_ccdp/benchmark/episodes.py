@@ -120,8 +120,8 @@ def solved_before_any_failure(episodes: Episodes) -> str:
     "45; 38 / 55".
 
     Until an episode's first failure DP, DP* and CCDP sample the same base policy: with common random numbers
-    (`noise_streams`) the first count matches between them, without them it differs by sampling luck alone;
-    recovery shows in the second. "n/a" where the run predates the failure count.
+    (`samplers.row_generators`) the first count matches between them, without them it differs by sampling
+    luck alone; recovery shows in the second. "n/a" where the run predates the failure count.
     """
     if np.isnan(episodes.failures).any():
         return "n/a"

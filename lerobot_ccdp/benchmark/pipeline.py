@@ -63,6 +63,7 @@ from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 from lerobot_ccdp.envs.tasks import is_lite
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.heads import head_class
 
 METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp")
 # The recovery_mode each method evaluates with. "dp_star_matched" is the compute-matched baseline: DP* with
@@ -82,8 +83,8 @@ MATCHED_DP_STAR = {"dp_star_candidates": 2, "dp_star_rounds": 1}
 VIDEO_METHODS = ("dp", "ccdp")
 VIDEO_EPISODES = 10
 # Every method is evaluated on common random numbers: each episode's plans draw from the same per-row noise
-# streams (`lerobot_ccdp.policy.noise_streams`), so DP, DP* and CCDP act alike until an episode's first
-# failure and the paired differences measure recovery, not the luck of the plans before it.
+# streams (`lerobot_ccdp.policy.samplers.row_generators`), so DP, DP* and CCDP act alike until an episode's
+# first failure and the paired differences measure recovery, not the luck of the plans before it.
 COMMON_NOISE = "--policy.row_noise_streams=true"
 # Named groups of --tasks: the benchmark's five tasks (contact physics on the Panda), and their geometric
 # versions.
@@ -396,7 +397,7 @@ class TaskRun:
         """Synthesise the recovery rows from `base` (unless the head learns from the demonstrations) and train
         the recovery stage on them; return its checkpoint and stamp."""
         f = self.files
-        if f.recovery_head() == "classifier":  # learns from the demonstrations: nothing to synthesise
+        if head_class(f.recovery_head()).training_data == "demonstrations":  # nothing to synthesise
             recovery_repo, recovery_root, recovery_upstream = f"local/{self.slug}", f.demos, base_stamp
         else:
             recovery_repo, recovery_root = f"local/{self.slug}_recovery", f.recovery_data
@@ -672,17 +673,6 @@ def time_breakdown(runs: list[TaskRun]) -> str:
     return "\n".join(lines)
 
 
-def w_z_window(count: int | None, start: int, guard: int = 0, guard_weight: float = 1.0) -> str:
-    """The set denoiser's reverse steps at w_z (`w_z_steps`, `w_z_from_step`) and those its guard guides
-    (`failure_guard_steps`, at `failure_guard_weight`), as the forms table says them."""
-    weight = f" at weight {guard_weight:g}" if guard_weight != 1 else ""
-    guarded = f"; its guard on the last {guard} steps{weight}" if guard else ""
-    if start:
-        last = "the last" if count is None else start + count - 1
-        return f" on reverse steps {start} to {last} (0 the noisiest), 1 elsewhere{guarded}"
-    return ("" if count is None else f" on the first {count} steps, 1 after") + guarded
-
-
 def method_forms(runs: list[TaskRun]) -> str:
     """Which form of each method ran: the seeds, and the settings of the evaluated checkpoint, the recipe's
     synthesis and the methods' flags."""
@@ -706,33 +696,16 @@ def method_forms(runs: list[TaskRun]) -> str:
         }
         # the checkpoint's settings, as CCDP's flags changed them
         ccdp = {**c, **r.files.method_settings("ccdp")}
-        if ccdp.get("recovery_head") == "classifier":
-            form = (
-                f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by classifier guidance, "
-                f"w_z {ccdp['w_z']:g}"
-            )
-            synthesis = "none (classifier learns from the demos)"
-        elif ccdp.get("recovery_head") == "set_denoiser":
-            form = (
-                f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}; failures by the failure-set denoiser eps_(s,F), "
-                f"w_z {ccdp['w_z']:g}"
-            )
-            form += w_z_window(
-                ccdp.get("w_z_steps"),
-                ccdp.get("w_z_from_step", 0),
-                ccdp.get("failure_guard_steps", 0),
-                ccdp.get("failure_guard_weight", 1.0),
-            )
-            synthesis = (
+        head = head_class(ccdp.get("recovery_head", CCDPConfig.recovery_head))
+        form = head.describe(ccdp)
+        synthesis = {
+            "demonstrations": f"none ({head.name} learns from the demos)",
+            "base_samples": (
                 f"chunks sampled half at option starts, half along the demos: sigma {recipe.sigma:g}, "
-                f"w_s {recipe.w_s:g}, "
-                f"{recipe.n_states} x {recipe.chunks_per_state}"
-            )
-        else:
-            form = (
-                f"w_s {ccdp['w_s']:g}, w_h {ccdp['w_h']:g}, w_z {ccdp['w_z']:g} against {ccdp['z_reference']}"
-            )
-            synthesis = f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}"
+                f"w_s {recipe.w_s:g}, {recipe.n_states} x {recipe.chunks_per_state}"
+            ),
+            "recovery_pairs": f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}",
+        }[head.training_data]
         if ccdp.get("ccdp_redraws", 0):
             form += f"; a repeat redrawn up to {ccdp['ccdp_redraws']} times"
         lines.append(

@@ -51,7 +51,8 @@ class ExactStartClassifier(torch.nn.Module):
         self.delta_z = policy.config.delta_z
 
     def forward(self, noisy, timestep, state, z, z_mask, keep_s=None):
-        """Same inputs as `denoisers.FailureSetClassifier.forward`; logits (R,) of the exact mixture."""
+        """Same inputs as `heads.classifier.FailureSetClassifier.forward`; logits (R,) of the exact
+        mixture."""
         alpha_bar = self.alphas_cumprod[timestep].clone()[:, None]  # (R, 1)
         in_f = ((((self.z[None, :, None] - z[:, None]) ** 2).sum(-1) <= self.delta_z) & z_mask[:, None]).any(
             -1
@@ -91,7 +92,9 @@ def planned_positions(
         for goal in failed:
             policy.report_failure(z=failure_z(policy, pre, task, goal, rows))
         policy.select_action(batch)  # re-plans the rows that failed; otherwise the first plan goes on
-        chunks = policy._memory.attempt_chunk.clone()  # the whole planned chunk, not only its executed steps
+        chunks = (
+            policy._rollout.memory.attempt_chunk.clone()
+        )  # the whole planned chunk, not only its executed steps
     return post(chunks).reshape(rows, -1, 2).cpu().numpy()
 
 

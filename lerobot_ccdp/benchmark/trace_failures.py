@@ -202,8 +202,8 @@ def probe_shares(
     lookup places within `delta_z` of one of the row's failures; then, of the draws off the failures, the
     shares whose nearest option end (`ends`) is the `preferred` option (NaN where none is off them, or
     without `ends`)."""
-    model, memory = policy.model, policy._memory
-    z, z_mask = policy._failures.padded(rows)
+    model, memory = policy.model, policy._rollout.memory
+    z, z_mask = policy._rollout.failures.padded(rows)
     state, history = memory.state_condition(rows)[i : i + 1], memory.history_condition(rows)[i : i + 1]
     probe = PlanRows(
         state.repeat_interleave(draws, 0),
@@ -257,7 +257,7 @@ def installed(tracer: Tracer, draws: int, checkpoint: Path) -> Iterator[None]:
     def traced_sample(policy, rows, noise):
         chunk = sample(policy, rows, noise)
         z = policy.model.feature.from_chunk(chunk, policy.model.outcomes).cpu().numpy()
-        failures, mask = policy._failures.padded(rows)
+        failures, mask = policy._rollout.failures.padded(rows)
         for i, row in enumerate(rows.nonzero().flatten().tolist()):
             episode = tracer.rows[row]
             if draws and mask[i].any() and episode.attempt_z is None and not episode.done:

@@ -12,13 +12,14 @@ import importlib
 import json
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import fields
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
 import torch
-from huggingface_hub import hf_hub_download
+from huggingface_hub import ModelCard, ModelCardData, hf_hub_download
 from huggingface_hub.constants import SAFETENSORS_SINGLE_FILE
 from huggingface_hub.errors import HFValidationError
 from huggingface_hub.utils import validate_repo_id
@@ -382,7 +383,7 @@ def _named_on_command_line(value: str) -> bool:
     return f"--failure_signal_file={value}" in overrides
 
 
-# The set denoiser's guard (`denoisers.FailureSetDenoiser.guard`) and its `guard_trained` flag.
+# The set denoiser's guard (`heads.set_denoiser.FailureSetDenoiser.guard`) and its `guard_trained` flag.
 GUARD_PREFIX = "model.recovery.guard"
 
 
@@ -492,3 +493,60 @@ def refuse_non_finite_weights(state: dict, path: str | Path) -> None:
 def _listed(keys: list[str], kind: str, shown: int = 3) -> str:
     more = ", ..." if len(keys) > shown else ""
     return f"{len(keys)} {kind} ({', '.join(keys[:shown])}{more})"
+
+
+# The card's text, under lerobot_ccdp/templates/.
+TEMPLATE = "ccdp_modelcard_template.md"
+
+
+def make_model_card(
+    config: CCDPConfig,
+    dataset_repo_id: str,
+    license: str | None,
+    tags: list[str] | None,
+    recovery_trained: bool,
+) -> ModelCard:
+    """The README of a pushed checkpoint: LeRobot's own template knows only its built-in policies ("Model type
+    not recognized"), so ccdp's says which package provides the policy type and how the stages run. Same
+    metadata as LeRobot's card, so the Hub lists it as a LeRobot robotics model."""
+    card_data = ModelCardData(
+        license=license or "apache-2.0",
+        library_name="lerobot",
+        pipeline_tag="robotics",
+        tags=sorted(set(tags or []) | {"robotics", "lerobot", "ccdp", "failure-recovery"}),
+        model_name="ccdp",
+        datasets=dataset_repo_id,
+    )
+    template = files("lerobot_ccdp").joinpath("templates", TEMPLATE).read_text(encoding="utf-8")
+    card = ModelCard.from_template(
+        card_data,
+        template_str=template,
+        repo_id=config.repo_id or "<repo_id>",
+        training_stage=config.training_stage,
+        recovery_trained=recovery_trained,
+        failure_feature=config.failure_feature,
+    )
+    card.validate()  # as LeRobot's card: the Hub refuses metadata it cannot parse
+    return card
+
+
+def checked_load(load: Callable[..., Any], path: str | Path, **kwargs) -> Any:
+    """`CCDPPolicy.from_pretrained`: `load(config=..., **kwargs)` is LeRobot's own. A checkpoint carries its
+    own outcome table. LeRobot's make_policy hands from_pretrained the dataset's metadata and stats too, and
+    from_pretrained passes them on to __init__ (under lerobot-record: a new, empty recording dataset without
+    the label column); they are dropped so that loading never reads a dataset. A local folder is checked
+    first (`checkpoint_loading`): a wrong path or a damaged file is named with the fix; so is a checkpoint of
+    another policy type or action size, or whose weights do not fit (`refuse_unfit_weights`). A
+    `failure_signal_file` only the checkpoint names is dropped: a checkpoint never chooses a file to watch."""
+    for key in ("dataset_meta", "dataset_stats"):
+        kwargs.pop(key, None)
+    with checkpoint_loading(path):
+        hub = {key: kwargs[key] for key in HUB_DOWNLOAD_KEYS if key in kwargs}
+        config = kwargs.pop("config", None) or PreTrainedConfig.from_pretrained(path, **hub)
+        saved = saved_config(path, **hub)
+        refuse_other_checkpoint(config, saved, path)
+        ignore_saved_signal_file(config, saved)
+        policy = load(config=config, **kwargs)
+        refuse_unfit_weights(policy.state_dict(), bool(policy.model.recovery_trained), path, **hub)
+        refuse_unfit_outcome_table(policy.state_dict(), policy.config, path)
+        return policy

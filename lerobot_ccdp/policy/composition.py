@@ -124,7 +124,7 @@ def compose_with_failure_set(weights: CompositionWeights, estimates: dict[str, T
     (eq. 4, failure-set head)
 
     `recovery_head="set_denoiser"`: one term for the whole failure set F, where eq. (4) sums one term per
-    failure. eps_{s,F} (`denoisers.FailureSetDenoiser`) is the noise estimate of p_s restricted to the options
+    failure. eps_{s,F} (`heads/set_denoiser.py`) is the noise estimate of p_s restricted to the options
     outside F, so at w_z = 1 the failure term replaces eps_s by it: exact "everything but what failed" in the
     demonstrated proportions at every noise level, up to the network's error, and w_z > 1 pushes further from
     F as classifier-free guidance does. `estimates` maps "a", "s", "h", "sF" to (B, horizon, action_dim)

@@ -103,6 +103,7 @@ def check_settings(config: CCDPConfig) -> None:
             "--policy.history_length to 1 or more, or --policy.w_h=0."
         )
     _check_choices(config)
+    _check_head(config)
     _check_device(config)
     _check_vision(config)
     if config.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
@@ -118,44 +119,15 @@ def check_settings(config: CCDPConfig) -> None:
     bad_steps = [s for s in config.failure_action_steps if not 0 <= s < config.horizon]
     if bad_steps:
         raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {config.horizon}).")
-    if (config.w_z_steps is not None or config.w_z_from_step) and config.recovery_head != "set_denoiser":
-        raise ValueError(
-            f"`w_z_steps` ({config.w_z_steps}) and `w_z_from_step` ({config.w_z_from_step}) schedule the set "
-            f"denoiser's failure weight; the {config.recovery_head!r} head weighs every step alike. Remove "
-            "--policy.w_z_steps and --policy.w_z_from_step or use --policy.recovery_head=set_denoiser."
-        )
-    if config.failure_guard_steps and config.recovery_head != "set_denoiser":
-        raise ValueError(
-            f"`failure_guard_steps` ({config.failure_guard_steps}) guides the set denoiser's last reverse "
-            f"steps with its guard; the {config.recovery_head!r} head has none. Remove "
-            "--policy.failure_guard_steps or use --policy.recovery_head=set_denoiser."
-        )
     if config.failure_guard_weight != 1 and not config.failure_guard_steps:
         raise ValueError(
             f"`failure_guard_weight` ({config.failure_guard_weight}) weighs the guard's gradient at its "
             "guarded steps, and `failure_guard_steps` is 0: set --policy.failure_guard_steps or remove "
             "--policy.failure_guard_weight."
         )
-    if config.stratum_weights and config.recovery_head != "set_denoiser":
-        raise ValueError(
-            f"`stratum_weights` weighs the set denoiser's training rows; the {config.recovery_head!r} head "
-            "has no failure-set strata. Remove --policy.stratum_weights or use "
-            "--policy.recovery_head=set_denoiser."
-        )
     if not 0.0 <= config.state_failure_sets <= 1.0:
         raise ValueError(
             f"`state_failure_sets` is a share of rows in [0, 1]; got {config.state_failure_sets}."
-        )
-    if config.state_failure_sets and config.recovery_head != "set_denoiser":
-        raise ValueError(
-            f"`state_failure_sets` draws the set denoiser's training failure sets; the "
-            f"{config.recovery_head!r} head has none. Remove --policy.state_failure_sets or use "
-            "--policy.recovery_head=set_denoiser."
-        )
-    if config.recovery_head == "set_denoiser" and config.n_obs_steps != 1:
-        raise ValueError(
-            f"recovery_head='set_denoiser' trains on one-frame rows of a synthesised dataset: it needs "
-            f"n_obs_steps=1; got {config.n_obs_steps}. Use --policy.recovery_head=unet."
         )
     if config.horizon % 2 ** len(config.down_dims) != 0:
         raise ValueError(
@@ -382,10 +354,10 @@ def memory_estimate(config: CCDPConfig) -> dict[str, int]:
     )
     step = config.diffusion_step_embed_dim
     base_condition = step + config.n_obs_steps * frame + config.history_length * (frame + action) + 2
-    recovery_condition = {
-        "unet": step + _failure_feature_size(config) + 1,
-        "set_denoiser": base_condition,
-    }.get(config.recovery_head)
+    from lerobot_ccdp.policy.heads import head_class  # they import the config
+
+    head = head_class(config.recovery_head)
+    recovery_condition = head.unet_condition(step, base_condition, _failure_feature_size(config))
 
     def unet(condition: int) -> int:
         convolutions = kernel * (sum(d * d for d in dims) + 4 * dims[-1] ** 2)
@@ -417,6 +389,14 @@ def _physical_memory() -> int | None:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (AttributeError, ValueError, OSError):
         return None
+
+
+def _check_head(config: CCDPConfig) -> None:
+    """The recovery head's own checks, and no setting of another head (`heads/registry.py`)."""
+    from lerobot_ccdp.policy.heads import head_class, refuse_settings_of_other_heads  # they import the config
+
+    refuse_settings_of_other_heads(config)
+    head_class(config.recovery_head).check_config(config)
 
 
 def _check_choices(config: CCDPConfig) -> None:
@@ -478,11 +458,7 @@ def check_features(config: CCDPConfig) -> None:
             f"{sorted(config.input_features)}. Record the robot state as {OBS_STATE!r}."
         )
     _check_images(config)
-    if config.image_features and config.recovery_head == "set_denoiser":
-        raise ValueError(
-            "recovery_head='set_denoiser' conditions on the state of synthesised rows, which carry no "
-            "camera images yet: use --policy.recovery_head=unet with cameras."
-        )
+    _check_head(config)  # again with the features (cameras)
     if config.action_feature is None:
         raise ValueError(f"CCDP needs an {ACTION!r} output feature; the dataset has none.")
     if config.failure_feature == "final_state":

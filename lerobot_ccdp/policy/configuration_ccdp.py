@@ -286,7 +286,9 @@ class CCDPConfig(PreTrainedConfig):
     def recovery_head_learns_from_demonstrations(self) -> bool:
         """Whether the recovery head trains on the demonstrations themselves (no synthesised recovery
         dataset)."""
-        return self.recovery_head == "classifier"
+        from lerobot_ccdp.policy.heads import head_class  # the heads import this module
+
+        return head_class(self.recovery_head).training_data == "demonstrations"
 
     @property
     def drop_n_last_frames(self) -> int:

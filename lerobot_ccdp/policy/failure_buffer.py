@@ -1,9 +1,29 @@
 """Per-row memory of failure features z_1..z_N (one row per vectorised env)."""
 
+import functools
+from collections.abc import Callable
+from typing import TypeVar
+
 import torch
 from torch import Tensor
 
-from lerobot_ccdp.policy.tensor_modes import ordinary_tensors
+T = TypeVar("T", bound=Callable)
+
+
+def ordinary_tensors(method: T) -> T:
+    """Run `method` outside inference mode and without autograd.
+
+    LeRobot's loops call select_action under torch.inference_mode(), while a robot's failure detector calls
+    report_failure outside it; PyTorch refuses in-place updates of inference tensors outside inference mode.
+    State created and updated here stays ordinary, so every mode can read and update it.
+    """
+
+    @functools.wraps(method)
+    def wrapper(*args, **kwargs):
+        with torch.inference_mode(False), torch.no_grad():
+            return method(*args, **kwargs)
+
+    return wrapper  # type: ignore[return-value]
 
 
 class FailureBuffer:
@@ -112,3 +132,52 @@ def stratum_weights(z_set: Tensor, z_mask: Tensor, siblings: Tensor, count: Tens
     in_f = (in_failure_set(siblings, z_set, z_mask, delta_z) & real).sum(dim=1)
     p = in_f / count.clamp_min(1)
     return 1.0 / (1.0 - p).clamp_min(1.0 / siblings.shape[1])
+
+
+# What `report_failure(rows=...)` takes.
+ROW_FORMS = (
+    "None (every row), a row index (int), a list or tensor of row indices, or a bool mask with one entry "
+    "per row"
+)
+
+
+def row_index(rows: object) -> Tensor | None:
+    """`report_failure`'s rows as a tensor of row indices or a bool mask (None: every row), refusing any
+    other type before anything is recorded."""
+    if rows is None:
+        return None
+    refused = TypeError(
+        f"report_failure(rows={rows!r}) got a {type(rows).__name__}; rows takes {ROW_FORMS}. For every "
+        "row, leave rows out."
+    )
+    if isinstance(rows, (str, bytes, bool, float)):
+        raise refused
+    try:
+        index = torch.as_tensor(rows)
+    except (TypeError, ValueError, RuntimeError):
+        raise refused from None
+    if index.numel() == 0:  # an empty list of rows: nothing failed
+        return index.long()
+    if index.ndim > 1 or (index.dtype != torch.bool and (index.is_floating_point() or index.is_complex())):
+        raise refused
+    return index
+
+
+def failed_rows(index: Tensor | None, rows: object, batch_size: int, device: torch.device) -> Tensor:
+    """Bool mask (B,) of the failed rows (`index` from `row_index(rows)`), refusing rows outside the batch the
+    policy is acting on."""
+    b = batch_size
+    mask = torch.zeros(b, dtype=torch.bool, device=device)
+    if index is None:
+        return ~mask
+    index = index.to(mask.device)
+    # -1 would name the last row: almost surely a bug in the loop
+    out_of_range = index.dtype != torch.bool and bool(((index < 0) | (index >= b)).any())
+    fits = index.shape == (b,) if index.dtype == torch.bool else not out_of_range
+    if not fits:
+        raise ValueError(
+            f"report_failure(rows={rows!r}): the policy acts on {b} row(s), indices 0..{b - 1} (or a "
+            "bool mask of that length). Pass the failed rows' indices, or None for every row."
+        )
+    mask[index] = True
+    return mask

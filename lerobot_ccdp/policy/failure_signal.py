@@ -17,6 +17,8 @@ import os
 import stat
 from pathlib import Path
 
+from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FLAG_KEY
+
 logger = logging.getLogger(__name__)
 
 # (device, inode, modification time in ns) of the file, None while absent
@@ -81,3 +83,16 @@ class FailureSignalFile:
                 self.path,
                 what,
             )
+
+
+def warn_nothing_reports_failures(recovery_mode: str) -> None:
+    """An episode ended with recovery on and nothing that could report a failure: no env flag, no
+    report_failure() call, no failure_signal_file."""
+    logger.warning(
+        "ccdp ran an episode with recovery_mode=%s but nothing could tell it about a failure: no %s in "
+        "its inputs, no report_failure() call, no failure_signal_file. It acted as plain diffusion "
+        "policy. In lerobot-record, pass --policy.failure_signal_file=/tmp/ccdp_failed and create that "
+        "file when an attempt fails (docs/robot.md).",
+        recovery_mode,
+        FAILURE_FLAG_KEY,
+    )

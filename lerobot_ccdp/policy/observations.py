@@ -1,15 +1,22 @@
 """How a batch becomes the frames the networks see (robot state, environment state, encoded cameras), and the
 checks that turn a wrong input into an error naming the key and the fix rather than a NaN or a silent skip."""
 
+from __future__ import annotations
+
 import logging
+from typing import TYPE_CHECKING
 
 import torch
 from lerobot.configs.types import NormalizationMode
-from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
 from torch import Tensor, nn
 
 from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, FAILURE_FLAG_KEY, CCDPConfig
 from lerobot_ccdp.policy.image_encoder import ImageEncoder
+
+if TYPE_CHECKING:  # the samplers import the composition, which needs nothing from here
+    from lerobot_ccdp.policy.composition import CompositionWeights
+    from lerobot_ccdp.policy.samplers import PlanRows
 
 logger = logging.getLogger(__name__)
 
@@ -360,3 +367,62 @@ def _camera_keys(batch: dict[str, Tensor]) -> list[str]:
     return sorted(
         k for k in batch if (k.startswith(f"{OBS_IMAGES}.") or k == OBS_IMAGE) and not k.endswith("_is_pad")
     )
+
+
+def refuse_non_finite_plan(
+    tensors: dict[str, Tensor],
+    weights: CompositionWeights,
+    rows: Tensor,
+    chunks: Tensor,
+    plan: PlanRows,
+    mode: str,
+) -> None:
+    """Non-finite actions are never returned: name what made them (damaged tensors, non-finite
+    failures, or settings that overflow eq. (4))."""
+    bad = rows.nonzero().flatten()[~torch.isfinite(chunks).flatten(start_dim=1).all(dim=1)].tolist()
+    damaged = [
+        name
+        for name, tensor in tensors.items()
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all())
+    ]
+    settings = f"w_s={weights.w_s}, w_h={weights.w_h}, w_z={weights.w_z}"
+    if damaged:
+        cause = (
+            f"the policy's tensors {damaged[:3]}{' ...' if len(damaged) > 3 else ''} hold NaN or inf: "
+            "load the checkpoint again from its files, or train it anew"
+        )
+    elif not bool(torch.isfinite(plan.z).all()):
+        cause = "the rows' recorded failure features z hold NaN or inf: reset() and report finite ones"
+    else:
+        largest = float(torch.cat([plan.state, plan.history], dim=-1).abs().max())
+        cause = (
+            f"its tensors and inputs are finite (the largest normalised input {largest:.3g}), so the "
+            f"networks or eq. (4) overflowed at the settings {settings}: use finite weights near the "
+            "defaults (w_s 1, w_z 1, w_h 0), and inputs within the training data's range"
+        )
+    raise FloatingPointError(
+        f"The {mode} sampler made NaN or inf actions for row(s) {bad}; none were returned. Cause: {cause}."
+    )
+
+
+def demonstration_windows(
+    config: CCDPConfig, frames: Tensor, batch: dict[str, Tensor]
+) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
+    """A demonstration batch as the base sees it: state condition, history condition, the chunk to denoise
+    and the chunk's padding flags (or None), from its frames (B, T, frame_dim) and its actions."""
+    cfg = config
+    windows = (cfg.history_length + cfg.n_obs_steps, cfg.history_length + cfg.horizon)
+    if frames.ndim != 3 or batch[ACTION].ndim != 3 or (frames.shape[1], batch[ACTION].shape[1]) != windows:
+        raise ValueError(
+            f"This stage expects observation windows (B, {cfg.history_length + cfg.n_obs_steps}, D) and "
+            f"action chunks (B, {cfg.history_length + cfg.horizon}, A); got {tuple(frames.shape)} and "
+            f"{tuple(batch[ACTION].shape)}. Load the dataset with the policy's delta timestamps "
+            "(lerobot-train does)."
+        )
+    h = cfg.history_length
+    actions, pad = batch[ACTION], batch.get("action_is_pad")
+    past_actions = actions[:, :h]
+    if pad is not None:
+        past_actions = past_actions * ~pad[:, :h, None]  # no action was taken before the episode began
+    history = torch.cat([frames[:, :h].flatten(start_dim=1), past_actions.flatten(start_dim=1)], dim=-1)
+    return frames[:, h:].flatten(start_dim=1), history, actions[:, h:], pad

@@ -75,7 +75,7 @@ def options_after_failures(policy, batch: dict[str, Tensor], failed_options: lis
     for option in failed_options:
         policy.report_failure(z=policy.model.feature.one_hot(torch.full((rows,), option)))
     policy.select_action(batch)
-    chunks = policy._memory.attempt_chunk
+    chunks = policy._rollout.memory.attempt_chunk
     return chunks, policy.model.outcomes.primitives[policy.model.outcomes.nearest(chunks)]
 
 

@@ -14,11 +14,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
 import torch
+from diffusers.utils.torch_utils import randn_tensor
 from torch import Tensor
 
 from lerobot_ccdp.policy.dp_star import nearest_failure_distance, reject_repeats
-from lerobot_ccdp.policy.noise_streams import draw_noise, first_candidates
 
 if TYPE_CHECKING:  # the model module imports this one
     from lerobot_ccdp.policy.modeling_ccdp import CCDPModel
@@ -27,7 +28,7 @@ if TYPE_CHECKING:  # the model module imports this one
 @dataclass
 class PlanRows:
     """The rows that need a plan: their conditions, their failures (`z` (R, N, z_dim), `z_mask` (R, N)), the
-    caller's initial noise for them (or None: drawn) and one noise stream per row (`noise_streams`, or
+    caller's initial noise for them (or None: drawn) and one noise stream per row (`row_generators`, or
     None)."""
 
     state: Tensor
@@ -112,3 +113,38 @@ def sample_without_repeats(
         return chunks.view(r, candidates, cfg.horizon, cfg.action_dim), distance
 
     return reject_repeats(draw, state.shape[0], rounds, cfg.delta_z, state.device)
+
+
+# ----- common random numbers: one noise stream per batch row of each rollout ------------------------------
+#
+# Methods compared on the same seeds (DP, DP*, CCDP) sample the same base policy until an episode's first
+# failure; with torch's global generator their plans still differ from the first one, because each method
+# has consumed a different amount of noise by then (DP*'s candidates, CCDP's redraws, earlier rollouts).
+# Drawing each row's plans from a generator seeded from (torch's seed, the rollout's index, the row) gives
+# every method the same noise for the same episode, so a paired comparison measures what happens after
+# failures, not the luck before them. It also makes a row's plans independent of the other rows in the batch.
+
+
+def row_generators(rollout: int, rows: int) -> list[torch.Generator]:
+    """CPU generators, one per row of rollout number `rollout` since the policy was made, seeded from
+    `torch.initial_seed()` (lerobot-eval's `--seed`), so two processes run with the same seed agree."""
+    seeds = np.random.SeedSequence([torch.initial_seed(), rollout]).spawn(rows)
+    return [
+        torch.Generator().manual_seed(int(s.generate_state(1, np.uint64)[0] >> np.uint64(1))) for s in seeds
+    ]
+
+
+def first_candidates(streams: list[torch.Generator] | None, candidates: int) -> list[torch.Generator] | None:
+    """Generators for `candidates` draws per row: each row's first candidate from the row's stream, the others
+    from torch's global generator, so the first candidate is the chunk a method without candidates plans."""
+    if streams is None:
+        return None
+    return [g for stream in streams for g in [stream] + [torch.default_generator] * (candidates - 1)]
+
+
+def draw_noise(
+    shape: tuple[int, ...], generators: list[torch.Generator] | None, device: torch.device
+) -> torch.Tensor:
+    """Gaussian noise of `shape`, row i from `generators[i]`, or from torch's global generator without
+    them."""
+    return randn_tensor(shape, generator=generators, device=device)

@@ -73,6 +73,7 @@ from lerobot_ccdp.policy.configuration_ccdp import (
 )
 from lerobot_ccdp.policy.demo_segments import segment_ends
 from lerobot_ccdp.policy.failure_features import failure_feature_stats
+from lerobot_ccdp.policy.heads import head_class
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 from lerobot_ccdp.policy.outcome_index import demo_chunks
 from lerobot_ccdp.policy.outcome_table import read_columns
@@ -400,7 +401,8 @@ def synthesize_recovery_dataset(
     policy, stats = load_checkpoint(policy_path, device)
     config = policy.config
     recipe = recipe.for_checkpoint(config, recipe_source)  # z as the base was trained with
-    if recipe.demo_siblings and config.recovery_head != "set_denoiser":
+    head = head_class(config.recovery_head)
+    if recipe.demo_siblings and head.training_data != "base_samples":
         raise ValueError(
             f"recovery.demo_siblings gives demonstrated rows the siblings that only the set denoiser's rows "
             f"carry, and {policy_path} has recovery_head={config.recovery_head!r}: remove "
@@ -420,7 +422,7 @@ def synthesize_recovery_dataset(
     images = camera_encoder(policy, stats, meta) if config.image_features else None
     # The set denoiser learns from the chunks along its attempts (`set_denoiser_frames`, `own_outcome_rows`);
     # eq. (4)'s eps_z from pairs.
-    among = set_denoiser_frames(demos) if config.recovery_head == "set_denoiser" else None
+    among = set_denoiser_frames(demos) if head.training_data == "base_samples" else None
     parts = (
         [synthesised_samples(policy, recipe, demos, generator, progress, images, among)]
         if recipe.n_states

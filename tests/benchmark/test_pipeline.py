@@ -28,7 +28,6 @@ from lerobot_ccdp.benchmark.pipeline import (
     latest_progress,
     main,
     task_slug,
-    w_z_window,
     z_description,
 )
 from lerobot_ccdp.benchmark.results import README_BEGIN, README_END, Run
@@ -36,6 +35,7 @@ from lerobot_ccdp.benchmark.run_lock import exclusive
 from lerobot_ccdp.benchmark.stage_stamps import stamp
 from lerobot_ccdp.datasets.camera_windows import video_backend
 from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY
+from lerobot_ccdp.policy.heads.set_denoiser import w_z_window
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 REPO = Path(__file__).resolve().parents[2]

@@ -81,7 +81,9 @@ def test_the_probe_counts_the_draws_a_method_and_dp_place_on_a_failed_option(mon
         feature=SimpleNamespace(from_chunk=lambda chunk, outcomes: chunk[:, 0]), outcomes=None
     )
     policy = SimpleNamespace(
-        model=model, _memory=memory, _failures=failures, config=SimpleNamespace(recovery_mode="ccdp")
+        model=model,
+        _rollout=SimpleNamespace(memory=memory, failures=failures),
+        config=SimpleNamespace(recovery_mode="ccdp"),
     )
     ends = torch.tensor(np.stack([A, B, C]), dtype=torch.float32)  # options 0, 1, 2 end at A, B, C
     shares = trace.probe_shares(policy, torch.tensor([True]), 0, draws, 0.1, ends, preferred=1)

@@ -4,7 +4,7 @@ whatever noise the other rows or earlier rollouts consumed, and a row without a 
 import pytest
 import torch
 
-from lerobot_ccdp.policy.noise_streams import row_generators
+from lerobot_ccdp.policy.samplers import row_generators
 
 from fixtures.policy_factory import make_policy
 

@@ -273,17 +273,18 @@ def test_failure_flag_replans_only_the_failed_row_and_reset_forgets():
     policy = make_policy(n_action_steps=8)
     obs = {"observation.state": torch.randn(3, 2)}
     first = [policy.select_action(obs) for _ in range(3)]
-    assert policy._memory.plan_pos.tolist() == [3, 3, 3]
-    plan_before = policy._memory.plan.clone()
+    assert policy._rollout.memory.plan_pos.tolist() == [3, 3, 3]
+    plan_before = policy._rollout.memory.plan.clone()
     flagged = {**obs, "observation.failure": torch.tensor([[0.0], [1.0], [0.0]])}
     action = policy.select_action(flagged)
     assert policy.failure_count().tolist() == [0, 1, 0]
-    assert policy._memory.plan_pos.tolist() == [4, 1, 4]  # row 1 started a fresh chunk
+    assert policy._rollout.memory.plan_pos.tolist() == [4, 1, 4]  # row 1 started a fresh chunk
     torch.testing.assert_close(action[[0, 2]], plan_before[[0, 2], 3])
-    assert not torch.equal(policy._memory.plan[1], plan_before[1])
+    assert not torch.equal(policy._rollout.memory.plan[1], plan_before[1])
     # The failed row restarted its windows at the current frame, as at an episode start.
     torch.testing.assert_close(
-        policy._memory.frames[1], obs["observation.state"][1].expand_as(policy._memory.frames[1])
+        policy._rollout.memory.frames[1],
+        obs["observation.state"][1].expand_as(policy._rollout.memory.frames[1]),
     )
     assert len(first) == 3
     policy.reset()
@@ -298,7 +299,7 @@ def test_failure_feature_of_a_flagged_failure_is_the_state_before_it():
     policy.select_action(
         {"observation.state": torch.zeros(2, 2), "observation.failure": torch.tensor([[1.0], [1.0]])}
     )
-    z, mask = policy._failures.padded()
+    z, mask = policy._rollout.failures.padded()
     assert mask.all() and z[:, 0, 0].tolist() == pytest.approx([0.7, -0.4])
 
 
@@ -323,7 +324,7 @@ def test_demonstrated_end_z_is_where_the_followed_demonstration_ended_not_where_
     for _ in range(3):  # plans the first chunk, executes it, then re-plans towards the second demonstration
         policy.select_action(obs)
     policy.select_action({**obs, "observation.failure": torch.tensor([[1.0]])})
-    z, mask = policy._failures.padded()
+    z, mask = policy._rollout.failures.padded()
     assert mask.all() and z[0, 0].tolist() == pytest.approx([0.6])
 
 
@@ -344,7 +345,7 @@ def test_flagged_failure_takes_its_label_from_the_latest_chunk_and_its_action_z_
     for _ in range(3):  # plans the first chunk, executes it, then re-plans
         policy.select_action(obs)
     policy.report_failure()
-    z, mask = policy._failures.padded()
+    z, mask = policy._rollout.failures.padded()
     expected = (
         policy.model.feature.one_hot(torch.tensor([1]))
         if feature == "primitive"
@@ -376,7 +377,7 @@ def test_attempt_end_label_names_the_option_ending_where_the_attempt_stopped(mon
         policy.select_action({"observation.state": torch.tensor([[0.0, 0.5]])})  # stops near option 1's end
         flagged = torch.tensor([[0.0, -0.5]])  # the restart's frame, near option 0's end: not read
         policy.select_action({"observation.state": flagged, "observation.failure": torch.tensor([[1.0]])})
-        z, mask = policy._failures.padded()
+        z, mask = policy._rollout.failures.padded()
         assert mask.all()
         labels[label_at] = int(z[0, 0].argmax())
     assert labels == {"latest_chunk": 0, "attempt_end": 1}

@@ -125,7 +125,7 @@ def test_a_failure_signal_file_reaches_ccdp_inside_lerobot_record(action_checkpo
 def test_an_episode_without_any_failure_source_is_reported_once(action_checkpoint, tmp_path, caplog):
     policy, pre, post, dataset = _record_setup(action_checkpoint, tmp_path)
     events = {"exit_early": False, "rerecord_episode": False, "stop_recording": False}
-    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.modeling_ccdp"):
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.failure_signal"):
         for _ in range(3):  # each record_loop resets the policy: the end of the episode before
             events["exit_early"] = False
             _episode(SimReacher(events, steps=2), events, policy, pre, post, dataset)
@@ -142,7 +142,7 @@ def test_a_signal_file_in_a_missing_folder_is_refused_with_the_fix(action_checkp
 def test_with_recovery_off_no_warning(action_checkpoint, tmp_path, caplog):
     policy, pre, post, dataset = _record_setup(action_checkpoint, tmp_path, "--recovery_mode=dp")
     events = {"exit_early": False, "rerecord_episode": False, "stop_recording": False}
-    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.modeling_ccdp"):
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.failure_signal"):
         for _ in range(2):
             events["exit_early"] = False
             _episode(SimReacher(events, steps=2), events, policy, pre, post, dataset)
@@ -155,7 +155,7 @@ def test_the_warning_follows_the_mode_the_episode_planned_in(caplog):
     benchmarks do), did not run with recovery on: no warning. One planned in ccdp mode does warn."""
     policy = policy_factory.make_policy()
     obs = {"observation.state": torch.zeros(1, 2)}
-    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.modeling_ccdp"):
+    with caplog.at_level(logging.WARNING, logger="lerobot_ccdp.policy.failure_signal"):
         policy.config.recovery_mode = "dp"
         policy.select_action(obs)
         policy.config.recovery_mode = "ccdp"

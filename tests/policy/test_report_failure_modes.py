@@ -6,7 +6,7 @@ import contextlib
 import pytest
 import torch
 
-from lerobot_ccdp.policy.modeling_ccdp import MAX_FAILURES
+from lerobot_ccdp.policy.rollout_memory import MAX_FAILURES
 
 from fixtures.policy_factory import make_policy
 
@@ -35,7 +35,7 @@ def test_failure_reported_outside_the_acting_mode_changes_the_next_plan(acting):
     assert policy.failure_count().tolist() == [0, 1]
     with MODES[acting]():
         policy.select_action(obs)
-    assert policy._memory.plan_pos.tolist() == [3, 1], "row 1 re-planned, row 0 kept its chunk"
+    assert policy._rollout.memory.plan_pos.tolist() == [3, 1], "row 1 re-planned, row 0 kept its chunk"
     assert seen, "the re-plan composed eps_z of the reported failure"
     torch.testing.assert_close(seen[0][0], z_f[0])
 
@@ -49,7 +49,7 @@ def test_failure_buffer_stays_bounded_when_reporting_outside_the_acting_mode(act
             policy.select_action(obs)
         policy.report_failure()
     assert policy.failure_count().tolist() == [MAX_FAILURES]
-    assert policy._failures.z.shape[1] == MAX_FAILURES
+    assert policy._rollout.failures.z.shape[1] == MAX_FAILURES
 
 
 def test_switching_modes_between_steps_keeps_acting():

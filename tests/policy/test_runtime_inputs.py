@@ -56,7 +56,7 @@ def test_a_reading_far_outside_the_data_is_refused_naming_it_and_the_units(
     at = re.escape(f"observation.state[1] is {value:.4g} after normalisation")
     with pytest.raises(ValueError, match=rf"{at}.*units"):
         _act(policy, pre, post, {OBS_STATE: torch.tensor([[0.3, value]])})
-    assert policy._memory is None, "nothing was remembered of the refused observation"
+    assert policy._rollout is None, "nothing was remembered of the refused observation"
 
 
 def test_a_camera_image_that_is_not_finite_or_far_outside_is_refused_naming_the_camera():

@@ -9,8 +9,8 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionConditionalUnet1d
 
+from lerobot_ccdp.policy.base_denoiser import BaseDenoiser
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.policy.denoisers import BaseDenoiser
 
 CONFIG = CCDPConfig(
     input_features={"observation.state": PolicyFeature(FeatureType.STATE, (2,))},

@@ -88,7 +88,7 @@ def planned_shares(head: str, failed: list[int]) -> Tensor:
         for option in failed:
             policy.report_failure(z=torch.nn.functional.one_hot(torch.full((ROWS,), option), 4).float())
         policy.select_action(batch)
-        chunks = policy._memory.attempt_chunk.clone()
+        chunks = policy._rollout.memory.attempt_chunk.clone()
     nearest = ((chunks.mean(dim=1)[:, None] - POINTS[None]) ** 2).sum(-1).argmin(dim=1)
     return torch.bincount(nearest, minlength=4) / ROWS
 

@@ -1,0 +1,109 @@
+"""What a recovery head is, and the table that names them (`recovery_head`).
+
+A head is one module under `policy/heads/`: its network (built into `model.recovery`, so its weights sit
+under `model.recovery.*` in a checkpoint), the data it trains on, its training loss, its noise estimate at
+sampling time when a row has failures, and the settings only it reads. `CCDPModel` holds the base loss and the
+reverse loop and asks its head (`model.head`) for the rest; nothing outside this folder compares
+`recovery_head` with a name. The head's methods reach the network through `model.recovery`, so a test may put
+another network there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+from torch import Tensor, nn
+
+if TYPE_CHECKING:  # the model module imports the heads
+    from lerobot_ccdp.policy.composition import CompositionWeights
+    from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+    from lerobot_ccdp.policy.modeling_ccdp import CCDPModel
+
+# What a head's recovery stage reads: the demonstrations themselves (windows, as the base), the recovery pairs
+# of a synthesised dataset (chunk, z), or the base's own samples with their state and siblings.
+TrainingData = Literal["demonstrations", "recovery_pairs", "base_samples"]
+# The noise estimate of one reverse step: (noisy sample (R, horizon, A), timestep) -> eps (R, horizon, A).
+Estimate = Callable[[Tensor, int], Tensor]
+
+
+class RecoveryHead:
+    """A recovery head: which network it builds and what the model asks of it."""
+
+    name: ClassVar[str]
+    network: ClassVar[type[nn.Module]]  # built with the config: `network(config)`
+    training_data: ClassVar[TrainingData]
+    # Config fields only this head reads; set away from their defaults with another head, they are refused.
+    own_settings: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def check_config(cls, config: CCDPConfig) -> None:
+        """Refuse settings this head cannot run with (called with the other config checks)."""
+
+    @classmethod
+    def describe(cls, settings: Mapping[str, Any]) -> str:
+        """How the failures enter eq. (4) at these config settings (a checkpoint's config.json, flags
+        applied), as the benchmark's report names the form that ran."""
+        raise NotImplementedError
+
+    @classmethod
+    def unet_condition(cls, step: int, base_condition: int, z_size: int) -> int | None:
+        """The global condition size of the head's diffusion UNet, for `config_checks.memory_estimate`
+        (a lower bound; None: the head has no UNet). `base_condition` is the base UNet's."""
+        return None
+
+    def loss(self, model: CCDPModel, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """The recovery stage's loss on a batch of `training_data`, and what to log beside it."""
+        raise NotImplementedError
+
+    def estimate(
+        self,
+        model: CCDPModel,
+        weights: CompositionWeights,
+        state: Tensor,
+        history: Tensor,
+        z: Tensor,
+        z_mask: Tensor,
+        timesteps: list[int],
+    ) -> Estimate:
+        """The noise estimate of every reverse step for rows remembering failures (`z` (R, N, z_dim) with
+        `z_mask` (R, N), N > 0; rows may hold none), given the reverse loop's `timesteps`."""
+        raise NotImplementedError
+
+
+HEADS: dict[str, type[RecoveryHead]] = {}
+
+
+def register_head(name: str) -> Callable[[type[RecoveryHead]], type[RecoveryHead]]:
+    """Class decorator: the head `--policy.recovery_head=<name>` builds."""
+
+    def register(cls: type[RecoveryHead]) -> type[RecoveryHead]:
+        cls.name = name
+        HEADS[name] = cls
+        return cls
+
+    return register
+
+
+def head_class(name: str) -> type[RecoveryHead]:
+    if name not in HEADS:
+        raise ValueError(f"recovery_head={name!r} names no head; the heads are {sorted(HEADS)}.")
+    return HEADS[name]
+
+
+def make_head(config: CCDPConfig) -> RecoveryHead:
+    """The head `config.recovery_head` names."""
+    return head_class(config.recovery_head)()
+
+
+def refuse_settings_of_other_heads(config: CCDPConfig) -> None:
+    """A field only another head reads, set away from its default, would do nothing: refused with the fix."""
+    own = head_class(config.recovery_head)
+    for owner in HEADS.values():
+        for field in set(owner.own_settings) - set(own.own_settings):
+            value, default = getattr(config, field), type(config).__dataclass_fields__[field].default
+            if value != default:
+                raise ValueError(
+                    f"`{field}` ({value}) is a setting of the {owner.name!r} head; the {own.name!r} head "
+                    f"reads none. Remove --policy.{field} or use --policy.recovery_head={owner.name}."
+                )
