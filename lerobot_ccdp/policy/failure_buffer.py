@@ -1,4 +1,5 @@
-"""Per-row memory of failure features z_1..z_N (one row per vectorised env)."""
+"""Per-row memory of failure features z_1..z_N (one row per vectorised env), kept as ordinary tensors; the
+rows a report names; the failure sets the failure-set heads draw for training."""
 
 import functools
 from collections.abc import Callable
