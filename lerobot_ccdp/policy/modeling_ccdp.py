@@ -82,9 +82,8 @@ class CCDPPolicy(PreTrainedPolicy):
 
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "CCDPPolicy":
-        """LeRobot's load, checked (`checkpoint_files.checked_load`): a checkpoint carries its own outcome
-        table, so the dataset LeRobot's make_policy passes is dropped, and a wrong path, a damaged file or
-        weights that do not fit are named with the fix."""
+        """LeRobot's load, checked (`checkpoint_files.checked_load`): no dataset is read, and a wrong path, a
+        damaged file or weights that do not fit are named with the fix."""
         load = super().from_pretrained
         return checked_load(
             lambda config, **rest: load(pretrained_name_or_path, config=config, **rest),
@@ -277,14 +276,11 @@ class CCDPModel(nn.Module):
         )
         self.feature = FailureFeature(config)
         self.set_weights()
-        if dataset_stats is not None and config.training_stage == "base":
+        base_stage = config.training_stage == "base"
+        if dataset_stats is not None and base_stage:
             refuse_non_finite_stats(config, dataset_stats)
             self.constant_inputs.fill(config, dataset_stats)
-        if (
-            dataset_meta is not None
-            and config.training_stage == "base"
-            and config.failure_feature != "action"
-        ):
+        if dataset_meta is not None and base_stage and config.failure_feature != "action":
             self.outcomes.fill(*build_outcome_table(config, dataset_meta, dataset_stats))
         self._set_trainable()
 
