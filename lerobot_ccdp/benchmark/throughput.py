@@ -6,7 +6,8 @@ It reads a task's pipeline folder (`python -m lerobot_ccdp.benchmark.pipeline --
 each of the three for `--steps` steps into a scratch folder, and prints steps/s and the share of a step spent
 waiting for data, from lerobot-train's own `updt_s` / `data_s` log line. The three run one after another,
 `--repeats` times interleaved, each with `--threads` torch threads, so that their ratios come from one run on
-one machine.
+one machine. `--beside` keeps a low-priority busy process running meanwhile: a user's laptop is never idle,
+and that light job decides how many threads a training may use (docs/benchmarks.md, Speed).
 """
 
 from __future__ import annotations
@@ -16,6 +17,10 @@ import json
 import logging
 import shutil
 import statistics
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -139,6 +144,20 @@ def measure(command: list[str], out: Path, log: Path, threads: int) -> StepTime:
     return StepTime(*(float(v) for v in found[-1]))
 
 
+@contextmanager
+def busy_beside(on: bool) -> Iterator[None]:
+    """With `on`, a busy loop at the lowest priority (nice 19) runs until the block ends."""
+    if not on:
+        yield
+        return
+    job = subprocess.Popen(["nice", "-n", "19", sys.executable, "-c", "while True: pass"])
+    try:
+        yield
+    finally:
+        job.kill()
+        job.wait()
+
+
 def table(times: dict[str, list[StepTime]]) -> str:
     """Median over repeats of steps/s and data share, and each run's cost per step against diffusion's."""
     median = {
@@ -164,6 +183,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=2, help="interleaved repeats of the three runs")
     parser.add_argument("--threads", type=int, default=1, help="torch threads per run (OMP_NUM_THREADS)")
     parser.add_argument("--num-workers", type=int, default=0, help="lerobot-train's --num_workers")
+    parser.add_argument(
+        "--beside", action="store_true", help="a busy process at nice 19 runs beside every training"
+    )
     args = parser.parse_args(argv)
     if args.steps < 20 or args.repeats < 1 or args.threads < 1 or args.num_workers < 0:
         parser.error("--steps >= 20, --repeats >= 1, --threads >= 1 and --num-workers >= 0")
@@ -172,16 +194,18 @@ def main(argv: list[str] | None = None) -> None:
     commands = train_commands(files, args.out / "train", args.steps, args.num_workers)
     claim_output_folder(args.out, CREATED_BY)  # its trainings are deleted between repeats: never a user's
     times: dict[str, list[StepTime]] = {name: [] for name in RUNS}
-    for repeat in range(args.repeats):
-        for name in RUNS:
-            slug = name.replace(" ", "_")
-            log = args.out / f"{slug}_{repeat}.log"
-            t = measure(commands[name], args.out / "train" / slug, log, args.threads)
-            logging.info(f"{name} (repeat {repeat}): {t.steps_per_s:.2f} steps/s, data {t.data_share:.0%}")
-            times[name].append(t)
+    with busy_beside(args.beside):
+        for repeat in range(args.repeats):
+            for name in RUNS:
+                slug = name.replace(" ", "_")
+                log = args.out / f"{slug}_{repeat}.log"
+                t = measure(commands[name], args.out / "train" / slug, log, args.threads)
+                logging.info(f"{name} ({repeat}): {t.steps_per_s:.2f} steps/s, data {t.data_share:.0%}")
+                times[name].append(t)
+    beside = ", a busy process beside" if args.beside else ""
     print(
         f"{args.task}, {args.steps} steps per run, {args.repeats} repeats, {args.threads} thread(s), "
-        f"{args.num_workers} data worker(s):\n{table(times)}"
+        f"{args.num_workers} data worker(s){beside}:\n{table(times)}"
     )
 
 

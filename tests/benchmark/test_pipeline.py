@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 import torch
 import yaml
@@ -603,9 +604,10 @@ def test_throughput_times_the_base_the_head_and_lerobots_diffusion_with_the_same
     throughput.main(
         [
             *("--task", TASK, "--run", str(out), "--configs", str(configs), "--recipes", str(recipes)),
-            *("--out", str(tmp_path / "throughput"), "--steps", "20", "--repeats", "1"),
+            *("--out", str(tmp_path / "throughput"), "--steps", "20", "--repeats", "1", "--beside"),
         ]
     )
+    assert psutil.Process().children() == []  # the busy process beside was stopped with the runs
     rows = [line.split("|")[1:-1] for line in capsys.readouterr().out.splitlines() if line.startswith("| ")]
     assert [r[0].strip() for r in rows[1:]] == ["diffusion", "ccdp base", "ccdp recovery"]
     assert all(float(r[1]) > 0 and r[2].strip().endswith("%") for r in rows[1:])
