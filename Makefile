@@ -41,18 +41,20 @@ train-local: install
 		--policy.training_stage=recovery --dataset.repo_id=local/recovery_rows --dataset.root=$$run/recovery_rows \
 		--output_dir=$$run/ccdp --steps=1500 --batch_size=64 --num_workers=0 --policy.push_to_hub=false
 
+# JOBS stages at a time, with cores / JOBS torch threads each (pipeline --jobs): the baselines' evaluations beside
+# the synthesis and the recovery stage, the recovery's evaluations two at a time (docs/benchmarks.md, Speed).
+JOBS ?= 2
 # The main job end to end on one task (record, train base, synthesise, train recovery, evaluate CCDP vs DP), in
 # a folder of its own per task, so that a second task's report does not replace the first's.
 TASK ?= DoorOpening-v0
 quickstart: install
-	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks $(TASK) --methods dp ccdp --out outputs/quickstart/$(TASK)
+	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks $(TASK) --methods dp ccdp --out outputs/quickstart/$(TASK) \
+		--jobs $(JOBS)
 
 # The paper's comparison: the five tasks with contact physics on the Franka Panda, DP / DP* / CCDP and the no-repeat
 # oracle; outputs in outputs/benchmark, each task's report in docs/benchmark/<task>.md as soon as the task is done
 # (a round takes hours: `make benchmark TASKS="Bartender-v0"` runs the tasks a stopped round has left).
-# JOBS=2 runs a task's evaluations two at a time, one torch thread each (pipeline --jobs).
 TASKS ?= all
-JOBS ?= 1
 benchmark: install
 	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks $(TASKS) --out outputs/benchmark --publish-each docs/benchmark \
 		--jobs $(JOBS)
