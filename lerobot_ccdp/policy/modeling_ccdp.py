@@ -17,6 +17,7 @@ from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor, nn
 
+from lerobot_ccdp.compat.threads import leave_a_core
 from lerobot_ccdp.policy.base_denoiser import P_DROP_HISTORY, P_DROP_STATE, BaseDenoiser, base_estimates
 from lerobot_ccdp.policy.checkpoint_files import checked_load, make_model_card, refuse_unloadable_weights
 from lerobot_ccdp.policy.composition import CompositionWeights, compose_eps
@@ -56,8 +57,7 @@ class CCDPPolicy(PreTrainedPolicy):
     After a failed attempt (flagged by the env as `observation.failure`, or reported with
     `report_failure`), the row's failure feature z joins its failure buffer and every later sample of that
     row is drawn from eq. (4), which pushes samples away from what already failed. `recovery_mode` picks
-    CCDP, plain DP (ignore failures) or DP* (reject candidates near a failure), all on the same weights.
-    """
+    CCDP, plain DP (ignore failures) or DP* (reject candidates near a failure), all on the same weights."""
 
     config_class = CCDPConfig
     name = "ccdp"
@@ -65,6 +65,7 @@ class CCDPPolicy(PreTrainedPolicy):
     def __init__(self, config: CCDPConfig, dataset_meta=None, dataset_stats=None, **kwargs):
         super().__init__(config)
         config.validate_features()
+        leave_a_core(str(config.device))
         if dataset_meta is not None:  # a fresh policy for a dataset: lerobot-train without --policy.path
             refuse_fresh_training(config, dataset_meta)
         self.config = config
@@ -100,8 +101,7 @@ class CCDPPolicy(PreTrainedPolicy):
     def generate_model_card(
         self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
     ) -> ModelCard:
-        """Called by push_model_to_hub (lerobot-train --policy.push_to_hub): LeRobot's template has no ccdp
-        text."""
+        """The card push_model_to_hub writes (lerobot-train --policy.push_to_hub): LeRobot's has no ccdp."""
         return make_model_card(self.config, dataset_repo_id, license, tags, bool(self.model.recovery_trained))
 
     # ----- training -------------------------------------------------------------------------------------
