@@ -105,7 +105,10 @@ LABEL_FREE_OWN = {
         "recovery.chunks_per_state",
         "recovery.demo_siblings",
         "failure_guard_steps",
-    )
+    ),
+    # the labelled door's head trains 1000 steps (issue 111, development seeds); the label-free one's 6000
+    # were not measured shorter
+    "DoorOpening-v0": ("steps", "save_freq"),
 }
 
 
