@@ -52,7 +52,7 @@ from lerobot_ccdp.benchmark.comparison import (
     markdown_table,
 )
 from lerobot_ccdp.benchmark.published import REPORT_NOTE, check_report_targets
-from lerobot_ccdp.benchmark.results import ccdp_label, command_line, save_run
+from lerobot_ccdp.benchmark.results import command_line, save_run
 from lerobot_ccdp.benchmark.run_lock import PipelineRunning, die_with_parent, exclusive
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.benchmark.targets import target_checks
@@ -447,12 +447,8 @@ class TaskRun:
         return episodes
 
     def labels(self, methods: list[str]) -> dict[str, str]:
-        """The name each method's figures carry: CCDP evaluated with redraws is the hybrid's
-        (`results.ccdp_label`), from the checkpoint's settings as CCDP's flags changed them."""
-        config = self.files.out / "recovery" / CHECKPOINT / "config.json"
-        settings = json.loads(config.read_text()) if config.is_file() else {}
-        ccdp = ccdp_label({**settings, **self.files.method_settings("ccdp")})
-        return {m: ccdp if m == "ccdp" else METHOD_LABELS[m] for m in methods}
+        """The name each method's figures carry."""
+        return {m: METHOD_LABELS[m] for m in methods}
 
     def _train(
         self, stage: str, config: Path, out: Path, repo_id: str, root: Path, *extra: str, upstream: str
@@ -697,6 +693,7 @@ def method_forms(runs: list[TaskRun]) -> str:
         # the checkpoint's settings, as CCDP's flags changed them
         ccdp = {**c, **r.files.method_settings("ccdp")}
         head = head_class(ccdp.get("recovery_head", CCDPConfig.recovery_head))
+        pairs_delta_z = c["delta_z"] if recipe.delta_z is None else recipe.delta_z  # eq. (5)'s
         form = head.describe(ccdp)
         synthesis = {
             "demonstrations": f"none ({head.name} learns from the demos)",
@@ -704,10 +701,8 @@ def method_forms(runs: list[TaskRun]) -> str:
                 f"chunks sampled half at option starts, half along the demos: sigma {recipe.sigma:g}, "
                 f"w_s {recipe.w_s:g}, {recipe.n_states} x {recipe.chunks_per_state}"
             ),
-            "recovery_pairs": f"delta_x {recipe.delta_x:g}, delta_z {recipe.delta_z:g}, w_s {recipe.w_s:g}",
+            "recovery_pairs": f"delta_x {recipe.delta_x:g}, delta_z {pairs_delta_z:g}, w_s {recipe.w_s:g}",
         }[head.training_data]
-        if ccdp.get("ccdp_redraws", 0):
-            form += f"; a repeat redrawn up to {ccdp['ccdp_redraws']} times"
         lines.append(
             f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {z_description(ccdp)} | {form} | "
             f"{c['noise_scheduler_type']} {c['num_inference_steps']} steps | {synthesis} | {steps} | "
@@ -721,11 +716,7 @@ def z_description(settings: dict[str, Any]) -> str:
     """What z was: the feature, for `action` which steps and dims, and for `final_state` which dims, where
     a failure's z was read and the set embedding's Fourier octaves."""
     if settings["failure_feature"] == "action":
-        steps, dims = (
-            settings.get("failure_action_steps") or "all",
-            settings.get("failure_action_dims") or "all",
-        )
-        return f"action: steps {steps} of the attempt's first chunk, dims {dims}"
+        return "action: the attempt's first chunk"
     if settings["failure_feature"] == "primitive":
         at = settings.get("failure_label_at", CCDPConfig.failure_label_at)
         return "primitive" if at == "latest_chunk" else f"primitive, a failure's label read at {at}"
@@ -737,7 +728,7 @@ def z_description(settings: dict[str, Any]) -> str:
     ends = "" if segments == "labels" else f", demonstrated options end at {segments}"
     octaves = settings.get("z_fourier_octaves", CCDPConfig.z_fourier_octaves)
     ends += f", {octaves} Fourier octaves" if octaves else ""
-    return f"final_state: {settings['failure_state_key']} dims {dims}, a failure's read at {at}{ends}"
+    return f"final_state: state dims {dims}, a failure's read at {at}{ends}"
 
 
 def machine() -> str:

@@ -1,7 +1,7 @@
 """Does recovery keep the demonstrated preferences? A seeded family of 2-D reaching tasks (issue 17).
 
     HF_HUB_OFFLINE=1 python -m lerobot_ccdp.benchmark.preference_family [--members 0 1 ... 11] [--w-z 1 2 4] \
-        [--no-classifier] [--redraws 0 1] [--set-denoiser] [--out outputs/preferences]
+        [--no-classifier] [--set-denoiser] [--out outputs/preferences]
 
 Each family member (`ReachingTask.family_member(seed)`: 3 to 6 goals at random angles, random preferences,
 bent paths; even seeds carry `primitive` labels, odd seeds do not and use `final_state` z) is recorded as a
@@ -9,10 +9,10 @@ LeRobot dataset, its base is trained with lerobot-train, and the failure-set cla
 (`--policy.recovery_head=classifier`) is trained from that base on the demonstrations with lerobot-train as a
 user would. Failed share and preference error after one and after two failures
 (`lerobot_ccdp/benchmark/reaching_preferences.py`) are measured on 512 chunks for DP, DP* (32 candidates x 4
-rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z with each count
-of --redraws (sampling settings, set as lerobot-eval's --policy.w_z and --policy.ccdp_redraws would: every
-combination runs on the same checkpoint and seeds). Prints the table, writes `preferences.md`, `results.json`
-and a Fig. 2-style panel grid `preferences.png` under --out (CCDP with the first weight and redraw count).
+rounds, as tuned in docs/benchmarks.md) and CCDP's classifier guidance at each weight of --w-z (a sampling
+setting, set as lerobot-eval's --policy.w_z would: every weight runs on the same checkpoint and seeds). Prints
+the table, writes `preferences.md`, `results.json` and a Fig. 2-style panel grid `preferences.png` under --out
+(CCDP with the first weight).
 Members run side by side each with its own --out are tabulated together with
 `--report-only --merge outputs/preferences_test0 ... --out outputs/preferences_family`, and compared with the
 same members measured as another variant with `--against <its folders>` (differences paired member by
@@ -89,14 +89,8 @@ SAMPLING_GRIDS = (
         "--w-z-steps",
         int,
         0,
-        "set denoiser: how many reverse steps from each --w-z-from on use each --w-z other than 1, 1 "
-        "elsewhere (0: to the last)",
-    ),
-    (
-        "--w-z-from",
-        int,
-        0,
-        "set denoiser: the first reverse step (0 the noisiest) of each --w-z-steps window",
+        "set denoiser: how many of the noisiest reverse steps use each --w-z other than 1, 1 elsewhere "
+        "(0: every step)",
     ),
     (
         "--guard-steps",
@@ -111,7 +105,6 @@ SAMPLING_GRIDS = (
         1.0,
         "set denoiser: each guarded form at each of these guard weights (--policy.failure_guard_weight)",
     ),
-    ("--redraws", int, 0, "most redraws of a CCDP plan that repeats a failure (0: one sample per plan)"),
 )
 
 
@@ -121,50 +114,39 @@ def methods(head: str, first: bool, sampling: argparse.Namespace, demos: LeRobot
     baselines = BASELINES if first and sampling.baselines else {}
     if head == "set_denoiser":  # one sample per plan
         forms = {
-            set_denoiser_name(w, k, start, guard, w_g): Method(
+            set_denoiser_name(w, k, guard, w_g): Method(
                 "ccdp",
-                {"w_z": w, "w_z_steps": k or None, "w_z_from_step": start, "failure_guard_steps": guard}
+                {"w_z": w, "w_z_steps": k or None, "failure_guard_steps": guard}
                 | ({"failure_guard_weight": w_g} if guard else {}),
             )
             for w in sampling.w_z
-            for start in (sampling.w_z_from if w != 1.0 else [0])
             for k in (sampling.w_z_steps if w != 1.0 else [0])
             for guard in sampling.guard_steps
             for w_g in (sampling.guard_weight if guard else [1.0])
         }
         return {**baselines, **MATCHED, **forms}
-    ccdp = {
-        ccdp_name(w, n): Method("ccdp", {"w_z": w, "ccdp_redraws": n})
-        for w in sampling.w_z
-        for n in sampling.redraws
-    }
+    ccdp = {ccdp_name(w): Method("ccdp", {"w_z": w}) for w in sampling.w_z}
     # The reference row: the same base guided at w_z = 1 by the exact classifier of the demonstrated start
     # chunks.
     return {**baselines, **ccdp, "CCDP exact classifier": Method("ccdp", {"w_z": 1.0}, demos)}
 
 
-def set_denoiser_name(
-    w_z: float, steps: int, start: int = 0, guard: int = 0, guard_weight: float = 1.0
-) -> str:
-    """The table's name of the set denoiser at weight `w_z` on `steps` reverse steps from step `start` on (0:
-    to the last), 1 elsewhere, its guard on the last `guard` steps at weight `guard_weight`; "CCDP set
-    denoiser" at w_z = 1 without the guard, the form of the round on members 12-23."""
+def set_denoiser_name(w_z: float, steps: int, guard: int = 0, guard_weight: float = 1.0) -> str:
+    """The table's name of the set denoiser at weight `w_z` on the `steps` noisiest reverse steps (0: every
+    step), 1 elsewhere, its guard on the last `guard` steps at weight `guard_weight`; "CCDP set denoiser" at
+    w_z = 1 without the guard, the form of the round on members 12-23."""
     guarded = f" guard last {guard}" if guard else ""
     if guard and guard_weight != 1.0:
         guarded += f" w_g={guard_weight:g}"
     if w_z == 1.0:
         return f"CCDP set denoiser{guarded}"
-    if not start:
-        where = f" first {steps} steps" if steps else ""
-    else:
-        where = f" steps {start}-{start + steps - 1}" if steps else f" from step {start}"
+    where = f" first {steps} steps" if steps else ""
     return f"CCDP set denoiser w_z={w_z:g}{where}{guarded}"
 
 
-def ccdp_name(w_z: float, redraws: int) -> str:
-    """The table's name of CCDP guided by the classifier at weight `w_z`, redrawing repeats up to `redraws`
-    times."""
-    return f"CCDP classifier w_z={w_z:g}" + (f" +{redraws} redraws" if redraws else "")
+def ccdp_name(w_z: float) -> str:
+    """The table's name of CCDP guided by the classifier at weight `w_z`."""
+    return f"CCDP classifier w_z={w_z:g}"
 
 
 def train(name: str, out: Path, args: list[str], upstream: str | None, book: StampBook) -> tuple[Path, str]:
@@ -636,8 +618,7 @@ def main(argv: list[str] | None = None) -> None:
         if len({tuple(names) for names in measured.values()}) > 1:
             sys.exit(
                 f"The members were measured with different methods ({measured}): tabulate together only "
-                "members run with the same --w-z, --w-z-steps, --w-z-from, --guard-steps, --guard-weight, "
-                "--redraws and "
+                "members run with the same --w-z, --w-z-steps, --guard-steps, --guard-weight and "
                 "--no-baselines, or rerun the rest with them."
             )
         results_path.write_text(json.dumps(results))
@@ -690,11 +671,9 @@ def main(argv: list[str] | None = None) -> None:
     (args.out / "preferences.md").write_text(
         f"Failed share / preference error; members {args.members}, {settings_line(chosen)}.\n\n{text}\n"
     )
-    shown = ccdp_name(args.w_z[0], args.redraws[0])
+    shown = ccdp_name(args.w_z[0])
     if shown not in next(iter(chosen.values()))["methods"]:  # members measured with --no-classifier
-        shown = set_denoiser_name(
-            args.w_z[0], args.w_z_steps[0], args.w_z_from[0], args.guard_steps[0], args.guard_weight[0]
-        )
+        shown = set_denoiser_name(args.w_z[0], args.w_z_steps[0], args.guard_steps[0], args.guard_weight[0])
     panel_grid(chosen, args.out / "preferences.png", shown)
 
 

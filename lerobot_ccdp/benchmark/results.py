@@ -6,8 +6,9 @@ e.g. `docs/benchmark_report.json`). This command reads those files and writes on
 each method's success rate and repeats per attempt after a failure, and CCDP's paired differences of success
 against DP, DP* and DP* at CCDP's cost (`lerobot_ccdp.benchmark.paired`: episode i of both resampled
 together).
-A column carries a method's name only if that method alone produced it: CCDP with redraws through DP*'s
-outcome lookup is "CCDP + k redraws (DP*'s lookup)", and one table never mixes the two.
+A column carries a method's name only if that method alone produced it: runs published with CCDP's plans
+redrawn through DP*'s outcome lookup carry "CCDP + k redraws (DP*'s lookup)", and one table never mixes the
+two.
 """
 
 from __future__ import annotations
@@ -43,13 +44,6 @@ FORMAT = RUN_FORMAT
 BASELINES = ("dp", "dp_star", "dp_star_matched")
 README_BEGIN = "<!-- results:begin (written by python -m lerobot_ccdp.benchmark.results; do not edit) -->"
 README_END = "<!-- results:end -->"
-
-
-def ccdp_label(settings: dict[str, Any]) -> str:
-    """The name CCDP's figures carry: the method itself, or the hybrid when plans were redrawn through DP*'s
-    outcome lookup (`ccdp_redraws`)."""
-    redraws = int(settings.get("ccdp_redraws", 0) or 0)
-    return f"CCDP + {redraws} redraws (DP*'s lookup)" if redraws else METHOD_LABELS["ccdp"]
 
 
 _PUBLISHED = (":(top,exclude)docs", ":(top,exclude)README.md")

@@ -50,6 +50,7 @@ from lerobot_ccdp.benchmark.pipeline import COMMON_NOISE
 from lerobot_ccdp.envs.base import CCDPTaskEnv
 from lerobot_ccdp.policy import modeling_ccdp
 from lerobot_ccdp.policy.dp_star import nearest_failure_distance
+from lerobot_ccdp.policy.failure_features import state_dims
 from lerobot_ccdp.policy.samplers import SAMPLERS, PlanRows
 
 
@@ -185,7 +186,7 @@ def option_ends(env: CCDPTaskEnv, checkpoint: Path, policy) -> Tensor:
     laid out as observation.state), normalised as the checkpoint's preprocessor normalises observation.state,
     at the z dims."""
     stats = state_stats(checkpoint)
-    key, config = policy.config.failure_state_key, policy.config
+    key, config = OBS_STATE, policy.config
     raw = torch.tensor([env.plan(option)[-1].target for option in range(env.n_options)], dtype=torch.float32)
     if config.normalization_mapping["STATE"].value == "MIN_MAX":
         low, high = stats[f"{key}.min"], stats[f"{key}.max"]
@@ -263,7 +264,8 @@ def installed(tracer: Tracer, draws: int, checkpoint: Path) -> Iterator[None]:
             if draws and mask[i].any() and episode.attempt_z is None and not episode.done:
                 env = tracer.envs[row]
                 config = policy.config  # an option's end is known as the robot's state only
-                robot_z = config.failure_feature == "final_state" and config.failure_state_key == OBS_STATE
+                robot = config.robot_state_feature.shape[0]
+                robot_z = config.failure_feature == "final_state" and max(state_dims(config)) < robot
                 ends = option_ends(env, checkpoint, policy) if robot_z else None
                 preferred = env.preferred_feasible_option()
                 shares = probe_shares(policy, rows, i, draws, tracer.delta_z, ends, preferred)

@@ -3,7 +3,7 @@
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.tune_methods --out outputs/benchmark \
         --method dp_star --grid dp_star_candidates=16,32 dp_star_rounds=1,4 [--seed 1000] [--write]
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.tune_methods --out outputs/benchmark \
-        --tasks ButtonSearch-v0 --method ccdp --grid ccdp_redraws=0,3 [--write]
+        --tasks ButtonSearch-v0 --method ccdp --grid w_z=3,5 w_z_steps=3 [--write]
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.tune_methods --out outputs/label_free \
         --label-free --tasks Bartender-v0 --method ccdp --grid w_z=1,2
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl python -m lerobot_ccdp.benchmark.tune_methods --out outputs/label_free \

@@ -81,7 +81,8 @@ def install_error_surfacing() -> None:
 
 
 def _surface_in_from_pretrained() -> None:
-    """Make `PreTrainedConfig.from_pretrained` raise this package's buried error, or the reason a ccdp
+    """Make `PreTrainedConfig.from_pretrained` read a ccdp config.json saved with settings since removed
+    (`checkpoint_files.current_layout`), and raise this package's buried error, or the reason a ccdp
     config.json does not parse, in place of draccus's."""
     from lerobot.configs.policies import PreTrainedConfig
 
@@ -91,11 +92,18 @@ def _surface_in_from_pretrained() -> None:
 
     @functools.wraps(original)
     def from_pretrained(cls: type, pretrained_name_or_path: str | Path, *args: Any, **kwargs: Any) -> Any:
-        try:
-            return original(cls, pretrained_name_or_path, *args, **kwargs)
-        except Exception as error:
-            from lerobot_ccdp.policy.checkpoint_files import missing_checkpoint, mixed_config_error
+        from lerobot_ccdp.policy.checkpoint_files import (
+            HUB_DOWNLOAD_KEYS,
+            current_layout,
+            missing_checkpoint,
+            mixed_config_error,
+        )
 
+        hub = {key: kwargs[key] for key in HUB_DOWNLOAD_KEYS if key in kwargs}
+        try:
+            with current_layout(pretrained_name_or_path, **hub) as path:
+                return original(cls, path, *args, **kwargs)
+        except Exception as error:
             clearer = (
                 buried_error(error)
                 or missing_checkpoint(pretrained_name_or_path)

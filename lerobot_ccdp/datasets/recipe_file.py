@@ -101,16 +101,15 @@ class RecoveryRecipe:
 
     The failure feature settings (`Z_FIELDS`) define z, so they are those the base checkpoint was trained
     with: left null they are read from the checkpoint, and a value given must equal the checkpoint's (a
-    recipe written for one base is refused for another). The other fields are the synthesis parameters, so
-    a recipe with no field at all serves any base. Distances are in the policy's normalised space.
+    recipe written for one base is refused for another). `delta_z` left null is the checkpoint's too (the
+    distance under which the policy takes an outcome for a repeat). The other fields are the synthesis
+    parameters, so a recipe with no field at all serves any base. Distances are in the policy's normalised
+    space.
     """
 
     # z settings, as --policy.<name>; null: the base checkpoint's.
     failure_feature: str | None = None  # what z is, one of final_state, action, primitive
-    failure_state_key: str | None = None  # final_state z: the observation that forms z
-    failure_state_dims: list[int] | None = None  # final_state z: which of its dims; []: all
-    failure_action_steps: list[int] | None = None  # action z: which steps of the chunk; []: all
-    failure_action_dims: list[int] | None = None  # action z: which action dims at each step; []: all
+    failure_state_dims: list[int] | None = None  # final_state z: which dims of the state frame; []: all
     primitive_key: str | None = None  # primitive z: the dataset column of the option label
     num_primitives: int | None = None  # primitive z: the number of options (z is one-hot)
     n_states: int = 512  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
@@ -122,7 +121,8 @@ class RecoveryRecipe:
     demo_frames: int = 4096  # demonstrated chunks that join the pool; 0 = synthesised chunks only
     # set denoiser: give a demonstrated chunk the siblings of a state drawn at its frame (`sibling_outcomes`)
     demo_siblings: bool = False
-    delta_z: float = 0.5  # eq. (5): a recovery's z differs from the failure's by more than this
+    # eq. (5): a recovery's z differs from the failure's by more than this; null: the checkpoint's delta_z
+    delta_z: float | None = None
     delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
     pairs_per_failure: int = 2  # recoveries drawn per pool sample taken as a failure
     batch_states: int = 32  # states sampled per batched denoising call
@@ -144,7 +144,7 @@ class RecoveryRecipe:
         bad = [name for name in counts if getattr(recipe, name) < 1] + [
             name
             for name in ("n_states", "demo_frames", "sigma", "delta_z", "delta_x", "outcome_radius")
-            if getattr(recipe, name) < 0
+            if (getattr(recipe, name) or 0) < 0
         ]
         if bad:
             raise ValueError(
@@ -165,8 +165,9 @@ class RecoveryRecipe:
         return {name: value for name in names if (value := getattr(self, name)) is not None}
 
     def for_checkpoint(self, config: Any, source: str) -> RecoveryRecipe:
-        """This recipe with every z setting the checkpoint's `config` (a CCDPConfig) was trained with; a z
-        setting the recipe names differently from the checkpoint is refused, naming both fixes."""
+        """This recipe with every z setting the checkpoint's `config` (a CCDPConfig) was trained with, and its
+        `delta_z` where the recipe gives none; a z setting the recipe names differently from the checkpoint is
+        refused, naming both fixes."""
         wanted = self.failure_settings()
         mismatched = {k: (v, getattr(config, k)) for k, v in wanted.items() if getattr(config, k) != v}
         if mismatched:
@@ -177,13 +178,16 @@ class RecoveryRecipe:
                 f"base with `{flags}`, or edit the recipe's `recovery:` section to match the checkpoint "
                 "(or leave its z settings out: they default to the checkpoint's)."
             )
-        return dataclasses.replace(self, **{name: getattr(config, name) for name in Z_FIELDS})
+        delta_z = config.delta_z if self.delta_z is None else self.delta_z
+        return dataclasses.replace(
+            self, delta_z=delta_z, **{name: getattr(config, name) for name in Z_FIELDS}
+        )
 
 
 # The recipe's z settings (as CCDPConfig's), and those each kind of z reads besides `failure_feature`.
 Z_FIELDS_OF = {
-    "final_state": ("failure_state_key", "failure_state_dims"),
-    "action": ("failure_action_steps", "failure_action_dims"),
+    "final_state": ("failure_state_dims",),
+    "action": (),
     "primitive": ("primitive_key", "num_primitives"),
 }
 Z_FIELDS = ("failure_feature", *(name for names in Z_FIELDS_OF.values() for name in names))

@@ -12,6 +12,7 @@ import importlib
 import json
 import logging
 import os
+import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import fields
 from importlib.resources import files
@@ -26,7 +27,12 @@ from huggingface_hub.utils import validate_repo_id
 from lerobot.configs.parser import get_cli_overrides
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.processor import ProcessorStep, ProcessorStepRegistry
-from lerobot.utils.constants import POLICY_POSTPROCESSOR_DEFAULT_NAME, POLICY_PREPROCESSOR_DEFAULT_NAME
+from lerobot.utils.constants import (
+    OBS_ENV_STATE,
+    OBS_STATE,
+    POLICY_POSTPROCESSOR_DEFAULT_NAME,
+    POLICY_PREPROCESSOR_DEFAULT_NAME,
+)
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file
 
@@ -42,6 +48,17 @@ TRUSTED_PACKAGES = ("lerobot", "lerobot_ccdp")
 WHERE = (
     "pass the pretrained_model folder lerobot-train wrote (<output_dir>/checkpoints/last/pretrained_model)"
 )
+# Settings CCDPConfig no longer has (issue 112), each with the value at which the policy sampled as it now
+# always does, and what it now does. A saved config.json holding one at that value loads without it.
+RETIRED_FIELDS: dict[str, tuple[Any, str]] = {
+    "w_s": (1.0, "eq. (4)'s state weight is 1"),
+    "w_z_from_step": (0, "w_z applies on the noisiest `w_z_steps` reverse steps"),
+    "z_reference": ("eps_z_null", "the failure terms are measured against eps_z_null"),
+    "failure_state_key": (OBS_STATE, "`failure_state_dims` index the state frame"),
+    "failure_action_steps": ([], "an `action` z is the whole chunk"),
+    "failure_action_dims": ([], "an `action` z is the whole chunk"),
+    "ccdp_redraws": (0, "CCDP draws one sample per plan"),
+}
 
 
 @contextlib.contextmanager
@@ -282,6 +299,58 @@ def saved_config(path: str | Path, **hub: Any) -> dict:
     return _read_json(_checkpoint_file(path, CONFIG_FILE, **hub))
 
 
+@contextlib.contextmanager
+def current_layout(path: str | Path, **hub: Any) -> Iterator[str | Path]:
+    """`path`, or for a ccdp checkpoint whose config.json holds `RETIRED_FIELDS` a folder holding its
+    config.json without them (`without_retired_fields`), for LeRobot's `PreTrainedConfig.from_pretrained`,
+    which refuses a field the config class lacks. A file that cannot be read is left to LeRobot's error."""
+    try:
+        saved = saved_config(path, **hub)
+    except Exception:  # noqa: BLE001 (LeRobot's own read names the problem)
+        saved = None
+    if not isinstance(saved, dict) or saved.get("type") != CCDPConfig.get_choice_name(CCDPConfig):
+        yield path
+        return
+    current = without_retired_fields(saved, f"{path}/{CONFIG_FILE}")
+    if current is saved:
+        yield path
+        return
+    with tempfile.TemporaryDirectory() as folder:
+        (Path(folder) / CONFIG_FILE).write_text(json.dumps(current))
+        yield folder
+
+
+def without_retired_fields(saved: dict, file: str) -> dict:
+    """A ccdp config.json's content without the `RETIRED_FIELDS` it holds at the values the policy now fixes
+    (one log line names them), with `failure_state_key` = environment state turned into the same dims of the
+    state frame; `saved` itself when it holds none. A retired field at another value is refused: the
+    checkpoint would sample otherwise than it was evaluated."""
+    retired = {name: saved[name] for name in RETIRED_FIELDS if name in saved}
+    if not retired:
+        return saved
+    current = {name: value for name, value in saved.items() if name not in retired}
+    if retired.get("failure_state_key") == OBS_ENV_STATE:
+        features = saved.get("input_features", {})
+        robot, env = (features.get(key, {}).get("shape", [0])[0] for key in (OBS_STATE, OBS_ENV_STATE))
+        current["failure_state_dims"] = [robot + d for d in saved.get("failure_state_dims") or range(env)]
+        retired["failure_state_key"] = OBS_STATE
+    changed = {name: value for name, value in retired.items() if value != RETIRED_FIELDS[name][0]}
+    if changed:
+        raise ValueError(
+            f"{file} sets "
+            + "; ".join(
+                f"{name}={json.dumps(value)}, which CCDP no longer offers ({RETIRED_FIELDS[name][1]})"
+                for name, value in changed.items()
+            )
+            + ". Evaluate the checkpoint with the lerobot_ccdp release that trained it, or remove "
+            f"{', '.join(changed)} from its config.json to load it as the policy now samples."
+        )
+    logger.warning(
+        f"{file}: dropped the retired setting(s) {', '.join(retired)}, at the values the policy now fixes."
+    )
+    return current
+
+
 def _checkpoint_file(path: str | Path, filename: str, **hub: Any) -> Path:
     """`filename` of the checkpoint: in the local folder, or the Hub file LeRobot has just downloaded
     (cached)."""
@@ -426,7 +495,7 @@ def refuse_unfit_outcome_table(state: dict, config: CCDPConfig, path: str | Path
     chunks, finals, labels = (state[f"{OUTCOMES}{name}"] for name in ("chunks", "final_states", "primitives"))
     if chunks.shape[0] == 0:
         return  # no table: a failure feature that needs none, or a checkpoint that names the need when used
-    source = config.input_features.get(config.failure_state_key)
+    source = config.robot_state_feature
     width = len(config.failure_state_dims) or (source.shape[0] if source is not None else finals.shape[-1])
     wrong = [
         f"{what} {tuple(tensor.shape)}, the config makes ({chunks.shape[0]}, {size})"

@@ -7,38 +7,40 @@ from torch import Tensor
 
 # Floor of P(a_0 outside F | a_t, s) in `log_no_repeat`: learnt per-failure probabilities may sum past 1.
 MIN_OUTSIDE = 1e-6
+# What the policy measures eq. (4)'s failure terms against (`CompositionWeights.z_reference`): the recovery
+# head's own z-dropped estimate, which beat the paper's eps_a on the 2-D family (docs/design_choices.md).
+POLICY_Z_REFERENCE = "eps_z_null"
 
 
 @dataclass(frozen=True)
 class CompositionWeights:
     """w_s, w_h and w_z of eq. (4); w_z is shared by every recorded failure.
 
-    `z_reference` names what each failure term is measured against: "eps_a" (the paper's eq. 4) or
-    "eps_z_null" (the recovery head's own z-dropped estimate, so that the term compares two estimates learnt
-    from the same recovery data; see `compose_eps`). `w_z_steps` limits w_z to that many reverse steps
-    from `w_z_from_step` on (`at_step`).
+    The policy composes at w_s = 1 (the base's eps_s as trained) and its config's w_h, w_z and `w_z_steps`;
+    the other weights stay here so that eq. (4) reads as the paper writes it. `z_reference` names what each
+    failure term is measured against: "eps_a" (the paper's eq. 4) or "eps_z_null" (the recovery head's own
+    z-dropped estimate, so that the term compares two estimates learnt from the same recovery data; see
+    `compose_eps`), the policy's `POLICY_Z_REFERENCE`. `w_z_steps` limits w_z to that many of the noisiest
+    reverse steps (`at_step`).
     """
 
-    w_s: float
-    w_h: float
-    w_z: float
+    w_s: float = 1.0
+    w_h: float = 0.0
+    w_z: float = 1.0
     z_reference: str = "eps_a"
     w_z_steps: int | None = None
-    w_z_from_step: int = 0
 
     def at_step(self, index: int) -> "CompositionWeights":
-        """The weights of reverse step `index` (0 is the noisiest): w_z on the `w_z_steps` steps from
-        `w_z_from_step` on (None: to the last), w_z = 1 elsewhere: eps_{s,F} alone, in one network call.
+        """The weights of reverse step `index` (0 is the noisiest): w_z on the first `w_z_steps` steps (None:
+        every step), w_z = 1 after them: eps_{s,F} alone, in one network call.
 
-        A sample picks its option in the noisy steps, where guidance beyond eps_{s,F} (w_z > 1) also shifts
-        the proportions of the options left (it favours those far from F); in the last steps it no longer
-        moves a sample already on a failed option; in between it takes most of what eps_{s,F} lets through at
-        a small cost in proportions (docs/benchmarks.md, 2-D family).
+        A sample picks its option in the noisy steps, where guidance beyond eps_{s,F} (w_z > 1) takes most of
+        what eps_{s,F} lets through onto a failed option (it favours the options far from F); in the last
+        steps it no longer moves a sample already on one (docs/benchmarks.md, 2-D family).
         """
-        end = None if self.w_z_steps is None else self.w_z_from_step + self.w_z_steps
-        if self.w_z_from_step <= index and (end is None or index < end):
+        if self.w_z_steps is None or index < self.w_z_steps:
             return self
-        return replace(self, w_z=1.0, w_z_steps=None, w_z_from_step=0)
+        return replace(self, w_z=1.0, w_z_steps=None)
 
     def uses_unconditional(self, n_failures: Tensor) -> bool:
         """Whether eps_a carries weight for any row: its coefficient is 1 - w_s - w_h - w_z * N_row, without

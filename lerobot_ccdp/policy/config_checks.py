@@ -41,9 +41,7 @@ POSITIVE_FIELDS = (
 NON_NEGATIVE_FIELDS = (
     "delta_z",
     "history_length",
-    "ccdp_redraws",
     "scheduler_warmup_steps",
-    "w_z_from_step",
     "failure_guard_steps",
     "z_fourier_octaves",
     "num_primitives",
@@ -56,7 +54,7 @@ NOISE_SCHEDULERS = ("DDPM", "DDIM")
 # moves even the last step's chunk across the whole clipping range [-1, 1], so the actions are decided by the
 # clipping and sit on their bounds (`w_z=1e30` pinned every action). The shipped configs and benchmarks use at
 # most 10 (`w_z`) and 16 (`failure_guard_weight`).
-WEIGHT_FIELDS = ("w_s", "w_h", "w_z", "failure_guard_weight")
+WEIGHT_FIELDS = ("w_h", "w_z", "failure_guard_weight")
 MAX_WEIGHT = 100.0
 # Fourier octaves of z: sin and cos of 2^k pi z in float32, whose 24-bit mantissa leaves z (about 1 in
 # normalised units) a step of 2^-23; at k = 16 that step moves the angle by pi / 128, at k = 23 by pi (the
@@ -106,19 +104,11 @@ def check_settings(config: CCDPConfig) -> None:
     _check_head(config)
     _check_device(config)
     _check_vision(config)
-    if config.failure_state_key not in (OBS_STATE, OBS_ENV_STATE):
-        raise ValueError(
-            f"`failure_state_key` must be {OBS_STATE!r} or {OBS_ENV_STATE!r}; got "
-            f"{config.failure_state_key!r}."
-        )
     if config.failure_feature == "primitive" and config.num_primitives < 2:
         raise ValueError(
             "failure_feature='primitive' needs `num_primitives` >= 2 (the number of distinct labels in "
             f"the dataset column {config.primitive_key!r}); got {config.num_primitives}."
         )
-    bad_steps = [s for s in config.failure_action_steps if not 0 <= s < config.horizon]
-    if bad_steps:
-        raise ValueError(f"`failure_action_steps` {bad_steps} fall outside the chunk [0, {config.horizon}).")
     if config.failure_guard_weight != 1 and not config.failure_guard_steps:
         raise ValueError(
             f"`failure_guard_weight` ({config.failure_guard_weight}) weighs the guard's gradient at its "
@@ -183,11 +173,6 @@ def _check_numbers(config: CCDPConfig) -> None:
             f"({config.num_train_timesteps}): the reverse diffusion visits training timesteps."
         )
     steps = config.num_inference_steps or config.num_train_timesteps
-    if config.w_z_from_step + (config.w_z_steps or 1) > steps:
-        raise ValueError(
-            f"`w_z_from_step` ({config.w_z_from_step}) + `w_z_steps` ({config.w_z_steps}) reach past the "
-            f"{steps} reverse steps (numbered 0 to {steps - 1}): lower either."
-        )
     if config.failure_guard_steps > steps:
         raise ValueError(
             f"`failure_guard_steps` ({config.failure_guard_steps}) exceeds the {steps} reverse steps: "
@@ -226,10 +211,7 @@ BUILT_FROM = (
     "clip_sample_range",
     "recovery_head",
     "failure_feature",
-    "failure_state_key",
     "failure_state_dims",
-    "failure_action_steps",
-    "failure_action_dims",
     "num_primitives",
     "z_fourier_octaves",
     "failure_signal_file",
@@ -462,22 +444,14 @@ def check_features(config: CCDPConfig) -> None:
     if config.action_feature is None:
         raise ValueError(f"CCDP needs an {ACTION!r} output feature; the dataset has none.")
     if config.failure_feature == "final_state":
-        source = config.input_features.get(config.failure_state_key)
-        if source is None:
-            raise ValueError(
-                f"failure_feature='final_state' reads {config.failure_state_key!r}, which the dataset "
-                f"lacks; choose --policy.failure_state_key among {sorted(config.input_features)}."
-            )
-        bad = [d for d in config.failure_state_dims if not 0 <= d < source.shape[0]]
+        bad = [d for d in config.failure_state_dims if not 0 <= d < config.state_dim]
         if bad:
+            env = config.env_state_feature.shape[0] if config.env_state_feature else 0
             raise ValueError(
-                f"`failure_state_dims` {bad} do not exist in {config.failure_state_key!r} "
-                f"(shape {tuple(source.shape)})."
+                f"`failure_state_dims` {bad} do not exist in the {config.state_dim}-dim state frame "
+                f"({OBS_STATE!r} {config.robot_state_feature.shape[0]} dims, then {OBS_ENV_STATE!r} {env}): "
+                f"choose --policy.failure_state_dims among 0..{config.state_dim - 1}."
             )
-    action_dim = config.action_feature.shape[-1]
-    bad = [d for d in config.failure_action_dims if not 0 <= d < action_dim]
-    if config.failure_feature == "action" and bad:
-        raise ValueError(f"`failure_action_dims` {bad} do not exist in the {action_dim}-dim action.")
 
 
 def _check_images(config: CCDPConfig) -> None:

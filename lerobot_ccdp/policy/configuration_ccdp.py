@@ -8,7 +8,7 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 from lerobot.optim.optimizers import AdamConfig
 from lerobot.optim.schedulers import DiffuserSchedulerConfig
-from lerobot.utils.constants import ACTION, OBS_STATE
+from lerobot.utils.constants import ACTION
 
 from lerobot_ccdp.compat.literal_choices import choices
 from lerobot_ccdp.policy.config_checks import check_features, check_settings
@@ -20,7 +20,6 @@ FailureLabelAt = Literal["latest_chunk", "attempt_end"]
 FailureSegments = Literal["labels", "drops", "pauses"]
 TrainingStage = Literal["base", "recovery"]
 RecoveryHead = Literal["unet", "classifier", "set_denoiser"]
-ZReference = Literal["eps_a", "eps_z_null"]
 # Each Literal's values; `choices` also gives draccus a decoder for it (compat/literal_choices.py), which
 # every field of these types needs. `config_checks` reads the allowed values from the fields' types.
 RECOVERY_MODES = choices(RecoveryMode)
@@ -30,7 +29,6 @@ FAILURE_LABELS_AT = choices(FailureLabelAt)
 FAILURE_SEGMENTS = choices(FailureSegments)
 TRAINING_STAGES = choices(TrainingStage)
 RECOVERY_HEADS = choices(RecoveryHead)
-Z_REFERENCES = choices(ZReference)
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
 # Set-denoiser datasets: the outcomes of every chunk sampled at a row's state (the policy's normalised z; no
@@ -53,18 +51,20 @@ class CCDPConfig(PreTrainedConfig):
     low-dimensional tasks on a 2-core CPU (a 1.1 M-parameter UNet, 10 DDPM steps). The reverse step is DDPM's
     stochastic one, eq. (3) of the paper (docs/method.md, "Reverse sampler").
 
+    The defaults of the sampling settings (`w_z`, `w_z_steps`, `dp_star_*`, `row_noise_streams`) are those
+    of the benchmark's set-denoiser configs, so `lerobot-eval` on a checkpoint evaluates the CCDP and DP* that
+    docs/results.md reports. Eq. (4)'s state weight is 1 (the base's own eps_s: `CompositionWeights`).
+
     Args:
-        w_s: Weight of the state term eps_s - eps_a in eq. (4). A zero weight skips that term's network rows.
-            Every weight (w_s, w_h, w_z, failure_guard_weight) lies in [0, 100]: beyond, every action sits on
-            its clipping bound (`config_checks.MAX_WEIGHT`).
-        w_h: Weight of the history term eps_h - eps_a in eq. (4); needs `history_length` > 0.
+        w_h: Weight of the history term eps_h - eps_a in eq. (4); needs `history_length` > 0. Every weight
+            (w_h, w_z, failure_guard_weight) lies in [0, 100]: beyond, every action sits on its clipping bound
+            (`config_checks.MAX_WEIGHT`).
         w_z: Weight of the failure terms of eq. (4), or of the failure-set term for the set denoiser and the
             classifier's guidance.
-        w_z_steps: Set denoiser: apply `w_z` only at `w_z_steps` reverse steps from `w_z_from_step` on, and
-            w_z = 1 (eps_{s,F} alone, one UNet call) at the rest. None: `w_z` at every step from
-            `w_z_from_step` on. Each guided step costs a base call.
-        w_z_from_step: Set denoiser: the first reverse step (0 the noisiest, where a sample picks its option)
-            that uses `w_z`.
+        w_z_steps: Set denoiser: apply `w_z` only at the `w_z_steps` noisiest reverse steps (where a sample
+            picks its option), and w_z = 1 (eps_{s,F} alone, one UNet call) at the rest. None (or as many as
+            the reverse steps): `w_z` at every step. Each guided step costs a base call. The unet and
+            classifier heads apply `w_z` at every step.
         failure_guard_steps: Set denoiser: in the last `failure_guard_steps` reverse steps, guide eps_{s,F}
             away from F with its guard, a failure-set classifier trained beside it on the same rows (0: no
             guard). Near zero noise P(a_0 outside F | a_t) is nearly 0 or 1, so the guard moves only the
@@ -73,8 +73,6 @@ class CCDPConfig(PreTrainedConfig):
         failure_guard_weight: Set denoiser: the weight of the guard's gradient at its guarded steps (1: the
             classifier-guidance estimate of p(a_t | s) P(a_0 outside F | a_t, s); above 1 pushes harder at
             no extra cost, for what one weight leaves on a failed option).
-        z_reference: What each failure term eps_z(z_i) is measured against in eq. (4): "eps_a" (the paper) or
-            "eps_z_null" (the recovery head with z dropped, trained on the same rows). `unet` head only.
         history_length: States and actions before the observation window that form the history condition
             h_t^H. 0 trains no history condition.
         recovery_mode: How a plan is drawn after failures: "ccdp" (composition), "dp" (the base alone,
@@ -88,20 +86,19 @@ class CCDPConfig(PreTrainedConfig):
             (the recovery head, from a base checkpoint given by --policy.path).
         failure_feature: What z describes: "final_state" (where the option ends), "primitive" (a one-hot label
             from the `primitive_key` dataset column) or "action" (the attempt's first chunk).
-        failure_state_key: final_state: the observation z is read from.
-        failure_state_dims: final_state: which of its dims form z (empty: all).
+        failure_state_dims: final_state: which dims of the state frame form z: `observation.state`'s dims
+            first, then `observation.environment_state`'s (index robot_dim + i for its dim i). Empty: every
+            dim of `observation.state`.
         failure_state_at: final_state: where a failure's z is read: "attempt_end" (the state where the failed
             attempt stopped) or "demonstrated_end" (where the demonstrated chunk nearest the failed one ends,
             i.e. where the attempt was heading; needs the outcome table, as `primitive` does).
         failure_segments: final_state: where a demonstrated option ends: "labels" (runs of one `primitive_key`
             label, the whole episode without that column), "drops" (the gripper, the action's last dim, lets
             go and the hand opens) or "pauses" (the action holds still for two frames).
-        failure_action_steps: action: which steps of the chunk form z (empty: all).
-        failure_action_dims: action: which action dims at each step (empty: all).
         primitive_key: primitive: the dataset column holding the per-frame label.
         failure_label_at: primitive: which label names a failure: "latest_chunk" (that of the demonstrated
             chunk nearest the chunk executing when the failure was flagged) or "attempt_end" (that of the
-            demonstrated option whose end, in `failure_state_key` / `failure_state_dims`, is nearest the state
+            demonstrated option whose end, in `failure_state_dims`, is nearest the state
             where the attempt stopped: right where a chunk that finished one option fails the next one).
         num_primitives: primitive: how many labels exist.
         failure_signal_file: A file whose appearance or touch reports a failure of every row, for loops such
@@ -113,7 +110,7 @@ class CCDPConfig(PreTrainedConfig):
             label. Part of the head's architecture: set with the base (train_base.json, as the label-free
             configs do) or at the recovery stage beside --policy.path.
         delta_z: Squared distance in z under which an outcome repeats a failure (DP*'s rejection, the set
-            denoiser's training sets, redraws).
+            denoiser's training sets, and eq. (5)'s recovery pairs unless the recipe gives its own).
         stratum_weights: Set denoiser, recovery stage: weigh each kept row by 1 / (1 - p_s(F)), p_s(F) the
             share of the base's chunks at the row's state whose outcome lies in its failure set, so that every
             (state, failure set) counts alike and the rare sets that leave little of the base are learned as
@@ -127,11 +124,10 @@ class CCDPConfig(PreTrainedConfig):
         dp_star_candidates: DP*: candidates drawn per plan.
         dp_star_rounds: DP*: rounds of fresh candidates for a row whose candidates were all rejected, before
             it falls back to the candidate farthest from every failure (1: no redraw).
-        ccdp_redraws: CCDP: redraws of a plan whose looked-up outcome repeats a failure (DP*'s lookup). 0, the
-            method itself, is one sample per plan; above 0 it is the hybrid "CCDP + k redraws".
         row_noise_streams: Each batch row of each rollout draws its noise from its own generator seeded from
-            lerobot-eval's --seed, so methods evaluated on the same seed act alike until the first failure
-            (common random numbers). False: torch's global generator, as LeRobot's diffusion policy.
+            lerobot-eval's --seed, so modes evaluated on the same seed act alike until the first failure
+            (common random numbers; about 1% of a plan's time). False: torch's global generator, as
+            LeRobot's diffusion policy.
     """
 
     # Diffusion (same meaning as in LeRobot's DiffusionConfig).
@@ -179,25 +175,19 @@ class CCDPConfig(PreTrainedConfig):
     do_mask_loss_for_padding: bool = False
 
     # CCDP (see Args above).
-    w_s: float = 1.0
     w_h: float = 0.0
-    w_z: float = 1.0
-    w_z_steps: int | None = None
-    w_z_from_step: int = 0
+    w_z: float = 5.0
+    w_z_steps: int | None = 3
     failure_guard_steps: int = 0
     failure_guard_weight: float = 1.0
-    z_reference: ZReference = "eps_z_null"
     history_length: int = 0
     recovery_mode: RecoveryMode = "ccdp"
     recovery_head: RecoveryHead = "unet"
     training_stage: TrainingStage = "base"
     failure_feature: FailureFeatureKind = "final_state"
-    failure_state_key: str = OBS_STATE
     failure_state_dims: list[int] = field(default_factory=list)
     failure_state_at: FailureStateAt = "attempt_end"
     failure_segments: FailureSegments = "labels"
-    failure_action_steps: list[int] = field(default_factory=list)
-    failure_action_dims: list[int] = field(default_factory=list)
     primitive_key: str = "primitive"
     failure_label_at: FailureLabelAt = "latest_chunk"
     num_primitives: int = 0
@@ -206,10 +196,9 @@ class CCDPConfig(PreTrainedConfig):
     delta_z: float = 0.1
     stratum_weights: bool = False
     state_failure_sets: float = 0.0
-    dp_star_candidates: int = 16
+    dp_star_candidates: int = 32
     dp_star_rounds: int = 4
-    ccdp_redraws: int = 0
-    row_noise_streams: bool = False
+    row_noise_streams: bool = True
 
     # Training presets.
     optimizer_lr: float = 1e-3
@@ -269,11 +258,9 @@ class CCDPConfig(PreTrainedConfig):
     @property
     def failure_feature_dim(self) -> int:
         if self.failure_feature == "final_state":
-            return len(self.failure_state_dims) or self.input_features[self.failure_state_key].shape[0]
+            return len(self.failure_state_dims) or self.robot_state_feature.shape[0]
         if self.failure_feature == "action":
-            return (len(self.failure_action_steps) or self.horizon) * (
-                len(self.failure_action_dims) or self.action_dim
-            )
+            return self.horizon * self.action_dim
         return self.num_primitives
 
     @property

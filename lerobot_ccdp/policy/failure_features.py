@@ -1,7 +1,7 @@
 """Failure key features z (paper III-B.1), computed the same way by the policy and the recovery recipe.
 
-z always lives in the normalised space of its source: `final_state` takes dims of the normalised
-observation, `action` steps (and dims) of the normalised chunk, `primitive` a one-hot label. A recovery
+z always lives in the normalised space of its source: `final_state` takes dims of the normalised state
+frame (robot state, then env state), `action` the normalised chunk, `primitive` a one-hot label. A recovery
 dataset stores z in raw units under FAILURE_FEATURE_KEY with the stats from `failure_feature_stats`, so
 LeRobot's normaliser maps stored z onto exactly the values the policy computes at run time.
 """
@@ -9,10 +9,10 @@ LeRobot's normaliser maps stored z onto exactly the values the policy computes a
 import numpy as np
 import torch
 import torch.nn.functional as F  # noqa: N812
-from lerobot.utils.constants import OBS_STATE
 from torch import Tensor
 
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.observations import vector_keys
 from lerobot_ccdp.policy.outcome_index import OutcomeIndex
 
 
@@ -26,12 +26,7 @@ class FailureFeature:
 
     def state_dims(self) -> Tensor:
         """Indices of the z dims within the policy's observation frame (robot state, then env state)."""
-        cfg = self.config
-        source_dim = cfg.input_features[cfg.failure_state_key].shape[0]
-        dims = torch.tensor(cfg.failure_state_dims or range(source_dim), dtype=torch.long)
-        # The frame concatenates robot state then env state, so env-state dims sit after the robot's.
-        offset = 0 if cfg.failure_state_key == OBS_STATE else cfg.robot_state_feature.shape[0]
-        return dims + offset
+        return torch.tensor(state_dims(self.config), dtype=torch.long)
 
     def from_frame(self, frame: Tensor) -> Tensor:
         """final_state z from normalised observation frames (..., state_dim)."""
@@ -44,9 +39,7 @@ class FailureFeature:
         `primitive` take the outcome of the nearest demonstrated chunk.
         """
         if self.kind == "action":
-            steps = self.config.failure_action_steps or list(range(chunk.shape[1]))
-            dims = self.config.failure_action_dims or list(range(chunk.shape[2]))
-            return chunk[:, steps][:, :, dims].flatten(start_dim=1)
+            return chunk.flatten(start_dim=1)
         nearest = outcomes.nearest(chunk)
         if self.kind == "final_state":
             return outcomes.final_states[nearest]
@@ -86,8 +79,8 @@ class FailureFeature:
 def failure_feature_stats(config: CCDPConfig, source_stats: dict[str, dict]) -> dict[str, np.ndarray]:
     """Stats for FAILURE_FEATURE_KEY that make normalising a raw z equal to z computed from normalised data.
 
-    `source_stats` are the demo dataset's stats (LeRobot's `meta.stats`). final_state z slices the source
-    observation's stats, action z tiles the action stats once per chosen step, and the one-hot primitive z
+    `source_stats` are the demo dataset's stats (LeRobot's `meta.stats`). final_state z slices the state
+    frame's stats, action z tiles the action stats once per step of the chunk, and the one-hot primitive z
     gets stats under which both MEAN_STD and MIN_MAX leave it unchanged.
     """
     kind = config.failure_feature
@@ -99,15 +92,17 @@ def failure_feature_stats(config: CCDPConfig, source_stats: dict[str, dict]) -> 
             "min": -np.ones(n),
             "max": np.ones(n),
         }
+    names = ("mean", "std", "min", "max")
     if kind == "final_state":
-        stats = source_stats[config.failure_state_key]
-        dims = config.failure_state_dims or list(range(len(np.asarray(stats["mean"]))))
-        return {k: np.asarray(v)[dims] for k, v in stats.items() if k in ("mean", "std", "min", "max")}
-    stats = source_stats["action"]
-    repeats = len(config.failure_action_steps) or config.horizon
-    dims = config.failure_action_dims or list(range(len(np.asarray(stats["mean"]))))
-    return {
-        k: np.tile(np.asarray(v)[dims], repeats)
-        for k, v in stats.items()
-        if k in ("mean", "std", "min", "max")
-    }
+        frame = {
+            k: np.concatenate([np.asarray(source_stats[key][k]).reshape(-1) for key in vector_keys(config)])
+            for k in names
+        }
+        return {k: v[state_dims(config)] for k, v in frame.items()}
+    return {k: np.tile(np.asarray(source_stats["action"][k]), config.horizon) for k in names}
+
+
+def state_dims(config: CCDPConfig) -> list[int]:
+    """The final_state z dims within the state frame (robot state, then env state): `failure_state_dims`,
+    or every robot-state dim."""
+    return list(config.failure_state_dims) or list(range(config.robot_state_feature.shape[0]))

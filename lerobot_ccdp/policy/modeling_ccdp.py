@@ -20,7 +20,7 @@ from torch import Tensor, nn
 from lerobot_ccdp.compat.threads import leave_a_core
 from lerobot_ccdp.policy.base_denoiser import P_DROP_HISTORY, P_DROP_STATE, BaseDenoiser, base_estimates
 from lerobot_ccdp.policy.checkpoint_files import checked_load, make_model_card, refuse_unloadable_weights
-from lerobot_ccdp.policy.composition import CompositionWeights, compose_eps
+from lerobot_ccdp.policy.composition import POLICY_Z_REFERENCE, CompositionWeights, compose_eps
 from lerobot_ccdp.policy.config_checks import edited_since, settings_of
 from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FLAG_KEY, CCDPConfig
 from lerobot_ccdp.policy.failure_buffer import failed_rows, row_index
@@ -289,7 +289,9 @@ class CCDPModel(nn.Module):
     def set_weights(self) -> None:
         """The weights of eq. (4), from the config (again after it was edited)."""
         c = self.config
-        self.weights = CompositionWeights(c.w_s, c.w_h, c.w_z, c.z_reference, c.w_z_steps, c.w_z_from_step)
+        self.weights = CompositionWeights(
+            w_h=c.w_h, w_z=c.w_z, z_reference=POLICY_Z_REFERENCE, w_z_steps=c.w_z_steps
+        )
 
     def _set_trainable(self) -> None:
         """The recovery stage trains eps_z only: the base network and the camera encoder are frozen."""

@@ -398,7 +398,7 @@ def refuse_non_finite_plan(
         cause = (
             f"its tensors and inputs are finite (the largest normalised input {largest:.3g}), so the "
             f"networks or eq. (4) overflowed at the settings {settings}: use finite weights near the "
-            "defaults (w_s 1, w_z 1, w_h 0), and inputs within the training data's range"
+            "defaults (w_z 5, w_h 0), and inputs within the training data's range"
         )
     raise FloatingPointError(
         f"The {mode} sampler made NaN or inf actions for row(s) {bad}; none were returned. Cause: {cause}."

@@ -8,7 +8,8 @@ from torch import Tensor
 
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.policy.demo_segments import segment_ends, segment_final_states
-from lerobot_ccdp.policy.observations import refuse_non_finite_stats
+from lerobot_ccdp.policy.failure_features import state_dims
+from lerobot_ccdp.policy.observations import refuse_non_finite_stats, vector_keys
 from lerobot_ccdp.policy.outcome_index import demo_chunks
 from lerobot_ccdp.policy.processor_ccdp import normalize_batch
 
@@ -22,22 +23,21 @@ def build_outcome_table(
     """(chunks, final-state z, primitive labels) of demonstrated frames, in the policy's normalised space.
     Every frame goes in, not only those training draws, so every frame and the stats are checked finite
     (`read_columns`)."""
-    required = [ACTION, config.failure_state_key]
+    keys = vector_keys(config)
+    required = [ACTION, *keys]
     if config.failure_feature == "primitive":
         required.append(config.primitive_key)
     columns = read_columns(meta, required, optional=[config.primitive_key])
     stats = stats or meta.stats
     refuse_non_finite_stats(config, stats)
     normalized = normalize_batch(
-        config,
-        stats,
-        {key: torch.from_numpy(columns[key]) for key in (ACTION, config.failure_state_key)},
+        config, stats, {key: torch.from_numpy(columns[key]) for key in [ACTION, *keys]}
     )
     episodes, primitives = columns["episode_index"], columns.get(config.primitive_key)
     chunks = demo_chunks(episodes, normalized[ACTION].numpy(), 1 - config.n_obs_steps, config.horizon)
     ends = segment_ends(config.failure_segments, episodes, normalized[ACTION].numpy(), primitives)
-    finals = segment_final_states(normalized[config.failure_state_key].numpy(), ends)
-    finals = finals[:, config.failure_state_dims or slice(None)]
+    frames = torch.cat([normalized[key] for key in keys], dim=-1).numpy()
+    finals = segment_final_states(frames, ends)[:, state_dims(config)]
     labels = (
         np.zeros(len(chunks), dtype=np.int64)
         if primitives is None

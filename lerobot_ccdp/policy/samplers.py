@@ -4,8 +4,7 @@ Each mode is a function `(model, PlanRows) -> chunks (R, horizon, A)` in `SAMPLE
 function here. All of them run the model's one reverse diffusion (`CCDPModel.denoise`):
 - dp: the base policy, failures ignored;
 - dp_star: the paper's baseline, the base's candidates with those that would repeat a failure rejected;
-- ccdp: eq. (4) with the recovery head, one sample per plan (`ccdp_redraws` adds DP*'s rejection on top, a
-  hybrid reported under its own name).
+- ccdp: eq. (4) with the recovery head, one sample per plan.
 """
 
 from __future__ import annotations
@@ -57,18 +56,14 @@ def plan_dp_star(model: CCDPModel, rows: PlanRows) -> Tensor:
     if not rows.z_mask.any():
         return plan_dp(model, rows)
     cfg = model.config
-    return sample_without_repeats(model, rows, cfg.dp_star_candidates, cfg.dp_star_rounds, guided=False)
+    return sample_without_repeats(model, rows, cfg.dp_star_candidates, cfg.dp_star_rounds)
 
 
 def plan_ccdp(model: CCDPModel, rows: PlanRows) -> Tensor:
-    """CCDP: one sample from eq. (4) with every recorded failure. With `ccdp_redraws`, a plan whose outcome
-    still repeats a failure is drawn again (DP*'s lookup: the hybrid "CCDP + k redraws")."""
-    sample = rows.initial_noise(model)
-    if model.config.ccdp_redraws and rows.z_mask.any():
-        return sample_without_repeats(
-            model, rows, 1, 1 + model.config.ccdp_redraws, guided=True, first_noise=sample
-        )
-    return model.denoise(sample, rows.state, rows.history, rows.z, rows.z_mask, generators=rows.streams)
+    """CCDP: one sample from eq. (4) with every recorded failure."""
+    return model.denoise(
+        rows.initial_noise(model), rows.state, rows.history, rows.z, rows.z_mask, generators=rows.streams
+    )
 
 
 SAMPLERS: dict[str, Callable[[CCDPModel, PlanRows], Tensor]] = {
@@ -78,34 +73,25 @@ SAMPLERS: dict[str, Callable[[CCDPModel, PlanRows], Tensor]] = {
 }
 
 
-def sample_without_repeats(
-    model: CCDPModel,
-    rows: PlanRows,
-    candidates: int,
-    rounds: int,
-    guided: bool,
-    first_noise: Tensor | None = None,
-) -> Tensor:
+def sample_without_repeats(model: CCDPModel, rows: PlanRows, candidates: int, rounds: int) -> Tensor:
     """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round
-    draws `candidates` chunks per pending row, from CCDP's composition (`guided`, the first round from
-    `first_noise`) or from the base with failures ignored (DP*), and labels them with the outcome of the
-    nearest demonstrated chunk. With row streams, each row's first candidate of the first round draws from its
-    row's stream, later draws from torch's global generator."""
-    cfg, failures = model.config, slice(None) if guided else slice(0)
+    draws `candidates` chunks per pending row from the base with failures ignored (DP*), and labels them with
+    the outcome of the nearest demonstrated chunk. With row streams, each row's first candidate of the first
+    round draws from its row's stream, later draws from torch's global generator."""
+    cfg = model.config
     state, history, z, z_mask = rows.state, rows.history, rows.z, rows.z_mask
-    first_round = iter([(first_noise, first_candidates(rows.streams, candidates))])
+    first_round = iter([first_candidates(rows.streams, candidates)])
 
     def draw(pending: Tensor) -> tuple[Tensor, Tensor]:
         r = pending.shape[0]
-        noise, generators = next(first_round, (None, None))
-        if noise is None:
-            noise = draw_noise((r * candidates, cfg.horizon, cfg.action_dim), generators, state.device)
+        generators = next(first_round, None)
+        noise = draw_noise((r * candidates, cfg.horizon, cfg.action_dim), generators, state.device)
         chunks = model.denoise(
             noise,
             state[pending].repeat_interleave(candidates, dim=0),
             history[pending].repeat_interleave(candidates, dim=0),
-            z[pending][:, failures].repeat_interleave(candidates, dim=0),
-            z_mask[pending][:, failures].repeat_interleave(candidates, dim=0),
+            z[pending][:, :0].repeat_interleave(candidates, dim=0),
+            z_mask[pending][:, :0].repeat_interleave(candidates, dim=0),
             generators=generators,
         )
         z_candidates = model.feature.from_chunk(chunks, model.outcomes).view(r, candidates, -1)

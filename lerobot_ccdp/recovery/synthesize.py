@@ -203,7 +203,7 @@ def check_features_match(config: CCDPConfig, meta: LeRobotDatasetMetadata) -> No
 def load_demos(config: CCDPConfig, stats: dict, meta: LeRobotDatasetMetadata) -> Demos:
     """Read and normalise the demo columns the policy and the recipe need; name any that are missing."""
     keys = [OBS_STATE] + ([OBS_ENV_STATE] if config.env_state_feature else [])
-    required = [*keys, ACTION, config.failure_state_key]
+    required = [*keys, ACTION]
     if config.failure_feature == "primitive":
         required.append(config.primitive_key)
     columns = read_columns(meta, required, optional=[config.primitive_key])

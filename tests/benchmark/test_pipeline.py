@@ -174,8 +174,7 @@ def test_report_table_chart_and_timings(pipeline_run):
     # the form of the method that ran, and the seeds
     form = report.split("## What ran")[1].split("## Targets")[0]
     assert (
-        f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_s 1, w_h 0, w_z 2 against "
-        "eps_z_null |"
+        f"| {TASK} | {EVAL_SEED}-{EVAL_SEED + N_EPISODES - 1} | primitive | w_h 0, w_z 2 against eps_z_null |"
     ) in form
     assert "| 32 candidates, 4 round(s), delta_z 0.3 |" in form
     assert "--policy.w_z=2.0" in stdout
@@ -335,16 +334,6 @@ def test_method_settings_name_known_methods(tmp_path):
     )
     with pytest.raises(ValueError, match=r"unknown method\(s\) \['DP'\]"):
         files.method_flags("dp_star")
-
-
-def test_ccdp_with_redraws_carries_the_hybrids_name(tmp_path):
-    """A result carries a method's name only if that method alone produced it: CCDP evaluated with redraws
-    through DP*'s lookup is reported (tables, lost episodes, the published run file) as the hybrid."""
-    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG)
-    run = TaskRun(TaskFiles.locate(TASK, configs, recipes, tmp_path / "out"))
-    assert run.labels(["dp", "ccdp"]) == {"dp": "DP", "ccdp": "CCDP"}
-    (configs / SLUG / "methods.json").write_text(json.dumps({"ccdp": {"ccdp_redraws": 3}}))
-    assert run.labels(["ccdp", "dp_star"])["ccdp"] == "CCDP + 3 redraws (DP*'s lookup)"
 
 
 def test_the_compute_matched_baseline_is_dp_star_with_few_candidates(tmp_path):
@@ -539,14 +528,14 @@ def test_a_config_of_the_other_obs_type_is_refused(settings, tmp_path):
 def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     """A base config naming `recovery_head: classifier` makes the recovery stage learn from the
     demonstrations: no synthesis stage runs, the checkpoint holds a trained classifier, lerobot-eval runs CCDP
-    with the sampling settings of methods.json (repeats redrawn), and the report names that form."""
+    with the sampling settings of methods.json, and the report names that form."""
     configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG, n_episodes=2)
     _shrink_json(
         configs / SLUG / "train_base.json",
         configs / SLUG / "train_base.json",
         {"policy": {"recovery_head": "classifier", "w_z": 1.0}},
     )
-    (configs / SLUG / "methods.json").write_text(json.dumps({"ccdp": {"ccdp_redraws": 2}}))
+    (configs / SLUG / "methods.json").write_text(json.dumps({"ccdp": {"w_z": 2.0}}))
     out = tmp_path / "out"
     stdout = _run_pipeline(configs, recipes, out, "--no-chart", methods=["ccdp"])
     task_out = out / SLUG
@@ -557,40 +546,33 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     assert recovery.config.recovery_head == "classifier" and bool(recovery.model.recovery_trained)
     assert f"--dataset.root={task_out / 'demos'} --output_dir={task_out / 'recovery'}" in stdout
     assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp" / "eval_info.json")) == 2
-    assert "--policy.ccdp_redraws=2" in stdout
+    assert "--policy.w_z=2.0" in stdout
     report = (out / "report.md").read_text()
-    assert "failures by classifier guidance, w_z 1; a repeat redrawn up to 2 times" in report
+    assert "failures by classifier guidance, w_z 2 |" in report
 
 
 def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_end():
     settings = {
         "failure_feature": "final_state",
-        "failure_state_key": "observation.state",
         "failure_state_dims": [1, 2],
         "failure_state_at": "demonstrated_end",
     }
-    assert (
-        z_description(settings)
-        == "final_state: observation.state dims [1, 2], a failure's read at demonstrated_end"
-    )
+    assert z_description(settings) == "final_state: state dims [1, 2], a failure's read at demonstrated_end"
     assert z_description({"failure_feature": "primitive"}) == "primitive"
     at_end = {"failure_feature": "primitive", "failure_label_at": "attempt_end"}
     assert z_description(at_end) == "primitive, a failure's label read at attempt_end"
-    action = {"failure_feature": "action", "failure_action_steps": [23], "failure_action_dims": [1, 2]}
-    assert z_description(action) == "action: steps [23] of the attempt's first chunk, dims [1, 2]"
+    assert z_description({"failure_feature": "action"}) == "action: the attempt's first chunk"
     dropped = {**settings, "failure_segments": "drops"}
     assert z_description(dropped).endswith("demonstrated_end, demonstrated options end at drops")
     assert z_description({**settings, "z_fourier_octaves": 4}).endswith("demonstrated_end, 4 Fourier octaves")
 
 
 def test_the_forms_table_names_the_set_denoisers_window_of_guided_steps_and_its_guard():
-    assert w_z_window(None, 0) == ""
-    assert w_z_window(3, 0) == " on the first 3 steps, 1 after"
-    assert w_z_window(3, 4) == " on reverse steps 4 to 6 (0 the noisiest), 1 elsewhere"
-    assert w_z_window(None, 8) == " on reverse steps 8 to the last (0 the noisiest), 1 elsewhere"
-    assert w_z_window(None, 0, 4) == "; its guard on the last 4 steps"
-    assert w_z_window(3, 5, 2).endswith("1 elsewhere; its guard on the last 2 steps")
-    assert w_z_window(None, 0, 8, 2.0) == "; its guard on the last 8 steps at weight 2"
+    assert w_z_window(None) == ""
+    assert w_z_window(3) == " on the first 3 steps, 1 after"
+    assert w_z_window(None, 4) == "; its guard on the last 4 steps"
+    assert w_z_window(3, 2).endswith("1 after; its guard on the last 2 steps")
+    assert w_z_window(None, 8, 2.0) == "; its guard on the last 8 steps at weight 2"
 
 
 @pytest.mark.slow  # three trainings of 20 steps through lerobot-train

@@ -107,18 +107,18 @@ def test_against_a_variant_with_none_of_the_members_is_refused() -> None:
 
 def test_each_guard_setting_adds_the_set_denoisers_forms_with_the_guard_on_that_many_last_steps() -> None:
     sampling = bench.argparse.Namespace(
-        w_z=[1.0, 2.0], w_z_steps=[3], w_z_from=[5], guard_steps=[0, 4], guard_weight=[1.0], baselines=False
+        w_z=[1.0, 2.0], w_z_steps=[3], guard_steps=[0, 4], guard_weight=[1.0], baselines=False
     )
     forms = bench.methods("set_denoiser", True, sampling, demos=None)
     assert forms["CCDP set denoiser guard last 4"].fields["failure_guard_steps"] == 4
-    assert forms["CCDP set denoiser w_z=2 steps 5-7"].fields["failure_guard_steps"] == 0
-    assert forms["CCDP set denoiser w_z=2 steps 5-7 guard last 4"].fields["w_z_from_step"] == 5
+    assert forms["CCDP set denoiser w_z=2 first 3 steps"].fields["failure_guard_steps"] == 0
+    assert forms["CCDP set denoiser w_z=2 first 3 steps guard last 4"].fields["w_z_steps"] == 3
     assert len(forms) == 5  # DP* at CCDP's cost and the four forms
 
 
 def test_each_guard_weight_adds_the_guarded_forms_at_that_weight_and_leaves_the_unguarded_alone() -> None:
     sampling = bench.argparse.Namespace(
-        w_z=[1.0], w_z_steps=[0], w_z_from=[0], guard_steps=[0, 4], guard_weight=[1.0, 8.0], baselines=False
+        w_z=[1.0], w_z_steps=[0], guard_steps=[0, 4], guard_weight=[1.0, 8.0], baselines=False
     )
     forms = bench.methods("set_denoiser", True, sampling, demos=None)
     assert forms["CCDP set denoiser guard last 4 w_g=8"].fields["failure_guard_weight"] == 8.0

@@ -12,7 +12,6 @@ import pytest
 import yaml
 
 from lerobot_ccdp.benchmark.pipeline import TaskFiles, task_slug
-from lerobot_ccdp.datasets.recipe_file import RecoveryRecipe
 from lerobot_ccdp.envs import TASKS
 from lerobot_ccdp.policy.configuration_ccdp import FAILURE_STATES_AT, CCDPConfig
 
@@ -115,10 +114,9 @@ LABEL_FREE_OWN = {
 @pytest.mark.parametrize("task", LABEL_FREE_TASKS)
 def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp_path):
     """`configs/<task>_label_free/` and `datasets_recipes/<task>_label_free.yaml`: z where an option ends,
-    defined alike in the recipe and the policy (synthesis refuses a base checkpoint whose z differs), no label
-    read, and nothing else different from the labelled settings but the files' own paths (and the set
-    embedding's Fourier octaves, for a point z), and the settings a run chose on its own development seeds
-    (LABEL_FREE_OWN)."""
+    defined by the base config (synthesis reads it from the checkpoint), no label read, and nothing else
+    different from the labelled settings but the files' own paths (and the set embedding's Fourier octaves,
+    for a point z), and the settings a run chose on its own development seeds (LABEL_FREE_OWN)."""
     labelled = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path)
     files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path, label_free=True)
     slug = task_slug(task) + "_label_free"
@@ -126,9 +124,8 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
     base = json.loads(files.train_base.read_text())
     assert base["dataset"] == {"repo_id": f"local/{slug}", "root": f"data/{slug}"}
     policy = base["policy"]
-    wanted = RecoveryRecipe.load(files.recipe).failure_settings()
-    assert wanted["failure_feature"] == "final_state"
-    assert {k: policy.get(k, CCDPConfig.failure_state_key) for k in wanted} == wanted  # the key: its default
+    assert policy["failure_feature"] == "final_state" and policy["failure_state_dims"]
+    assert policy.get("failure_state_at", CCDPConfig.failure_state_at) in FAILURE_STATES_AT
     # names no dataset column
     assert "num_primitives" not in policy and policy["primitive_key"] == "no_labels"
     z_fields = (
@@ -138,6 +135,8 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
         "policy.primitive_key",
         "policy.num_primitives",
         "policy.failure_state_dims",
+        "policy.failure_state_at",  # where a failure's z is read
+        "policy.failure_label_at",
         "policy.failure_segments",
         "policy.z_fourier_octaves",  # how the head reads a point z (one-hot labels need none)
         *LABEL_FREE_OWN.get(task, ()),
@@ -159,11 +158,9 @@ def test_a_label_free_variant_is_its_labelled_twin_with_only_z_changed(task, tmp
 
     for method in ("dp_star", "ccdp"):
         settings = files.method_settings(method)
-        assert settings["failure_state_at"] in FAILURE_STATES_AT
-        read_z = ("failure_state_at", "failure_label_at", "delta_z", "w_z", *LABEL_FREE_OWN.get(task, ()))
+        read_z = ("delta_z", "w_z", *LABEL_FREE_OWN.get(task, ()))
         assert _without(settings, *read_z) == _without(labelled.method_settings(method), *read_z)
 
     recipe, labelled_recipe = (yaml.safe_load(f.read_text()) for f in (files.recipe, labelled.recipe))
-    z_keys = ("failure_feature", "num_primitives", "failure_state_dims", "delta_z")
-    recipe_fields = (*(f"recovery.{k}" for k in z_keys), *LABEL_FREE_OWN.get(task, ()))
-    assert _without(recipe, *recipe_fields) == _without(labelled_recipe, *recipe_fields)
+    own = LABEL_FREE_OWN.get(task, ())
+    assert _without(recipe, *own) == _without(labelled_recipe, *own)

@@ -115,10 +115,7 @@ def test_an_options_end_is_its_plans_last_target_normalised_as_the_checkpoint_no
     )
     targets = {0: (0.5, 1.0), 1: (-1.0, 4.0)}
     env = SimpleNamespace(n_options=2, plan=lambda option: [None, SimpleNamespace(target=targets[option])])
-    config = SimpleNamespace(
-        failure_state_key="observation.state",
-        normalization_mapping={"STATE": SimpleNamespace(value="MIN_MAX")},
-    )
+    config = SimpleNamespace(normalization_mapping={"STATE": SimpleNamespace(value="MIN_MAX")})
     feature = SimpleNamespace(from_frame=lambda frame: frame[..., [1]])  # z: the state's second dim
     policy = SimpleNamespace(config=config, model=SimpleNamespace(feature=feature))
     ends = trace.option_ends(env, tmp_path, policy)

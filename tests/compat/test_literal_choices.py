@@ -25,11 +25,11 @@ def test_a_literal_field_parses_from_the_command_line_and_back_from_a_saved_chec
         args=[
             "--policy.type=ccdp",
             "--policy.recovery_head=set_denoiser",
-            "--policy.z_reference=eps_a",
+            "--policy.failure_segments=drops",
             "--policy.device=cpu",
         ],
     ).policy
-    assert (parsed.recovery_head, parsed.z_reference) == ("set_denoiser", "eps_a")
+    assert (parsed.recovery_head, parsed.failure_segments) == ("set_denoiser", "drops")
     parsed._save_pretrained(tmp_path)
     loaded = PreTrainedConfig.from_pretrained(tmp_path, cli_overrides=["--recovery_mode=dp_star"])
     assert (loaded.recovery_head, loaded.recovery_mode) == ("set_denoiser", "dp_star")

@@ -177,7 +177,7 @@ def _crafted(checkpoint, tmp_path, **fields):
 @pytest.mark.parametrize(
     "fields,message",
     [
-        ({"w_s": -1.0}, r"`w_s` must be >= 0"),
+        ({"w_h": -1.0}, r"`w_h` must be >= 0"),
         ({"n_action_steps": 0}, r"n_action_steps"),
     ],
 )

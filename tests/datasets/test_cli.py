@@ -97,13 +97,11 @@ def test_overrides_merge_with_the_own_section_of_the_recipe_file():
             f"--config_path={DOOR}",
             *SYNTHESIS,
             "--recovery.sigma=0.05",
-            "--recovery.failure_state_dims=[0, 1]",
+            "--recovery.delta_z=0.2",
             "--policy.device=cpu",
         ],
     )
-    assert cfg.recovery == RecoveryRecipe.from_dict(
-        {**file["recovery"], "sigma": 0.05, "failure_state_dims": [0, 1]}
-    )
+    assert cfg.recovery == RecoveryRecipe.from_dict({**file["recovery"], "sigma": 0.05, "delta_z": 0.2})
     assert cfg.policy == CheckpointConfig(path=Path("runs/base"), device="cpu")
     assert cfg.output == OutputDatasetConfig(Path("data/rec"), "local/door_recovery") and not cfg.overwrite
     cfg = parse_cli(RecordConfig, [f"--config_path={DOOR}", *DEMOS, "--overwrite=true"])
@@ -140,8 +138,8 @@ def test_a_config_builds_from_flags_alone():
         task="ButtonSearch-lite-v0", n_episodes=5, seed=7, env_kwargs={"obs_type": "pixels_agent_pos"}
     )
     assert cfg.dataset == LocalDatasetConfig("local/door", Path("data/door"))
-    cfg = parse_cli(SynthesizeConfig, ["--recovery.failure_feature=action", *SYNTHESIS])
-    assert cfg.recovery == RecoveryRecipe(failure_feature="action") and cfg.policy.device is None
+    cfg = parse_cli(SynthesizeConfig, ["--recovery.sigma=0.05", *SYNTHESIS])
+    assert cfg.recovery == RecoveryRecipe(sigma=0.05) and cfg.policy.device is None
 
 
 @pytest.mark.parametrize(
@@ -153,7 +151,6 @@ def test_a_config_builds_from_flags_alone():
         (RecordConfig, "--record.task=Door-v9", "known tasks: DoorOpening-v0"),
         (SynthesizeConfig, "--recovery.sigma=abc", "recovery.sigma must be float, got 'abc'"),
         (SynthesizeConfig, "--recovery.w_s=2", r"recovery.w_s must be in \(0, 1\]"),
-        (SynthesizeConfig, "--recovery.failure_feature=colour", "recovery.failure_feature must be one of"),
         (SynthesizeConfig, "--overwrite=maybe", "`overwrite`: Couldn't parse 'maybe' into a bool"),
     ],
 )

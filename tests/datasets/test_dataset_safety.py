@@ -26,7 +26,6 @@ from fixtures.reaching import BIN, REACHING_REPO_ID
 TASK = "DoorOpening-lite-v0"
 DEMOS_ID = "local/door"
 RECOVERY = [
-    "--recovery.failure_feature=action",
     "--recovery.n_states=4",
     "--recovery.chunks_per_state=2",
     "--recovery.demo_frames=32",
@@ -246,7 +245,7 @@ def test_record_recipe_errors_are_named_before_any_env_is_made(tmp_path, monkeyp
 def test_a_recovery_recipe_refuses_non_finite_numbers(tmp_path, field, value):
     """From the recipe file or a flag, before any path is looked at."""
     recipe = tmp_path / "recipe.yaml"
-    recipe.write_text(f"recovery:\n  failure_feature: action\n  {field}: {value}\n")
+    recipe.write_text(f"recovery:\n  {field}: {value}\n")
     flags = synthesize_flags(tmp_path / "demos", tmp_path / "base", tmp_path / "out")
     from_file = [f"--config_path={recipe}", *(f for f in flags if not f.startswith("--recovery."))]
     for args in (from_file, [*flags, f"--recovery.{field}={value}"]):

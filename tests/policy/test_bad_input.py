@@ -27,11 +27,9 @@ from fixtures.policy_factory import make_policy
         ({"prediction_type": "sample"}, "epsilon"),
         ({"training_stage": "finetune"}, "training_stage"),
         ({"failure_feature": "primitive"}, "num_primitives"),
-        ({"failure_action_steps": [0, 99]}, "failure_action_steps"),
         ({"horizon": 12}, "multiple"),
         ({"recovery_head": "mlp"}, "recovery_head"),
         ({"failure_segments": "releases"}, "failure_segments"),
-        ({"ccdp_redraws": -1}, "ccdp_redraws"),
         ({"w_h": 0.5}, "history_length"),
     ],
 )
@@ -45,9 +43,13 @@ def test_failure_state_dims_the_dataset_lacks_are_rejected():
         make_policy(failure_feature="final_state", failure_state_dims=[0, 5])
 
 
-def test_failure_action_dims_the_action_lacks_are_rejected():
-    with pytest.raises(ValueError, match=r"failure_action_dims.*\[2\].*2-dim action"):
-        make_policy(failure_feature="action", failure_action_dims=[1, 2])
+def test_failure_state_dims_reach_the_environment_state_after_the_robots():
+    """Dims index the state frame: observation.state's 2 dims, then observation.environment_state's 3."""
+    policy = make_policy(env_dim=3, failure_feature="final_state", failure_state_dims=[1, 4])
+    frame = torch.arange(5.0)[None]
+    assert policy.model.feature.from_frame(frame).tolist() == [[1.0, 4.0]]
+    with pytest.raises(ValueError, match=r"failure_state_dims.*\[5\].*5-dim state frame.*0\.\.4"):
+        make_policy(env_dim=3, failure_feature="final_state", failure_state_dims=[0, 5])
 
 
 def test_missing_state_feature_is_rejected_at_construction():
@@ -81,9 +83,9 @@ def test_wrong_state_width_is_reported():
 
 
 def test_recovery_batch_with_wrong_failure_feature_is_reported():
-    policy = make_policy(training_stage="recovery", failure_feature="action", failure_action_steps=[0, 15])
+    policy = make_policy(training_stage="recovery", failure_feature="action")
     batch = {"action": torch.zeros(4, 16, 2), "observation.failure_feature": torch.zeros(4, 7)}
-    with pytest.raises(ValueError, match="size 4"):
+    with pytest.raises(ValueError, match="size 32"):
         policy.forward(batch)
     with pytest.raises(ValueError, match="lerobot-ccdp-synthesize"):
         policy.forward({"action": torch.zeros(4, 16, 2)})

@@ -32,7 +32,7 @@ ENCODER = {"vision_backbone_stages": 3}  # a 3x3 feature map at 48 px
 Z_SETTINGS = {
     "primitive": {"failure_feature": "primitive", "num_primitives": 2},
     "final_state": {"failure_feature": "final_state", "failure_state_dims": [0, 1, 2]},
-    "action": {"failure_feature": "action", "failure_action_steps": [7, 15]},
+    "action": {"failure_feature": "action"},
 }
 SMALL = {
     "n_states": 12,
@@ -100,7 +100,7 @@ def synthesised(request, pixel_root, tmp_path_factory):
         patch.setattr(CCDPModel, "sample_exploratory", recording_sample)
         patch.setattr(CameraWindows, "__call__", recording_windows)
         root = synthesize_recovery_dataset(
-            RecoveryRecipe.from_dict({**settings, **SMALL}),
+            RecoveryRecipe.from_dict(SMALL),
             REPO_ID,
             pixel_root,
             checkpoint,

@@ -2,7 +2,10 @@
 recording dataset, which has no label column; the outcome table must come from the checkpoint. Weights that do
 not fit are refused, not left at random values."""
 
+import json
+import logging
 import shutil
+from pathlib import Path
 
 import pytest
 import torch
@@ -11,6 +14,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.policies.factory import make_policy
 from safetensors.torch import load_file, save_file
 
+from lerobot_ccdp.policy.checkpoint_files import without_retired_fields
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 from fixtures.policy_factory import untrained_checkpoint
@@ -75,3 +79,73 @@ def test_weights_that_do_not_fit_are_refused_with_the_fix(untrained_primitive_ch
     )
     with pytest.raises(ValueError, match=expected):
         CCDPPolicy.from_pretrained(old)
+
+
+# ----- a checkpoint saved before settings were removed from CCDPConfig (issue 112) -------------------------
+
+# What every config.json saved before the removal holds: each removed field at the value the policy now fixes.
+OLD_LAYOUT = {
+    "w_s": 1.0,
+    "w_z_from_step": 0,
+    "z_reference": "eps_z_null",
+    "failure_state_key": "observation.state",
+    "failure_action_steps": [],
+    "failure_action_dims": [],
+    "ccdp_redraws": 0,
+}
+
+
+def saved_with(checkpoint: Path, tmp_path: Path, **fields) -> Path:
+    """A copy of `checkpoint` whose config.json also says `fields`, as one saved before they were removed."""
+    copy = shutil.copytree(checkpoint, tmp_path / "old")
+    config = json.loads((copy / "config.json").read_text())
+    (copy / "config.json").write_text(json.dumps({**config, **fields}))
+    return copy
+
+
+def test_a_checkpoint_saved_with_the_removed_settings_loads_and_says_so(
+    untrained_primitive_checkpoint, tmp_path, caplog
+):
+    """lerobot-eval's and lerobot-train's route (`PreTrainedConfig.from_pretrained` with --policy.* flags) and
+    the Python API's both read it; draccus refused every removed field ("The fields `w_s`, ... are not valid
+    for CCDPConfig")."""
+    folder = saved_with(untrained_primitive_checkpoint, tmp_path, **OLD_LAYOUT)
+    with caplog.at_level(logging.WARNING):
+        config = PreTrainedConfig.from_pretrained(folder, cli_overrides=["--recovery_mode=dp_star"])
+    assert config.recovery_mode == "dp_star"
+    assert f"dropped the retired setting(s) {', '.join(OLD_LAYOUT)}, at the values" in caplog.text
+    policy = CCDPPolicy.from_pretrained(folder)
+    assert policy.model.weights.w_s == 1.0 and policy.model.weights.z_reference == "eps_z_null"
+
+
+def test_a_removed_setting_that_would_sample_otherwise_is_refused_by_name(
+    untrained_primitive_checkpoint, tmp_path
+):
+    folder = saved_with(
+        untrained_primitive_checkpoint, tmp_path, **{**OLD_LAYOUT, "w_s": 0.5, "ccdp_redraws": 3}
+    )
+    message = (
+        r"config\.json sets w_s=0\.5, which CCDP no longer offers \(eq\. \(4\)'s state weight is 1\); "
+        r"ccdp_redraws=3, which CCDP no longer offers \(CCDP draws one sample per plan\)\. Evaluate the "
+        r"checkpoint with the lerobot_ccdp release that trained it, or remove w_s, ccdp_redraws from its "
+        r"config\.json"
+    )
+    with pytest.raises(ValueError, match=message):
+        PreTrainedConfig.from_pretrained(folder)
+    with pytest.raises(ValueError, match=message):
+        CCDPPolicy.from_pretrained(folder)
+
+
+def test_an_environment_state_z_becomes_the_same_dims_of_the_state_frame():
+    saved = {
+        "type": "ccdp",
+        "input_features": {
+            "observation.state": {"shape": [4]},
+            "observation.environment_state": {"shape": [3]},
+        },
+        "failure_state_key": "observation.environment_state",
+        "failure_state_dims": [0, 2],
+    }
+    assert without_retired_fields(saved, "config.json")["failure_state_dims"] == [4, 6]
+    every = without_retired_fields({**saved, "failure_state_dims": []}, "config.json")
+    assert every["failure_state_dims"] == [4, 5, 6]

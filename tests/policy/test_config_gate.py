@@ -35,12 +35,12 @@ def edited(checkpoint: Path, tmp_path: Path, **fields) -> Path:
 
 EDITS = [
     ("w_z", math.nan, "`w_z` must be a finite number"),
-    ("w_s", math.nan, "`w_s` must be a finite number"),
+    ("w_h", math.nan, "`w_h` must be a finite number"),
     ("w_z", math.inf, "`w_z` must be a finite number"),
     ("w_z", -1e30, "`w_z` must be >= 0"),
     ("w_z", 1e30, f"`w_z` must be <= {MAX_WEIGHT:g}"),
     ("n_action_steps", 0, r"`n_action_steps` must be >= 1 \(got 0\)"),
-    ("ccdp_redraws", -1, r"`ccdp_redraws` must be >= 0 \(got -1\)"),
+    ("dp_star_rounds", -1, r"`dp_star_rounds` must be >= 1 \(got -1\)"),
     ("dp_star_candidates", 0, r"`dp_star_candidates` must be >= 1 \(got 0\)"),
     # LeRobot checks the device only when a config is made: set later, "bogus" failed in safetensors
     ("device", "bogus", r"`device` 'bogus' is no device LeRobot knows.*cuda, mps, xpu or cpu"),
@@ -52,7 +52,7 @@ def test_a_config_edited_in_python_is_checked_by_from_pretrained(
     untrained_primitive_checkpoint, name, value, message
 ):
     """Before, only CCDPConfig() and the CLI checked: NaN weights gave NaN actions, inf or -1e30 pinned every
-    action, n_action_steps=0 an IndexError, ccdp_redraws=-1 a TypeError."""
+    action, n_action_steps=0 an IndexError."""
     config = PreTrainedConfig.from_pretrained(untrained_primitive_checkpoint)
     setattr(config, name, value)
     with pytest.raises(ValueError, match=message):
@@ -74,7 +74,7 @@ def test_a_config_edited_in_python_is_checked_by_the_policy(name, value, message
     "settings",
     [
         {"w_z": 1e30},
-        {"w_s": 101.0},
+        {"w_h": 101.0},
         {"recovery_head": "set_denoiser", "failure_guard_steps": 2, "failure_guard_weight": 1e3},
     ],
 )
@@ -92,7 +92,7 @@ def test_fourier_octaves_that_would_make_z_noise_or_nan_are_refused():
 
 
 def test_the_largest_weight_allowed_is_accepted():
-    assert CCDPConfig(w_z=MAX_WEIGHT, w_s=MAX_WEIGHT).w_z == MAX_WEIGHT
+    assert CCDPConfig(w_z=MAX_WEIGHT, w_h=MAX_WEIGHT, history_length=1).w_z == MAX_WEIGHT
 
 
 def test_a_weight_in_a_checkpoints_config_json_is_refused(untrained_primitive_checkpoint, tmp_path):
@@ -201,9 +201,9 @@ def test_a_bad_size_in_config_json_is_named_through_the_api(
 
 def test_a_size_message_names_each_fields_own_bound():
     with pytest.raises(ValueError) as refused:
-        CCDPConfig(ccdp_redraws=-1, horizon=0)
+        CCDPConfig(history_length=-1, horizon=0)
     assert str(refused.value).startswith(
-        "`horizon` must be >= 1 (got 0); `ccdp_redraws` must be >= 0 (got -1)."
+        "`horizon` must be >= 1 (got 0); `history_length` must be >= 0 (got -1)."
     )
 
 
@@ -211,8 +211,8 @@ def test_a_ccdp_config_saying_type_diffusion_is_named_with_the_fix(untrained_pri
     folder = edited(untrained_primitive_checkpoint, tmp_path, type="diffusion")
     message = (
         rf'{folder / "config.json"} says "type": "diffusion", but its fields are those of a \'ccdp\' policy '
-        r"config \(a 'diffusion' config has no ccdp_redraws, delta_z, dp_star_candidates, \.\.\.\)\. If the "
-        r'file was edited, set "type": "ccdp" again'
+        r"config \(a 'diffusion' config has no delta_z, dp_star_candidates, dp_star_rounds, \.\.\.\)\. "
+        r'If the file was edited, set "type": "ccdp" again'
     )
     with pytest.raises(ValueError, match=message):
         PreTrainedConfig.from_pretrained(folder)

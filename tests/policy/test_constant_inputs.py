@@ -37,6 +37,7 @@ def _policy(env_mode: NormalizationMode = NormalizationMode.MIN_MAX) -> CCDPPoli
         n_action_steps=4,
         down_dims=(16, 32),
         device="cpu",
+        row_noise_streams=False,  # global generator: each _first_action replays its seed's noise
     )
     config.normalization_mapping = {**config.normalization_mapping, "ENV": env_mode}
     torch.manual_seed(0)

@@ -18,7 +18,6 @@ from lerobot_ccdp.recovery.synthesize import synthesize_recovery_dataset
 
 from fixtures.reaching import REACHING_REPO_ID
 
-SETTINGS = {"failure_feature": "primitive", "num_primitives": 4}
 DAMAGED = "is damaged .*Re-train the checkpoint, or copy or download it again"
 
 
@@ -39,7 +38,7 @@ def garble_config(folder: Path) -> None:
 
 
 def synthesize_from(policy_path: Path | str, demo_root: Path, out_root: Path) -> None:
-    recipe = RecoveryRecipe.from_dict({**SETTINGS, "n_states": 4, "chunks_per_state": 2})
+    recipe = RecoveryRecipe.from_dict({"n_states": 4, "chunks_per_state": 2})
     synthesize_recovery_dataset(
         recipe, REACHING_REPO_ID, demo_root, policy_path, "local/r", out_root, progress=False
     )

@@ -52,7 +52,7 @@ def cuda_checkpoint(reaching_root, tmp_path_factory) -> Path:
 def synthesize_cli(checkpoint: Path, demos: Path, out: Path, *device: str) -> LeRobotDataset:
     out.parent.mkdir(parents=True)
     recipe = out.parent / "recipe.yaml"
-    recipe.write_text(yaml.safe_dump({"recovery": {**SETTINGS, **SMALL}}))
+    recipe.write_text(yaml.safe_dump({"recovery": SMALL}))
     synthesize.main(
         [
             f"--config_path={recipe}",

@@ -13,12 +13,10 @@ ROWS = 3
 
 def rollouts(mode: str, streams: bool) -> dict[str, torch.Tensor]:
     """Plans of two rollouts of a fresh policy (seed 7): the first plan, the plan after row 0 failed (DP*'s
-    candidates and CCDP's redraws consume extra noise there) and the next rollout's first plan."""
+    candidates consume extra noise there) and the next rollout's first plan."""
     torch.manual_seed(7)
-    # every candidate repeats the failure: DP* and CCDP draw all their rounds
-    policy = make_policy(
-        recovery_mode=mode, row_noise_streams=streams, dp_star_candidates=4, ccdp_redraws=2, delta_z=1e9
-    )
+    # every candidate repeats the failure: DP* draws all its rounds
+    policy = make_policy(recovery_mode=mode, row_noise_streams=streams, dp_star_candidates=4, delta_z=1e9)
     policy.model.recovery_trained.fill_(True)
     obs = {"observation.state": torch.zeros(ROWS, 2)}
     with torch.inference_mode():

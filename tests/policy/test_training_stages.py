@@ -21,9 +21,7 @@ def test_base_stage_trains_the_base_network_only():
 
 def test_recovery_stage_freezes_the_base_and_learns_eps_z():
     torch.manual_seed(0)
-    policy = make_policy(
-        training_stage="recovery", failure_feature="action", failure_action_steps=[15]
-    ).train()
+    policy = make_policy(training_stage="recovery", failure_feature="final_state").train()
     base_before = {k: v.clone() for k, v in policy.model.base.state_dict().items()}
     optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
     # Two failure features, each paired with its own chunk: eps_z must learn the pairing.
@@ -53,7 +51,6 @@ def test_classifier_stage_learns_from_demo_windows_which_chunks_repeat_a_failure
         training_stage="recovery",
         recovery_head="classifier",
         failure_feature="action",
-        failure_action_steps=[15],
     ).train()
     assert policy.config.observation_delta_indices == [0] and policy.config.action_delta_indices is not None
     base_before = {k: v.clone() for k, v in policy.model.base.state_dict().items()}
@@ -71,7 +68,7 @@ def test_classifier_stage_learns_from_demo_windows_which_chunks_repeat_a_failure
         noisy = policy.model.noise_scheduler.add_noise(
             chunks, torch.randn_like(chunks) * 0.1, torch.tensor([5, 5])
         )
-        failed_first = chunks[0, 15][None, None].expand(2, 1, 2)  # action z of option 0
+        failed_first = chunks[0].flatten()[None, None].expand(2, 1, 32)  # action z of option 0
         logits = policy.model.recovery(
             noisy, torch.tensor([5, 5]), torch.zeros(2, 2), failed_first, torch.ones(2, 1, dtype=torch.bool)
         )

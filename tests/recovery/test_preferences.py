@@ -1,14 +1,12 @@
 """Recovery on two members of issue 17's seeded 2-D family: after one and after two failures, CCDP's
-failure-set classifier guidance samples the failed goals a third as often as DP or less, and almost never with
-redraws.
+failure-set classifier guidance samples the failed goals a third as often as DP or less.
 
 The reduced form of `lerobot_ccdp.benchmark.preference_family`: the same members, measurement and settings,
 trained in memory (`in_memory_training.py`) instead of through lerobot-train so that CI can afford it. Member
-0 carries `primitive` labels; member 1 has none and uses `final_state` z. Issue 17's failed-share target
-(<= 0.03) is asserted for CCDP with up to three redraws of a repeat; its preference-error target (<= 0.08) is
-not, as these short trainings leave some members and counts above it, even under the exact classifier's
-guidance: the scores are printed (`pytest -s -k preferences`), and docs/benchmarks.md has the family's figures
-and what was tried.
+0 carries `primitive` labels; member 1 has none and uses `final_state` z. Issue 17's targets (failed share
+<= 0.03, preference error <= 0.08) are not asserted, as these short trainings leave some members and counts
+above them, even under the exact classifier's guidance: the scores are printed (`pytest -s -k preferences`),
+and docs/benchmarks.md has the family's figures and what was tried.
 """
 
 from pathlib import Path
@@ -32,7 +30,6 @@ ROWS = 512
 # queried alone; 0.004 to 0.023 when the whole set was queried at once, a form since removed).
 FAILED_SHARE = 0.15
 EXACT_FAILED_SHARE = 0.05
-REDRAWN_FAILED_SHARE = 0.03  # issue 17's target, with ccdp_redraws=3
 
 
 def member_checkpoint(seed: int, tmp: Path) -> tuple[Path, LeRobotDataset]:
@@ -63,7 +60,6 @@ def measured(tmp_path_factory) -> dict[int, dict]:
         methods = {
             "DP": Method("dp", {}),
             "CCDP": Method("ccdp", {"w_z": 1.0}),
-            "CCDP +3 redraws": Method("ccdp", {"w_z": 1.0, "ccdp_redraws": 3}),
             "CCDP exact": Method("ccdp", {"w_z": 1.0}, demos),
         }
         results[seed] = measure(ReachingTask.family_member(seed), checkpoint, methods, ROWS)
@@ -75,7 +71,7 @@ def test_classifier_guidance_avoids_failed_goals_where_dp_repeats_them(measured)
     scores = {
         (seed, method, count): (round(m["failed_share"], 3), round(m["preference_error"], 3))
         for seed, result in measured.items()
-        for method in ("DP", "CCDP", "CCDP +3 redraws", "CCDP exact")
+        for method in ("DP", "CCDP", "CCDP exact")
         for count, m in result["methods"][method].items()
     }
     report = f"(failed share, preference error) per (member, method, failures): {scores}"
@@ -85,9 +81,6 @@ def test_classifier_guidance_avoids_failed_goals_where_dp_repeats_them(measured)
             dp_failed, ccdp_failed = scores[(seed, "DP", count)][0], scores[(seed, "CCDP", count)][0]
             assert dp_failed > 0.2, report  # without memory the base keeps drawing its favourite goals
             assert ccdp_failed <= min(FAILED_SHARE, dp_failed / 3), report
-            # Redrawing the rare repeat (up to 3 times), issue 17's failed-share target
-            # holds on each member and count (measured 0.000 to 0.020 here, 2026-11-27).
-            assert scores[(seed, "CCDP +3 redraws", count)][0] <= REDRAWN_FAILED_SHARE, report
             # The same learnt base guided by the exact classifier of the demonstrated start chunks: the
             # guidance, the sampler and the gradient under inference mode leave almost nothing of the failed
             # goals (measured 0.000 to 0.004 on these checkpoints, 2026-11-27).

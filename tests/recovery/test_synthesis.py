@@ -39,7 +39,7 @@ FEATURE_SETTINGS = {
     "final_state": {"failure_feature": "final_state", "failure_state_dims": [0, 1]},
     # A z of one dim is a column of shape (1,), which LeRobotDataset loads as a scalar per row.
     "final_state_1d": {"failure_feature": "final_state", "failure_state_dims": [1]},
-    "action": {"failure_feature": "action", "failure_action_steps": [7, 15], "failure_action_dims": [1]},
+    "action": {"failure_feature": "action"},
 }
 # Small and loose enough that an untrained base (near-random chunks) still yields pairs quickly.
 SMALL = {
@@ -49,7 +49,6 @@ SMALL = {
     "pairs_per_failure": 2,
     "demo_frames": 200,
     "delta_x": 0.05,
-    "delta_z": 0.1,
 }
 
 
@@ -58,7 +57,7 @@ def synthesised(request, reaching_root, tmp_path_factory) -> tuple[Path, Path, R
     settings = FEATURE_SETTINGS[request.param]
     tmp = tmp_path_factory.mktemp(f"synth_{request.param}")
     checkpoint = untrained_checkpoint(reaching_root, tmp / "base", **settings)
-    recipe = RecoveryRecipe.from_dict({**settings, **SMALL})
+    recipe = RecoveryRecipe.from_dict({**SMALL})
     out = _synthesize_reaching(recipe, reaching_root, checkpoint, tmp / "recovery")
     return checkpoint, out, recipe
 
@@ -84,11 +83,9 @@ def test_recovery_dataset_loads_with_its_stats_and_recipe_record(synthesised, re
             torch.as_tensor(dataset.meta.stats[key]["max"]), torch.as_tensor(demo_stats[key]["max"])
         )
     record = yaml.safe_load((root / RECIPE_COPY).read_text())
-    assert record["recovery"] == {
-        **record["recovery"],
-        **recipe.failure_settings(),
-        "delta_z": recipe.delta_z,
-    }
+    config = CCDPPolicy.from_pretrained(checkpoint).config
+    # the recipe gives no delta_z: eq. (5) used the checkpoint's, the policy's distance for a repeat
+    assert recipe.delta_z is None and record["recovery"]["delta_z"] == config.delta_z
     assert record["source"] == {
         "repo_id": REACHING_REPO_ID,
         "root": str(reaching_root),
@@ -114,7 +111,7 @@ def test_every_row_satisfies_eq5(synthesised):
     policy, normalized = normalized_rows(*synthesised[:2], chunk_column=ACTION)
     z_recovery = policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes)
     distance = ((z_recovery - normalized[FAILURE_FEATURE_KEY]) ** 2).sum(dim=-1)
-    assert (distance > synthesised[2].delta_z - 1e-4).all()
+    assert (distance > policy.config.delta_z - 1e-4).all()
 
 
 # Real lerobot-train runs for a z of several dims and for one of one dim (a scalar column in LeRobot's
@@ -173,7 +170,7 @@ def test_lerobot_train_recovery_stage_on_the_synthesised_dataset(synthesised, tm
 
 def test_interrupted_synthesis_leaves_nothing(reaching_root, tmp_path, monkeypatch):
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
-    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL})
+    recipe = RecoveryRecipe.from_dict({**SMALL})
     original = synthesize.LeRobotDataset.add_frame
     calls = {"n": 0}
 
@@ -199,7 +196,7 @@ def test_outcome_radius_keeps_only_sampled_chunks_near_a_demonstration(reaching_
     policy = CCDPPolicy.from_pretrained(checkpoint)
 
     def synthesised_gaps(radius: float, name: str) -> tuple[Tensor, dict]:
-        recipe = RecoveryRecipe.from_dict({**settings, **SMALL, "outcome_radius": radius})
+        recipe = RecoveryRecipe.from_dict({**SMALL, "outcome_radius": radius})
         root = synthesize_recovery_dataset(
             recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / name, progress=False
         )
@@ -221,7 +218,7 @@ def test_outcome_radius_keeps_only_sampled_chunks_near_a_demonstration(reaching_
 
 def test_refuses_an_outcome_radius_that_drops_every_sampled_chunk(reaching_root, tmp_path):
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
-    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "outcome_radius": 1e-6})
+    recipe = RecoveryRecipe.from_dict({**SMALL, "outcome_radius": 1e-6})
     with pytest.raises(ValueError, match="Raise outcome_radius"):
         synthesize_recovery_dataset(
             recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r", progress=False
@@ -253,12 +250,12 @@ def test_without_a_recipe_z_is_the_checkpoints(reaching_root, tmp_path, settings
     record = yaml.safe_load((out / RECIPE_COPY).read_text())["recovery"]
     z_fields = (
         "failure_feature",
-        "failure_state_key",
         "failure_state_dims",
         "primitive_key",
         "num_primitives",
     )
     assert {k: record[k] for k in z_fields} == {k: getattr(config, k) for k in z_fields}
+    assert record["delta_z"] == config.delta_z  # eq. (5)'s threshold: the policy's distance for a repeat
     assert LeRobotDataset("local/my_rows", root=out).num_frames > 0
     assert_rows_store_the_policys_z(checkpoint, out)
 
@@ -281,7 +278,7 @@ def test_refuses_a_demo_dataset_without_the_named_feature(reaching_root, tmp_pat
     policy = CCDPPolicy.from_pretrained(checkpoint)
     policy.config.primitive_key = "option"  # a checkpoint whose recipe names a column the demos lack
     policy.save_pretrained(checkpoint)
-    recipe = RecoveryRecipe.from_dict({**settings, **SMALL})
+    recipe = RecoveryRecipe.from_dict({**SMALL})
     with pytest.raises(ValueError, match=r"lacks column\(s\) \['option'\]"):
         synthesize_recovery_dataset(
             recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r", progress=False
@@ -292,7 +289,7 @@ def test_refuses_a_demo_dataset_without_the_named_feature(reaching_root, tmp_pat
 def test_refuses_demo_siblings_for_a_head_without_siblings(reaching_root, tmp_path):
     """Only the set denoiser's rows carry siblings: the flag would otherwise change nothing, silently."""
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **FEATURE_SETTINGS["primitive"])
-    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "demo_siblings": True})
+    recipe = RecoveryRecipe.from_dict({**SMALL, "demo_siblings": True})
     with pytest.raises(ValueError, match="recovery.demo_siblings .* recovery_head='unet'"):
         synthesize_recovery_dataset(
             recipe, REACHING_REPO_ID, reaching_root, checkpoint, "local/r", tmp_path / "r", progress=False
@@ -316,12 +313,12 @@ def test_refuses_demo_siblings_for_a_head_without_siblings(reaching_root, tmp_pa
 )
 def test_recipe_validation(change, message):
     with pytest.raises(ValueError, match=message):
-        RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **change})
+        RecoveryRecipe.from_dict(change)
 
 
 def test_paths_are_checked_before_loading_anything(reaching_root, tmp_path):
     """A wrong --output.root or --dataset.root is named at once, not after minutes of loading and sampling."""
-    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL})
+    recipe = RecoveryRecipe.from_dict({**SMALL})
     missing_checkpoint = tmp_path / "no_such_checkpoint"
     (tmp_path / "out").mkdir()  # an empty folder receives the dataset; one holding a user's file does not
     (tmp_path / "out" / "notes.txt").write_text("mine")
@@ -376,7 +373,7 @@ def test_set_denoiser_rows_are_chunks_sampled_at_demonstrated_states_and_train_t
     base while the base stays frozen."""
     settings = {**FEATURE_SETTINGS["primitive"], "recovery_head": "set_denoiser", "history_length": 0}
     checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
-    recipe = RecoveryRecipe.from_dict({**FEATURE_SETTINGS["primitive"], **SMALL, "sigma": 0.0})
+    recipe = RecoveryRecipe.from_dict({**SMALL, "sigma": 0.0})
     root = _synthesize_reaching(recipe, reaching_root, checkpoint, tmp_path / "recovery")
     demos = LeRobotDataset(REACHING_REPO_ID, root=reaching_root).hf_dataset.with_format("torch")[:]
     starts = demos[OBS_STATE][demos["frame_index"].flatten() == 0]

@@ -86,10 +86,7 @@ class ClassifierHead(RecoveryHead):
 
     @classmethod
     def describe(cls, settings: Mapping[str, Any]) -> str:
-        return (
-            f"w_s {settings['w_s']:g}, w_h {settings['w_h']:g}; failures by classifier guidance, "
-            f"w_z {settings['w_z']:g}"
-        )
+        return f"w_h {settings['w_h']:g}; failures by classifier guidance, w_z {settings['w_z']:g}"
 
     def loss(self, model: CCDPModel, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """The failure-set classifier on the demonstrated chunks. Each row gets a failure set F of 1 to

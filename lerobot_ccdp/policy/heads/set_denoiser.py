@@ -93,7 +93,6 @@ class SetDenoiserHead(RecoveryHead):
     training_data = "base_samples"
     own_settings = (
         "w_z_steps",
-        "w_z_from_step",
         "failure_guard_steps",
         "stratum_weights",
         "state_failure_sets",
@@ -101,13 +100,10 @@ class SetDenoiserHead(RecoveryHead):
 
     @classmethod
     def describe(cls, settings: Mapping[str, Any]) -> str:
-        form = (
-            f"w_s {settings['w_s']:g}, w_h {settings['w_h']:g}; failures by the failure-set denoiser "
-            f"eps_(s,F), w_z {settings['w_z']:g}"
-        )
+        w_h, w_z = settings["w_h"], settings["w_z"]
+        form = f"w_h {w_h:g}; failures by the failure-set denoiser eps_(s,F), w_z {w_z:g}"
         return form + w_z_window(
             settings.get("w_z_steps"),
-            settings.get("w_z_from_step", 0),
             settings.get("failure_guard_steps", 0),
             settings.get("failure_guard_weight", 1.0),
         )
@@ -241,12 +237,9 @@ def _siblings(batch: dict[str, Tensor], option: str) -> tuple[Tensor, Tensor]:
     return siblings, count.reshape(-1)
 
 
-def w_z_window(count: int | None, start: int, guard: int = 0, guard_weight: float = 1.0) -> str:
-    """The set denoiser's reverse steps at w_z (`w_z_steps`, `w_z_from_step`) and those its guard guides
+def w_z_window(count: int | None, guard: int = 0, guard_weight: float = 1.0) -> str:
+    """The set denoiser's reverse steps at w_z (`w_z_steps`) and those its guard guides
     (`failure_guard_steps`, at `failure_guard_weight`), as the forms table says them."""
     weight = f" at weight {guard_weight:g}" if guard_weight != 1 else ""
     guarded = f"; its guard on the last {guard} steps{weight}" if guard else ""
-    if start:
-        last = "the last" if count is None else start + count - 1
-        return f" on reverse steps {start} to {last} (0 the noisiest), 1 elsewhere{guarded}"
     return ("" if count is None else f" on the first {count} steps, 1 after") + guarded

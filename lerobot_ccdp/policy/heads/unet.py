@@ -13,7 +13,12 @@ from lerobot.utils.constants import ACTION
 from torch import Tensor, nn
 
 from lerobot_ccdp.policy.base_denoiser import base_estimates
-from lerobot_ccdp.policy.composition import CompositionWeights, compose_eps, recovery_conditions
+from lerobot_ccdp.policy.composition import (
+    POLICY_Z_REFERENCE,
+    CompositionWeights,
+    compose_eps,
+    recovery_conditions,
+)
 from lerobot_ccdp.policy.configuration_ccdp import FAILURE_FEATURE_KEY, CCDPConfig
 from lerobot_ccdp.policy.heads.registry import Estimate, RecoveryHead, register_head
 from lerobot_ccdp.policy.small_batch_convolutions import with_small_batch_convolutions
@@ -51,10 +56,7 @@ class UnetHead(RecoveryHead):
 
     @classmethod
     def describe(cls, settings: Mapping[str, Any]) -> str:
-        return (
-            f"w_s {settings['w_s']:g}, w_h {settings['w_h']:g}, w_z {settings['w_z']:g} against "
-            f"{settings['z_reference']}"
-        )
+        return f"w_h {settings['w_h']:g}, w_z {settings['w_z']:g} against {POLICY_Z_REFERENCE}"
 
     @classmethod
     def unet_condition(cls, step: int, base_condition: int, z_size: int) -> int | None:

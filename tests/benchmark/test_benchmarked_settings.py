@@ -1,0 +1,141 @@
+"""The CCDP and DP* each task's benchmark evaluates, and that the policy's defaults are them.
+
+BENCHMARKED holds, per settings folder, what the pipeline evaluated before the defaults became the
+benchmark's (read from the configs at 0032ef5: train_base.json's policy, methods.json's flags and the
+policy's old defaults, w_z 1 at every step and 16 DP* candidates). Each test builds the evaluated config as
+lerobot-eval does: the checkpoint's config.json (train_base.json's policy on the policy's defaults) with the
+command's --policy.* flags on top (`PreTrainedConfig.from_pretrained(path, cli_overrides=...)`).
+"""
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+from lerobot.configs.policies import PreTrainedConfig
+
+from lerobot_ccdp.benchmark.pipeline import LABEL_FREE as LABEL_FREE_SUFFIX
+from lerobot_ccdp.benchmark.pipeline import OBS_VARIANTS, RECOVERY_MODE, TaskFiles, task_slug
+from lerobot_ccdp.envs import TASKS
+from lerobot_ccdp.policy.composition import CompositionWeights
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+
+REPO = Path(__file__).resolve().parents[2]
+CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
+STEPS = 10  # the reverse steps of every shipped config (num_inference_steps)
+EARLY_5 = (5,) * 3 + (1,) * 7  # w_z 5 on the 3 noisiest steps, 1 after
+EVERY = {w: (w,) * STEPS for w in (1, 3)}
+# The Bartenders' guard: (failure_guard_steps, failure_guard_weight).
+NO_GUARD = (0, 1.0)
+
+
+def _setting(w_z, guard=NO_GUARD, delta_z=0.1, state_at="attempt_end", label_at="latest_chunk", dp_star=32):
+    return {
+        "ccdp": (w_z, guard, delta_z, state_at, label_at),
+        "dp_star": (dp_star, 4, delta_z, state_at, label_at),
+    }
+
+
+LABELLED = {slug: _setting(EARLY_5) for slug in ("door_opening", "button_search", "object_manipulation")}
+LABEL_FREE = {
+    f"{slug}_label_free": _setting(EARLY_5, state_at="demonstrated_end")
+    for slug in ("door_opening", "button_search", "object_manipulation", "object_packing")
+}
+LITE = {f"{slug}_lite": _setting(EVERY[3]) for slug in (*LABELLED, "object_packing", "bartender")}
+PIXELS = {slug: _setting(EVERY[3], dp_star=16) for slug in ("door_opening", "button_search")}
+BENCHMARKED = {
+    **LABELLED,
+    "object_packing": _setting(EARLY_5),
+    "bartender": _setting(EVERY[1], guard=(8, 8.0), label_at="attempt_end"),
+    **LABEL_FREE,
+    "bartender_label_free": _setting(EVERY[1], guard=(4, 8.0), delta_z=0.05),
+    **LITE,
+    **{f"{slug}_pixels": s for slug, s in PIXELS.items()},
+    **{f"{slug}_lite_pixels": s for slug, s in PIXELS.items()},
+}
+# The Evaluate section's command names a checkpoint of configs/door_opening.
+README_TASK = "door_opening"
+
+
+def _settings_folders() -> dict[str, tuple[str, str, bool]]:
+    """Every settings folder the pipeline can run: slug -> (task, obs_type, label_free)."""
+    folders = {}
+    for task in TASKS:
+        for obs_type in OBS_VARIANTS:
+            for label_free in (False, True):
+                slug = task_slug(task) + OBS_VARIANTS[obs_type] + (LABEL_FREE_SUFFIX if label_free else "")
+                if (CONFIGS / slug / "eval.json").is_file():
+                    folders[slug] = (task, obs_type, label_free)
+    return folders
+
+
+def _evaluated(train_base: Path, flags: list[str], tmp_path: Path) -> CCDPConfig:
+    """The config lerobot-eval evaluates: the checkpoint's config.json with the command's --policy.* flags."""
+    policy = {k: v for k, v in json.loads(train_base.read_text())["policy"].items() if k != "type"}
+    tmp_path.mkdir(exist_ok=True)
+    CCDPConfig(**policy, device="cpu")._save_pretrained(tmp_path)
+    overrides = [
+        f"--{f.removeprefix('--policy.')}"
+        for f in flags
+        if f.startswith("--policy.") and not f.startswith("--policy.path=")
+    ]
+    return PreTrainedConfig.from_pretrained(tmp_path, cli_overrides=overrides)
+
+
+def _effective(config: CCDPConfig, method: str) -> tuple:
+    """What a mode samples with: CCDP's w_z at each reverse step, its guard, and the failure lookup; DP*'s
+    candidates and rounds, and the same lookup."""
+    lookup = (config.delta_z, config.failure_state_at, config.failure_label_at)
+    if method == "dp_star":
+        return (config.dp_star_candidates, config.dp_star_rounds, *lookup)
+    if config.recovery_head == "set_denoiser":
+        weights = CompositionWeights(w_z=config.w_z, w_z_steps=config.w_z_steps)
+        schedule = tuple(weights.at_step(i).w_z for i in range(config.num_inference_steps))
+    else:  # the unet and classifier heads weigh every step alike
+        schedule = (config.w_z,) * config.num_inference_steps
+    guard = (config.failure_guard_steps, config.failure_guard_weight)
+    return (schedule, guard, *lookup)
+
+
+def test_every_settings_folder_has_its_benchmarked_form():
+    assert set(_settings_folders()) == set(BENCHMARKED)
+
+
+@pytest.mark.parametrize("slug", sorted(BENCHMARKED))
+@pytest.mark.parametrize("method", ["ccdp", "dp_star"])
+def test_the_pipeline_evaluates_what_the_benchmark_did(slug, method, tmp_path):
+    """The pipeline's lerobot-eval command for each mode samples as the published rounds did, with the
+    defaults now the benchmark's and the settings files holding only what departs from them."""
+    task, obs_type, label_free = _settings_folders()[slug]
+    files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path / "out", obs_type, label_free)
+    assert files.out.name == slug
+    command = files.eval_command(Path("ckpt"), method, 0, tmp_path / "eval", files.method_flags(method))
+    config = _evaluated(files.train_base, command, tmp_path / "ckpt")
+    assert config.recovery_mode == RECOVERY_MODE[method] and config.row_noise_streams
+    assert _effective(config, method) == BENCHMARKED[slug][method]
+
+
+def _readme_evaluate_flags() -> list[str]:
+    readme = (REPO / "README.md").read_text()
+    section = readme.split("## Evaluate", 1)[1].split("\n## ", 1)[0]
+    command = re.search(r"```bash\n(.*?)```", section, flags=re.DOTALL).group(1).replace("\\\n", " ")
+    return re.findall(r"--policy\.\S+", command.split("#", 1)[0])
+
+
+@pytest.mark.parametrize("method", ["ccdp", "dp_star"])
+def test_the_readmes_evaluate_command_evaluates_the_benchmarked_methods(method, tmp_path):
+    """README's Evaluate, with `--policy.recovery_mode` set to the mode, on a checkpoint trained with the
+    task's configs: the CCDP and DP* of the results table, common random numbers on."""
+    flags = [f for f in _readme_evaluate_flags() if not f.startswith("--policy.recovery_mode")]
+    train_base = CONFIGS / README_TASK / "train_base.json"
+    config = _evaluated(train_base, [*flags, f"--policy.recovery_mode={method}"], tmp_path)
+    assert config.row_noise_streams
+    assert _effective(config, method) == BENCHMARKED[README_TASK][method]
+
+
+def test_the_policys_defaults_are_the_benchmarks():
+    """What the shipped labelled set-denoiser configs evaluate is CCDPConfig's own default."""
+    config = CCDPConfig(recovery_head="set_denoiser", device="cpu")
+    assert _effective(config, "ccdp") == BENCHMARKED["door_opening"]["ccdp"]
+    assert _effective(config, "dp_star") == BENCHMARKED["door_opening"]["dp_star"]
+    assert config.row_noise_streams
