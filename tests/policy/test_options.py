@@ -31,12 +31,12 @@ def test_ccdp_adds_at_most_25_options_to_lerobots_diffusion_policy():
 def test_a_recipe_field_named_as_a_policy_field_reads_the_policys_value():
     """`recovery:`'s fields that share a name with CCDPConfig's default to None, which synthesis replaces with
     the base checkpoint's value (`RecoveryRecipe.for_checkpoint`), or to the policy's own default. Before,
-    `delta_z` was 0.5 in a recipe and 0.1 in the policy, and a recipe repeated what z is."""
+    `delta_z` was 0.5 in a recipe and 0.1 in the policy."""
     recipe, policy = _defaults(RecoveryRecipe), _defaults(CCDPConfig)
     shared = sorted(set(recipe) & set(policy))
     assert shared, "RecoveryRecipe and CCDPConfig share no field: nothing to check"
     for name in shared:
         assert recipe[name] is None or recipe[name] == policy[name], (name, recipe[name], policy[name])
     checkpoint = CCDPConfig(delta_z=0.3, device="cpu")
-    assert RecoveryRecipe.from_dict({}).for_checkpoint(checkpoint.delta_z).delta_z == 0.3
-    assert RecoveryRecipe.from_dict({"delta_z": 0.5}).for_checkpoint(checkpoint.delta_z).delta_z == 0.5
+    assert RecoveryRecipe.from_dict({}).for_checkpoint(checkpoint, "recipe").delta_z == 0.3
+    assert RecoveryRecipe.from_dict({"delta_z": 0.5}).for_checkpoint(checkpoint, "recipe").delta_z == 0.5
