@@ -49,7 +49,8 @@ def record_with_lerobot(root: Path, repo_id: str) -> None:
 
 def first_plan(policy: CCDPPolicy, pre, observation: dict, failed: bool) -> torch.Tensor:
     """The first action of the plan drawn at `observation` (after one failed attempt if `failed`), from the
-    same noise either way."""
+    same noise either way (torch's global generator: each rollout's own stream would differ)."""
+    policy.config.row_noise_streams = False
     policy.reset()
     with torch.inference_mode():
         torch.manual_seed(0)

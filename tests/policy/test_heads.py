@@ -81,7 +81,7 @@ def test_the_model_hands_a_rows_failures_and_the_recovery_loss_to_its_head():
     assert (loss.item(), info, head.losses) == (7.0, {"counted": True}, 1)
 
 
-@pytest.mark.parametrize("setting", [{"failure_guard_steps": 2}, {"w_z_steps": 3}, {"stratum_weights": True}])
+@pytest.mark.parametrize("setting", [{"failure_guard_steps": 2}, {"w_z_steps": 5}, {"stratum_weights": True}])
 @pytest.mark.parametrize("head", ["unet", "classifier"])
 def test_a_setting_of_another_head_is_refused_naming_the_head_that_reads_it(head, setting):
     (field,) = setting

@@ -97,12 +97,13 @@ def make_head(config: CCDPConfig) -> RecoveryHead:
 
 
 def refuse_settings_of_other_heads(config: CCDPConfig) -> None:
-    """A field only another head reads, set away from its default, would do nothing: refused with the fix."""
+    """A field only another head reads, set away from its default, would do nothing: refused with the fix.
+    None sets nothing (a config.json saved when `w_z_steps` defaulted to None holds it for every head)."""
     own = head_class(config.recovery_head)
     for owner in HEADS.values():
         for field in set(owner.own_settings) - set(own.own_settings):
             value, default = getattr(config, field), type(config).__dataclass_fields__[field].default
-            if value != default:
+            if value is not None and value != default:
                 raise ValueError(
                     f"`{field}` ({value}) is a setting of the {owner.name!r} head; the {own.name!r} head "
                     f"reads none. Remove --policy.{field} or use --policy.recovery_head={owner.name}."
