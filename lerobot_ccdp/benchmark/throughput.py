@@ -57,6 +57,13 @@ SHARED_FIELDS = (
     "optimizer_lr",
 )
 RUNS = ("diffusion", "ccdp base", "ccdp recovery")
+
+
+def run_dir(scratch: Path, name: str) -> Path:
+    """Where run `name` trains (deleted before each repeat)."""
+    return scratch / name.replace(" ", "_")
+
+
 CREATED_BY = "lerobot_ccdp.benchmark.throughput"
 
 
@@ -111,14 +118,14 @@ def train_commands(files: TaskFiles, scratch: Path, steps: int, workers: int) ->
             *diffusion_flags(read_json(base / "config.json")),
             f"--batch_size={base_train.get('batch_size', 8)}",
             "--wandb.enable=false",
-            f"--output_dir={scratch / 'diffusion'}",
+            f"--output_dir={run_dir(scratch, 'diffusion')}",
             *common,
         ],
         "ccdp base": [
             "lerobot-train",
             f"--config_path={files.train_base}",
             *data,
-            f"--output_dir={scratch / 'base'}",
+            f"--output_dir={run_dir(scratch, 'ccdp base')}",
             *common,
         ],
         "ccdp recovery": [
@@ -128,7 +135,7 @@ def train_commands(files: TaskFiles, scratch: Path, steps: int, workers: int) ->
             f"--dataset.root={files.recovery_data}",
             f"--policy.path={base}",
             "--policy.training_stage=recovery",
-            f"--output_dir={scratch / 'recovery'}",
+            f"--output_dir={run_dir(scratch, 'ccdp recovery')}",
             *common,
         ],
     }
@@ -197,9 +204,8 @@ def main(argv: list[str] | None = None) -> None:
     with busy_beside(args.beside):
         for repeat in range(args.repeats):
             for name in RUNS:
-                slug = name.replace(" ", "_")
-                log = args.out / f"{slug}_{repeat}.log"
-                t = measure(commands[name], args.out / "train" / slug, log, args.threads)
+                log = args.out / f"{run_dir(Path(), name)}_{repeat}.log"
+                t = measure(commands[name], run_dir(args.out / "train", name), log, args.threads)
                 logging.info(f"{name} ({repeat}): {t.steps_per_s:.2f} steps/s, data {t.data_share:.0%}")
                 times[name].append(t)
     beside = ", a busy process beside" if args.beside else ""

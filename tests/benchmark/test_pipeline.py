@@ -586,7 +586,7 @@ def test_throughput_times_the_base_the_head_and_lerobots_diffusion_with_the_same
     throughput.main(
         [
             *("--task", TASK, "--run", str(out), "--configs", str(configs), "--recipes", str(recipes)),
-            *("--out", str(tmp_path / "throughput"), "--steps", "20", "--repeats", "1", "--beside"),
+            *("--out", str(tmp_path / "throughput"), "--steps", "20", "--repeats", "2", "--beside"),
         ]
     )
     assert psutil.Process().children() == []  # the busy process beside was stopped with the runs
