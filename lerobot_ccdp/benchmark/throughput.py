@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--recipes", type=canonical, default="datasets_recipes")
     parser.add_argument("--out", type=real_path, default="outputs/throughput", help="scratch folder")
     parser.add_argument("--steps", type=int, default=200, help="training steps per run (>= 20)")
-    parser.add_argument("--repeats", type=int, default=2, help="interleaved repeats of the three runs")
+    parser.add_argument("--repeats", type=int, default=3, help="interleaved repeats of the three runs")
     parser.add_argument("--threads", type=int, default=1, help="torch threads per run (OMP_NUM_THREADS)")
     parser.add_argument("--num-workers", type=int, default=0, help="lerobot-train's --num_workers")
     parser.add_argument(
