@@ -651,11 +651,13 @@ def _plain(value: Any) -> Any:
 
 
 def time_breakdown(runs: list[TaskRun]) -> str:
-    """Seconds per stage and task, and how much of a training step is data loading."""
+    """Seconds per stage and task, and how much of a training step is data loading. The sum counts stages
+    that ran side by side (`--jobs`) each in full, so it exceeds the run's wall time, which the console's last
+    line gives."""
     stages = list(dict.fromkeys(s for r in runs for s in r.timings))
     if not stages:
         return "No stage ran in this output folder (every output was given)."
-    lines = ["| task | " + " | ".join(stages) + " | total |", "|---|" + "---|" * (len(stages) + 1)]
+    lines = ["| task | " + " | ".join(stages) + " | sum |", "|---|" + "---|" * (len(stages) + 1)]
     for r in runs:
         cells = [f"{r.timings[s]:.0f}" if s in r.timings else "-" for s in stages]
         lines.append(f"| {r.files.task} | " + " | ".join(cells) + f" | {sum(r.timings.values()):.0f} |")
@@ -1008,7 +1010,7 @@ def main(argv: list[str] | None = None) -> None:
             print(f"Published: {args.publish}")
     except (PipelineError, PipelineRunning, NotOwned) as error:
         sys.exit(str(error))
-    print(f"Report: {args.out / 'report.md'}; total {time.perf_counter() - start:.0f} s")
+    print(f"Report: {args.out / 'report.md'}; wall time {time.perf_counter() - start:.0f} s")
 
 
 if __name__ == "__main__":
