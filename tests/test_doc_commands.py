@@ -1,29 +1,36 @@
-"""The commands of README "Train on a local dataset", docs/synthesis.md and docs/troubleshooting.md run as
-written after the steps before them, and the messages troubleshooting.md quotes are ones the code prints.
+"""The commands of README "Train on a local dataset", docs/synthesis.md, docs/troubleshooting.md and
+configs/README.md run as written after the steps before them, and the messages troubleshooting.md quotes are
+ones the code prints.
 
-Every command is parsed by its own CLI's parser (draccus, as lerobot-train and lerobot-ccdp-synthesize parse
-it); the short ones run: the README's dataset command (twice: a rerun is refused in one line) and, slow, the
-whole of docs/synthesis.md after the README's first two commands, with small step counts."""
+Every command is parsed by its own CLI's parser (draccus, as lerobot-train, lerobot-eval and this package's
+commands parse it); the short ones run: the README's dataset command (twice: a rerun is refused in one line)
+and, slow, the whole of docs/synthesis.md after the README's first two commands and configs/README.md's main
+job, with small sizes."""
 
 import ast
 import importlib
 import importlib.util
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import draccus
 import pytest
+import yaml
 from lerobot.configs import parser
+from lerobot.configs.eval import EvalPipelineConfig
 from lerobot.configs.train import TrainPipelineConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 
-from lerobot_ccdp.datasets.configs import SynthesizeConfig, parse_cli
+from lerobot_ccdp.benchmark.episodes import Episodes
+from lerobot_ccdp.datasets.configs import RecordConfig, SynthesizeConfig, parse_cli
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.recovery.synthesize import RECIPE_COPY
 
-from fixtures.doc_commands import commands, run_command, sized
+from fixtures.doc_commands import SMALL, commands, run_command, sized
 
 REPO = Path(__file__).resolve().parent.parent
 README_SECTION = (
@@ -31,29 +38,48 @@ README_SECTION = (
 )
 SYNTHESIS = (REPO / "docs" / "synthesis.md").read_text()
 TROUBLESHOOTING = (REPO / "docs" / "troubleshooting.md").read_text()
-DOCS = {"README.md#train-on-a-local-dataset": README_SECTION, "docs/synthesis.md": SYNTHESIS}
+CONFIGS_README = (REPO / "configs" / "README.md").read_text()
+DOCS = {
+    "README.md#train-on-a-local-dataset": README_SECTION,
+    "docs/synthesis.md": SYNTHESIS,
+    "configs/README.md": CONFIGS_README,
+}
 # Where the messages a user meets come from: this plugin, and the libraries whose messages the docs quote.
 MESSAGE_SOURCES = ("lerobot_ccdp", "draccus", "torchcodec")
 
 
-def parse_train(args: list[str]) -> None:
-    """lerobot-train's parsing of `args` without running it: draccus over TrainPipelineConfig, and the
-    `--policy.*` overrides of a `--policy.path` checkpoint over CCDPConfig (LeRobot applies them on load)."""
-    draccus.parse(TrainPipelineConfig, args=parser.filter_path_args(["policy"], args))
+def parse_lerobot(config_class: type[TrainPipelineConfig | EvalPipelineConfig], args: list[str]) -> None:
+    """A LeRobot script's parsing of `args` without running it, as `parser.wrap` does: a `--config_path` file
+    through the class's `from_pretrained` where it has one (lerobot-train), else draccus reads it; and the
+    `--policy.*` overrides of a `--policy.path` checkpoint over CCDPConfig (LeRobot applies them on load, so
+    the checkpoint need not exist yet)."""
+    config_path = parser.parse_arg("config_path", args)
+    cli_args = parser.filter_path_args(config_class.__get_path_fields__(), args)
+    if hasattr(config_class, "from_pretrained") and config_path:
+        config_class.from_pretrained(config_path, cli_args=parser.filter_arg("config_path", cli_args))
+    else:
+        draccus.parse(config_class, args=cli_args)
     if parser.get_path_arg("policy", args):
         overrides = [f"--{a[len('--policy.') :]}" for a in args if a.startswith("--policy.")]
         draccus.parse(CCDPConfig, args=[a for a in overrides if not a.startswith("--path=")])
 
 
 @pytest.mark.parametrize("doc", list(DOCS))
-def test_every_command_parses_as_written(doc):
+def test_every_command_parses_as_written(doc, monkeypatch):
+    monkeypatch.chdir(REPO)  # a clone's root, where the docs' --config_path files are
+    # EvalPipelineConfig reads --policy.path from sys.argv itself and would load the checkpoint
+    monkeypatch.setattr(sys, "argv", ["pytest"])
     found = commands(DOCS[doc])
     assert found
     for argv in found:
         if argv[:2] == ["accelerate", "launch"]:  # `... $(which lerobot-train) <flags>`
             argv = ["lerobot-train", *argv[argv.index("$(which") + 2 :]]
         if argv[0] == "lerobot-train":
-            parse_train(argv[1:])
+            parse_lerobot(TrainPipelineConfig, argv[1:])
+        elif argv[0] == "lerobot-eval":
+            parse_lerobot(EvalPipelineConfig, argv[1:])
+        elif argv[0] == "lerobot-ccdp-record":
+            parse_cli(RecordConfig, argv[1:])
         elif argv[0] == "lerobot-ccdp-synthesize":
             parse_cli(SynthesizeConfig, argv[1:])
         elif argv[:3] == ["python", "-m", "lerobot_ccdp.benchmark.reaching2d"]:
@@ -118,6 +144,50 @@ def test_synthesis_doc_runs_as_written_after_the_readmes_first_commands(tmp_path
     for out in ("reaching2d_recovery", "reaching2d_goals_recovery"):
         assert (tmp_path / "data" / out / "meta" / "ccdp_recovery_recipe.yaml").is_file()
     assert (tmp_path / "outputs" / "reaching2d" / "ccdp" / "checkpoints" / "last").exists()
+
+
+@pytest.mark.slow  # the door's main job by hand, in-process: record, two trainings, a synthesis, an eval
+def test_configs_readme_main_job_runs_as_written(tmp_path, monkeypatch):
+    """configs/README.md's commands in a clone's root (its configs/ and datasets_recipes/), only the sizes
+    shrunk: each command of the main job finds what the one before it wrote and the eval writes the ccdp
+    mode's metrics; then the second block's overrides replace the main job's datasets."""
+    monkeypatch.chdir(tmp_path)
+    for folder in ("configs", "datasets_recipes"):
+        shutil.copytree(REPO / folder, tmp_path / folder)
+    job = commands(CONFIGS_README.split("\n## ", 1)[0])
+    expected = [
+        "lerobot-ccdp-record",
+        "lerobot-train",
+        "lerobot-ccdp-synthesize",
+        "lerobot-train",
+        "lerobot-eval",
+    ]
+    assert [argv[0] for argv in job] == expected
+    record, train_base, synthesize, train_recovery, evaluate = job
+    outputs = tmp_path / "outputs" / "door_opening"
+    weights = "checkpoints/last/pretrained_model/model.safetensors"
+
+    run_command(sized(record), monkeypatch)
+    n_demos = int(SMALL["lerobot-ccdp-record"]["--record.n_episodes"])
+    assert LeRobotDatasetMetadata("local/door_opening", root="data/door_opening").total_episodes == n_demos
+    run_command(sized(train_base), monkeypatch)
+    assert (outputs / "train_base" / weights).is_file()
+    run_command(sized(synthesize), monkeypatch)
+    recovery = tmp_path / "data" / "door_opening_recovery"
+    assert (recovery / RECIPE_COPY).is_file()
+    run_command(sized(train_recovery), monkeypatch)
+    assert (outputs / "train_recovery" / weights).is_file()
+    run_command(sized(evaluate), monkeypatch)
+    ccdp = outputs / "eval" / "ccdp"
+    episodes = Episodes.from_eval_info(ccdp / "eval_info.json")  # with the ccdp metrics, or it raises
+    assert len(episodes.success) == int(SMALL["lerobot-eval"]["--eval.n_episodes"])
+    assert list((ccdp / "videos").rglob("*.mp4"))  # eval.json renders, as the doc says
+
+    # The second block redoes the datasets with overrides, over the main job's own.
+    record_again, synthesize_again = commands(CONFIGS_README.split("\n## ", 1)[1])
+    run_command(sized(record_again), monkeypatch)
+    run_command(sized(synthesize_again), monkeypatch)
+    assert yaml.safe_load((recovery / RECIPE_COPY).read_text())["recovery"]["sigma"] == 0.05
 
 
 def test_make_train_local_runs_the_readme_commands():
