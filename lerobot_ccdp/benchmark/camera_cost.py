@@ -42,7 +42,7 @@ from lerobot_ccdp.benchmark.policy_cost import (
     write_results,
 )
 from lerobot_ccdp.benchmark.results import command_line
-from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
+from lerobot_ccdp.benchmark.work_folder import add_work_arguments, claim_work
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
@@ -253,20 +253,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument(
         "--sizes", type=int, nargs="*", default=[48, 64, 96], help="render sizes for (c); none skips"
     )
-    parser.add_argument("--work", type=Path, default=Path("outputs/camera_cost"))
+    add_work_arguments(parser, "outputs/camera_cost", "bench_cameras.py")
     parser.add_argument("--out", type=Path, default=Path("outputs/camera_cost.json"))
-    parser.add_argument(
-        "--adopt",
-        action="store_true",
-        help="take over a --work made by an earlier version of this tool (benchmarks/bench_cameras.py, "
-        "or before ownership markers)",
-    )
     args = parser.parse_args(argv)
     init_logging()
-    try:
-        claim_output_folder(args.work, CREATED_BY, adopt=args.adopt, flag="--work")
-    except NotOwned as error:
-        sys.exit(str(error))
+    claim_work(args, CREATED_BY)
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     torch.set_num_threads(args.threads)
     results = {"command": command_line(f"python -m {CREATED_BY}", sys.argv[1:] if argv is None else argv)}

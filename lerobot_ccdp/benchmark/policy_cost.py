@@ -52,7 +52,7 @@ from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 from lerobot.utils.utils import init_logging
 
 from lerobot_ccdp.benchmark.results import command_line
-from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
+from lerobot_ccdp.benchmark.work_folder import add_work_arguments, claim_work
 from lerobot_ccdp.policy.configuration_ccdp import RECOVERY_HEADS, CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
@@ -458,20 +458,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")
     parser.add_argument("--cli-log-freq", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")
-    parser.add_argument("--work", type=Path, default=Path("outputs/policy_cost"))
+    add_work_arguments(parser, "outputs/policy_cost", "bench_policy.py")
     parser.add_argument("--out", type=Path, default=Path("outputs/policy_cost.json"))
-    parser.add_argument(
-        "--adopt",
-        action="store_true",
-        help="take over a --work made by an earlier version of this tool (benchmarks/bench_policy.py, "
-        "or before ownership markers)",
-    )
     args = parser.parse_args(argv)
     init_logging()
-    try:
-        claim_output_folder(args.work, CREATED_BY, adopt=args.adopt, flag="--work")
-    except NotOwned as error:
-        sys.exit(str(error))
+    claim_work(args, CREATED_BY)
 
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     torch.set_num_threads(args.threads)

@@ -29,7 +29,7 @@ import yaml
 from lerobot.utils.utils import init_logging
 
 from lerobot_ccdp.benchmark.pipeline import BIN, TASK_GROUPS, task_slug
-from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
+from lerobot_ccdp.benchmark.work_folder import add_work_arguments, claim_work
 from lerobot_ccdp.envs.tasks import TASKS
 
 logger = logging.getLogger(__name__)
@@ -211,20 +211,11 @@ def main(argv: list[str] | None = None) -> None:
         default=3.0,
         help="composition weight of the recovery checkpoint, as the task configs",
     )
-    parser.add_argument("--work", type=Path, default=Path("outputs/synthesis_cost"))
-    parser.add_argument(
-        "--adopt",
-        action="store_true",
-        help="take over a --work made by an earlier version of this tool (benchmarks/bench_synthesis.py, "
-        "or before ownership markers)",
-    )
+    add_work_arguments(parser, "outputs/synthesis_cost", "bench_synthesis.py")
     args = parser.parse_args(argv)
     init_logging()
     bases = dict(item.split("=", 1) for item in args.base)
-    try:
-        claim_output_folder(args.work, CREATED_BY, adopt=args.adopt, flag="--work")
-    except NotOwned as error:
-        sys.exit(str(error))
+    claim_work(args, CREATED_BY)
     rows = []
     for task in args.tasks:
         rows.append(

@@ -4,9 +4,10 @@ printed and the same figures are kept as JSON with the command that made them.""
 
 import json
 
+import pytest
 import torch
 
-from lerobot_ccdp.benchmark import camera_cost, policy_cost
+from lerobot_ccdp.benchmark import camera_cost, policy_cost, synthesis_cost
 
 # The tools set torch's thread count; the test's own keeps the rest of the suite's.
 THREADS = ["--threads", str(torch.get_num_threads())]
@@ -42,3 +43,15 @@ def test_camera_cost_times_both_policies_on_the_same_camera_and_a_rendered_size(
     assert set(results["render_sizes"]) == {48} and results["render_sizes"][48]["env_step_ms"] > 0
     assert json.loads(out.read_text())["table"] == results["table"]
     assert "| render size 48x48 |" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("tool", [policy_cost, camera_cost, synthesis_cost])
+def test_a_work_folder_the_tool_did_not_make_is_refused_untouched(tool, tmp_path, capsys):
+    work = tmp_path / "mine"
+    work.mkdir()
+    (work / "keep.txt").write_text("mine")
+    with pytest.raises(SystemExit, match="Refusing --work"):
+        tool.main(
+            ["--work", str(work), "--out", str(tmp_path / "out.json")][: 2 if tool is synthesis_cost else 4]
+        )
+    assert [p.name for p in work.iterdir()] == ["keep.txt"]
