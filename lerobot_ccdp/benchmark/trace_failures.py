@@ -23,8 +23,8 @@ demonstrator prefers there (the env's `preferred_feasible_option`): the base's s
 accepted candidate keeps, so the method's minus the base's, per state, shows whether composition keeps the
 base's proportions (a `final_state` z of observation.state only: a draw's option is the option whose end,
 the last target of the env's own plan normalised with the checkpoint's state stats, lies nearest the draw's
-z). The extra draws come from torch's global generator: CCDP's own plans (common random numbers) are
-unchanged, DP*'s later rounds, which draw from it too, are not.
+z). The extra draws come from torch's global generator: CCDP's and DP*'s own plans (common random numbers,
+every DP* candidate from its row's stream) are unchanged.
 lerobot-eval's own output goes to a temporary folder.
 """
 

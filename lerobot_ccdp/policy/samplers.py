@@ -76,15 +76,15 @@ SAMPLERS: dict[str, Callable[[CCDPModel, PlanRows], Tensor]] = {
 def sample_without_repeats(model: CCDPModel, rows: PlanRows, candidates: int, rounds: int) -> Tensor:
     """One chunk per row that repeats none of its row's failures, by `dp_star.reject_repeats`: each round
     draws `candidates` chunks per pending row from the base with failures ignored (DP*), and labels them with
-    the outcome of the nearest demonstrated chunk. With row streams, each row's first candidate of the first
-    round draws from its row's stream, later draws from torch's global generator."""
+    the outcome of the nearest demonstrated chunk. With row streams every candidate draws from its row's
+    (`candidate_streams`), so DP* is reproducible whatever else consumed torch's global generator."""
     cfg = model.config
     state, history, z, z_mask = rows.state, rows.history, rows.z, rows.z_mask
-    first_round = iter([first_candidates(rows.streams, candidates)])
+    round_index = iter(range(rounds))
 
     def draw(pending: Tensor) -> tuple[Tensor, Tensor]:
         r = pending.shape[0]
-        generators = next(first_round, None)
+        generators = candidate_streams(rows.streams, pending.tolist(), candidates, next(round_index))
         noise = draw_noise((r * candidates, cfg.horizon, cfg.action_dim), generators, state.device)
         chunks = model.denoise(
             noise,
@@ -120,12 +120,26 @@ def row_generators(rollout: int, rows: int) -> list[torch.Generator]:
     ]
 
 
-def first_candidates(streams: list[torch.Generator] | None, candidates: int) -> list[torch.Generator] | None:
-    """Generators for `candidates` draws per row: each row's first candidate from the row's stream, the others
-    from torch's global generator, so the first candidate is the chunk a method without candidates plans."""
+def candidate_streams(
+    streams: list[torch.Generator] | None, rows: list[int], candidates: int, round_index: int
+) -> list[torch.Generator] | None:
+    """Generators for `candidates` draws per row of `rows` in DP*'s round `round_index`: the first round's
+    first candidate from the row's own stream (the chunk a method without candidates plans), every other one
+    from a generator seeded from (the row stream's seed, the round, the candidate)."""
     if streams is None:
         return None
-    return [g for stream in streams for g in [stream] + [torch.default_generator] * (candidates - 1)]
+
+    def child(stream: torch.Generator, candidate: int) -> torch.Generator:
+        seed = np.random.SeedSequence([stream.initial_seed(), round_index, candidate]).generate_state(
+            1, np.uint64
+        )
+        return torch.Generator().manual_seed(int(seed[0] >> np.uint64(1)))
+
+    return [
+        streams[row] if round_index == 0 and candidate == 0 else child(streams[row], candidate)
+        for row in rows
+        for candidate in range(candidates)
+    ]
 
 
 def draw_noise(

@@ -57,3 +57,23 @@ def test_row_streams_follow_torch_seed_rollout_and_row(seed):
 
     assert first_draws(seed, 0) == first_draws(seed, 0)
     assert len({*first_draws(seed, 0), *first_draws(seed, 1), *first_draws(seed + 1, 0)}) == 6
+
+
+def test_dp_star_with_row_streams_plans_the_same_whatever_else_drew_from_torch():
+    """Every DP* candidate draws from its row's stream: a second run whose global generator was advanced in
+    between (other code drawing noise) plans the same after a failure (issue 114: it did not)."""
+
+    def after_failure(advance: int) -> torch.Tensor:
+        torch.manual_seed(7)
+        policy = make_policy(
+            recovery_mode="dp_star", row_noise_streams=True, dp_star_candidates=4, delta_z=1e9
+        )
+        policy.model.recovery_trained.fill_(True)
+        obs = {"observation.state": torch.zeros(ROWS, 2)}
+        with torch.inference_mode():
+            policy.predict_action_chunk(obs)
+            policy.report_failure([0])
+            torch.randn(advance)  # another user of torch's global generator
+            return policy.predict_action_chunk(obs)
+
+    torch.testing.assert_close(after_failure(0), after_failure(1000), atol=0, rtol=0)
