@@ -2,7 +2,8 @@
 tasks, and the measuring tools, each `python -m lerobot_ccdp.benchmark.<tool> --help`:
 
 - `tune_methods`: a recovery method's settings on the development seeds; `pool_pairs` pools such comparisons
-  over trainings; `trace_failures`: why a method's episodes are lost.
+  over trainings; `trace_failures`: why a method's episodes are lost; `trainings`: a round's table over
+  several trainings of every task.
 - `policy_cost` / `camera_cost`: planning latency and training step against LeRobot's diffusion policy
   (state, camera); `synthesis_cost`: synthesis and training times, and the paper's Fig. 2 on the 2-D task.
 - `preference_family`: recovery and demonstrated preferences on the seeded 2-D family (issue 17);
