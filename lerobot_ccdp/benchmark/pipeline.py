@@ -320,8 +320,13 @@ class TaskRun:
         eval_seed: int | None = None,
         eval_episodes: int | None = None,
         jobs: int = 1,
+        train_seed: int | None = None,
     ):
         self.files = files
+        # None: the configs' and the recipe's own seeds, which no command then names (their stamps stay those
+        # of the files); else every random draw of the training (both stages and the synthesis between them)
+        self.seed_flags = [] if train_seed is None else [f"--seed={train_seed}"]
+        self.synthesis_seed_flags = [] if train_seed is None else [f"--recovery.seed={train_seed}"]
         # Stages run `jobs` at a time (`run_at_once`, at most `jobs` commands at once), each with
         # `stage_threads(jobs)` torch threads.
         self.jobs = jobs
@@ -412,6 +417,7 @@ class TaskRun:
                     f"--policy.path={base}",
                     f"--output.repo_id={recovery_repo}",
                     f"--output.root={f.recovery_data}",
+                    *self.synthesis_seed_flags,
                 ],
                 upstream=base_stamp,
                 clear=f.recovery_data,
@@ -463,6 +469,7 @@ class TaskRun:
                 f"--dataset.repo_id={repo_id}",
                 f"--dataset.root={root}",
                 f"--output_dir={out}",
+                *self.seed_flags,
                 *extra,
             ],
             upstream=upstream,
@@ -807,7 +814,7 @@ def run_tasks(
     claim_output_folder(args.out, CREATED_BY, args.fresh, args.adopt)
     runs, episodes = [], {}
     for f in files:
-        run = TaskRun(f, args.eval_seed, args.eval_episodes, args.jobs)
+        run = TaskRun(f, args.eval_seed, args.eval_episodes, args.jobs, args.train_seed)
         episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
         runs.append(run)
         if episodes[f.task]:
@@ -931,6 +938,14 @@ def main(argv: list[str] | None = None) -> None:
         "simulation runs on one core, which leaves the other idle while it steps (2 on 2 cores: 0.59 of the "
         "wall time of one at a time, same figures; each stage's time is then taken beside another: "
         "docs/benchmarks.md, Speed)",
+    )
+    parser.add_argument(
+        "--train-seed",
+        type=int,
+        default=None,
+        help="seed of the training: both lerobot-train stages' --seed and the synthesis' --recovery.seed "
+        "(default: the configs' and recipe's, 0). One --out per training seed; compare trainings with "
+        "python -m lerobot_ccdp.benchmark.pool_pairs",
     )
     parser.add_argument(
         "--train-only",

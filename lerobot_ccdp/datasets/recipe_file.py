@@ -112,10 +112,11 @@ class RecoveryRecipe:
     failure_state_dims: list[int] | None = None  # final_state z: which dims of the state frame; []: all
     primitive_key: str | None = None  # primitive z: the dataset column of the option label
     num_primitives: int | None = None  # primitive z: the number of options (z is one-hot)
-    n_states: int = 512  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
+    # The defaults are the five Panda tasks' synthesis as benchmarked (docs/synthesis.md, "Why these values").
+    n_states: int = 2048  # demo states x_s drawn (eq. 6); 0 = pairs from the demos only
     chunks_per_state: int = 16  # chunks sampled around each x_s from eq. (7)
-    sigma: float = 0.02  # std of the state noise xi_x (eq. 6)
-    w_s: float = 0.8  # state weight of eq. (7); <= 1 widens the proposals
+    sigma: float = 0.04  # std of the state noise xi_x (eq. 6)
+    w_s: float = 1.0  # state weight of eq. (7); < 1 widens the proposals (jagged chunks on a CPU-sized base)
     # drop sampled chunks whose RMS gap to every demonstrated chunk exceeds this; 0 keeps all
     outcome_radius: float = 0.0
     demo_frames: int = 4096  # demonstrated chunks that join the pool; 0 = synthesised chunks only
@@ -123,7 +124,8 @@ class RecoveryRecipe:
     demo_siblings: bool = False
     # eq. (5): a recovery's z differs from the failure's by more than this; null: the checkpoint's delta_z
     delta_z: float | None = None
-    delta_x: float = 0.01  # eq. (5): ... and its state from the failure's by less than this
+    # eq. (5): ... and its state from the failure's by less than this; 100 admits every normalised state
+    delta_x: float = 100.0
     pairs_per_failure: int = 2  # recoveries drawn per pool sample taken as a failure
     batch_states: int = 32  # states sampled per batched denoising call
     seed: int = 0  # seed of every random draw (states, noise, pairs)

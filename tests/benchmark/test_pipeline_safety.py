@@ -511,3 +511,20 @@ def test_baselines_are_evaluated_on_the_base_beside_the_recovery_stage(root, mon
     }
     assert fake.most == jobs  # side by side with 2 jobs, never more commands at once than jobs
     assert fake.threads == {pipeline.stage_threads(jobs)}
+
+
+def test_a_training_seed_reaches_both_trainings_and_the_synthesis_and_reruns_them(root, stages):
+    """`--train-seed S` (issue 114's trainings 0 / 1 / 2): both lerobot-train stages get `--seed=S` and the
+    synthesis `--recovery.seed=S`; the recording does not (the data are the task's); without it no command
+    names a seed, so a run of the configs' own seeds keeps its stamps."""
+    run("out")
+    assert not any(a.startswith(("--seed=", "--recovery.seed=")) for c in stages.commands for a in c)
+    stages.commands.clear()
+    run("out", "--train-seed", "2")
+    seeded = [(Path(c[0]).name, [a for a in c if "seed=" in a]) for c in stages.commands]
+    # the recording is reused (the data are the task's), everything after it trained again
+    assert seeded == [
+        ("lerobot-train", ["--seed=2"]),
+        ("lerobot-ccdp-synthesize", ["--recovery.seed=2"]),
+        ("lerobot-train", ["--seed=2"]),
+    ]
