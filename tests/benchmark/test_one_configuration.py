@@ -1,0 +1,120 @@
+"""Issue 114's one configuration: a Panda task's settings folder describes the task and its data, and CCDP's
+method settings are `CCDPConfig`'s and `RecoveryRecipe`'s defaults.
+
+A task folder may hold what describes the task and its data (the dataset and output paths, the chunk length,
+what z is and where the demos mark an option's end, the training seeds and sizes) and nothing that tunes the
+method. Every method setting a folder still sets is listed in OPEN_DEPARTURES, the part of issue 114 not done:
+a new one, or one of them changed, fails here, and one folded into the defaults is taken off the list.
+"""
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from lerobot_ccdp.benchmark.pipeline import TaskFiles, task_slug
+from lerobot_ccdp.datasets.recipe_file import Z_FIELDS
+from lerobot_ccdp.envs import TASKS
+
+REPO = Path(__file__).resolve().parents[2]
+CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
+PANDA = [t for t in TASKS if "lite" not in t]
+
+# train_base.json's policy fields that describe the task and its data: the chunk (horizon, steps executed
+# per plan), what z is (Z_FIELDS: the option label, or which state dims) and where a label-free demo's
+# option ends.
+TASK_POLICY_FIELDS = {"type", "push_to_hub", "horizon", "n_action_steps", "failure_segments", *Z_FIELDS}
+# The training files' own fields: paths, seed, sizes and logging (their length follows the rule of
+# configs/README.md, "Training length").
+TRAINING_FIELDS = {"dataset", "policy", "output_dir", "seed", "steps", "batch_size", "num_workers"}
+TRAINING_FIELDS |= {"log_freq", "save_freq", "wandb"}
+
+# Method settings the folders still set, as `file: {field: value}` (methods.json as `method.field`). The
+# recovery head is the set denoiser in every folder while CCDPConfig's default is the paper's `unet`.
+SET_DENOISER = {"train_base": {"recovery_head": "set_denoiser"}}
+OPEN_DEPARTURES = {
+    **{task_slug(t): SET_DENOISER for t in PANDA if "Bartender" not in t},
+    "bartender": {
+        "train_base": {"recovery_head": "set_denoiser", "failure_label_at": "attempt_end"},
+        "methods": {"ccdp.w_z": 1, "ccdp.failure_guard_steps": 8, "ccdp.failure_guard_weight": 8},
+    },
+    **{
+        f"{task_slug(t)}_label_free": {
+            "train_base": {"recovery_head": "set_denoiser", "failure_state_at": "demonstrated_end"}
+        }
+        for t in PANDA
+        if "Bartender" not in t
+    },
+    "bartender_label_free": {
+        "train_base": {
+            "recovery_head": "set_denoiser",
+            "z_fourier_octaves": 4,
+            "stratum_weights": True,
+            "state_failure_sets": 0.5,
+        },
+        "methods": {
+            "dp_star.delta_z": 0.05,
+            "ccdp.delta_z": 0.05,
+            "ccdp.w_z": 1,
+            "ccdp.failure_guard_steps": 4,
+            "ccdp.failure_guard_weight": 8,
+        },
+        "recipe": {"chunks_per_state": 128, "demo_siblings": True},
+    },
+}
+OPEN_DEPARTURES["button_search_label_free"] = {
+    "train_base": {**OPEN_DEPARTURES["button_search_label_free"]["train_base"], "z_fourier_octaves": 4}
+}
+
+
+def method_settings(files: TaskFiles) -> dict[str, dict]:
+    """Every method setting of a task's folder and recipe, by file (only the files that set one)."""
+    base = json.loads(files.train_base.read_text())
+    found = {"train_base": {k: v for k, v in base["policy"].items() if k not in TASK_POLICY_FIELDS}}
+    for name, path in (("train_base", files.train_base), ("train_recovery", files.train_recovery)):
+        extra = set(json.loads(path.read_text())) - TRAINING_FIELDS
+        found.setdefault(name, {}).update({k: json.loads(path.read_text())[k] for k in extra})
+    methods = files.eval.with_name("methods.json")
+    if methods.is_file():
+        found["methods"] = {
+            f"{method}.{k}": v
+            for method, fields in json.loads(methods.read_text()).items()
+            for k, v in fields.items()
+        }
+    recovery = yaml.safe_load(files.recipe.read_text())["recovery"] or {}
+    found["recipe"] = {k: v for k, v in recovery.items() if k not in Z_FIELDS}
+    return {name: fields for name, fields in found.items() if fields}
+
+
+@pytest.mark.parametrize("label_free", [False, True], ids=["labelled", "label_free"])
+@pytest.mark.parametrize("task", PANDA)
+def test_a_task_folder_sets_no_method_setting_but_the_open_departures(task, label_free, tmp_path):
+    files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path, label_free=label_free)
+    slug = task_slug(task) + ("_label_free" if label_free else "")
+    assert method_settings(files) == OPEN_DEPARTURES[slug]
+
+
+def test_a_method_setting_in_a_task_folder_is_found(tmp_path):
+    """The check reads every place a setting can hide: a field of the base's policy, a training file's own
+    field, methods.json and the recipe's synthesis fields."""
+    files = TaskFiles.locate("DoorOpening-v0", CONFIGS, RECIPES, tmp_path)
+    copy = {}
+    for name in ("train_base", "train_recovery", "eval"):
+        copy[name] = tmp_path / "configs" / "door_opening" / f"{name}.json"
+        copy[name].parent.mkdir(parents=True, exist_ok=True)
+        copy[name].write_text(getattr(files, name).read_text())
+    base = json.loads(copy["train_base"].read_text())
+    base["policy"]["w_z"] = 2.0
+    copy["train_base"].write_text(json.dumps(base))
+    (copy["eval"].parent / "methods.json").write_text(json.dumps({"dp_star": {"dp_star_candidates": 64}}))
+    recipe = yaml.safe_load(files.recipe.read_text())
+    recipe["recovery"] = {"sigma": 0.05, "failure_feature": "primitive"}
+    (tmp_path / "recipes").mkdir()
+    (tmp_path / "recipes" / "door_opening.yaml").write_text(yaml.safe_dump(recipe))
+    changed = TaskFiles.locate("DoorOpening-v0", tmp_path / "configs", tmp_path / "recipes", tmp_path / "out")
+    assert method_settings(changed) == {
+        "train_base": {"recovery_head": "set_denoiser", "w_z": 2.0},
+        "methods": {"dp_star.dp_star_candidates": 64},
+        "recipe": {"sigma": 0.05},
+    }
