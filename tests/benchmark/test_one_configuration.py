@@ -25,8 +25,8 @@ PANDA = [t for t in TASKS if "lite" not in t]
 # per plan), what z is (Z_FIELDS: the option label, or which state dims) and where a label-free demo's
 # option ends.
 TASK_POLICY_FIELDS = {"type", "push_to_hub", "horizon", "n_action_steps", "failure_segments", *Z_FIELDS}
-# The training files' own fields: paths, seed, sizes and logging (their length follows the rule of
-# configs/README.md, "Training length").
+# The training files' own fields: paths, seed, sizes and logging (configs/README.md says how long each
+# stage trains).
 TRAINING_FIELDS = {"dataset", "policy", "output_dir", "seed", "steps", "batch_size", "num_workers"}
 TRAINING_FIELDS |= {"log_freq", "save_freq", "wandb"}
 
