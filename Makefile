@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export HF_HUB_OFFLINE := 1
 export MUJOCO_GL ?= egl
 
-.PHONY: install lint test test-slow train-local clean quickstart benchmark benchmark-lite benchmark-pixels benchmark-label-free results
+.PHONY: install lint test test-slow train-local clean quickstart benchmark benchmark-lite benchmark-pixels benchmark-label-free results settings-table
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -82,3 +82,8 @@ results: install
 	$(PY) -m lerobot_ccdp.benchmark.results --readme README.md \
 		--run "With option labels (make benchmark)" $(ROUND_TASKS:%=docs/benchmark/%.json) \
 		--run "Without labels (make benchmark-label-free)" $(ROUND_TASKS:%=docs/benchmark_label_free/%.json)
+
+# configs/README.md's table of what each settings folder sets beyond the defaults, written from the files
+# (lerobot_ccdp/benchmark/task_settings.py); a test fails when it is stale.
+settings-table: install
+	$(PY) -m lerobot_ccdp.benchmark.task_settings --write

@@ -9,6 +9,8 @@ tasks, and the measuring tools, each `python -m lerobot_ccdp.benchmark.<tool> --
 - `preference_family`: recovery and demonstrated preferences on the seeded 2-D family (issue 17);
   `segment_agreement`: label-free option ends against the labelled ones; `task_stats`: simulation speed,
   recording time and the no-repeat oracle per task.
+- `task_settings`: what each settings folder under configs/ sets beyond the defaults, the table in
+  configs/README.md (`--write`, `--check`).
 
 These were scripts under `benchmarks/` until 0032ef5; that commit also holds the two finished one-offs left
 out here (`bench_failure_feature.py`, `bench_import.py`), whose figures docs/design_choices.md keeps.

@@ -385,13 +385,14 @@ def write_results(runs: list[tuple[str, Run]], out: Path, command: str, readme: 
     return text
 
 
-def with_block(path: Path, body: str) -> str:
-    """`path`'s text with `body` between its results markers, refusing a file without them."""
+def with_block(path: Path, body: str, begin: str = README_BEGIN, end: str = README_END) -> str:
+    """`path`'s text with `body` between its `begin` and `end` markers (the results table's by default),
+    refusing a file without them."""
     text = path.read_text()
-    pattern = re.compile(re.escape(README_BEGIN) + r".*?" + re.escape(README_END), re.S)
+    pattern = re.compile(re.escape(begin) + r".*?" + re.escape(end), re.S)
     if not pattern.search(text):
-        raise ValueError(f"{path} has no results block: add the lines\n{README_BEGIN}\n{README_END}")
-    return pattern.sub(lambda _: f"{README_BEGIN}\n{body}\n{README_END}", text)
+        raise ValueError(f"{path} has no block for this table: add the lines\n{begin}\n{end}")
+    return pattern.sub(lambda _: f"{begin}\n{body}\n{end}", text)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -14,21 +14,12 @@ import pytest
 import yaml
 
 from lerobot_ccdp.benchmark.pipeline import TaskFiles, task_slug
-from lerobot_ccdp.datasets.recipe_file import Z_FIELDS
+from lerobot_ccdp.benchmark.task_settings import method_settings
 from lerobot_ccdp.envs import TASKS
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
 PANDA = [t for t in TASKS if "lite" not in t]
-
-# train_base.json's policy fields that describe the task and its data: the chunk (horizon, steps executed
-# per plan), what z is (Z_FIELDS: the option label, or which state dims) and where a label-free demo's
-# option ends.
-TASK_POLICY_FIELDS = {"type", "push_to_hub", "horizon", "n_action_steps", "failure_segments", *Z_FIELDS}
-# The training files' own fields: paths, seed, sizes and logging (configs/README.md says how long each
-# stage trains).
-TRAINING_FIELDS = {"dataset", "policy", "output_dir", "seed", "steps", "batch_size", "num_workers"}
-TRAINING_FIELDS |= {"log_freq", "save_freq", "wandb"}
 
 # Method settings the folders still set, as `file: {field: value}` (methods.json as `method.field`). The
 # recovery head is the set denoiser in every folder while CCDPConfig's default is the paper's `unet`.
@@ -66,25 +57,6 @@ OPEN_DEPARTURES = {
 OPEN_DEPARTURES["button_search_label_free"] = {
     "train_base": {**OPEN_DEPARTURES["button_search_label_free"]["train_base"], "z_fourier_octaves": 4}
 }
-
-
-def method_settings(files: TaskFiles) -> dict[str, dict]:
-    """Every method setting of a task's folder and recipe, by file (only the files that set one)."""
-    base = json.loads(files.train_base.read_text())
-    found = {"train_base": {k: v for k, v in base["policy"].items() if k not in TASK_POLICY_FIELDS}}
-    for name, path in (("train_base", files.train_base), ("train_recovery", files.train_recovery)):
-        extra = set(json.loads(path.read_text())) - TRAINING_FIELDS
-        found.setdefault(name, {}).update({k: json.loads(path.read_text())[k] for k in extra})
-    methods = files.eval.with_name("methods.json")
-    if methods.is_file():
-        found["methods"] = {
-            f"{method}.{k}": v
-            for method, fields in json.loads(methods.read_text()).items()
-            for k, v in fields.items()
-        }
-    recovery = yaml.safe_load(files.recipe.read_text())["recovery"] or {}
-    found["recipe"] = {k: v for k, v in recovery.items() if k not in Z_FIELDS}
-    return {name: fields for name, fields in found.items() if fields}
 
 
 @pytest.mark.parametrize("label_free", [False, True], ids=["labelled", "label_free"])

@@ -149,7 +149,7 @@ def test_the_command_refuses_a_readme_without_the_markers_and_other_files(tmp_pa
     readme, results = tmp_path / "README.md", tmp_path / "r.md"
     command = ["--run", "Door", str(tmp_path / "run.json"), "--out", str(results), "--readme", str(readme)]
     readme.write_text("# no markers\n")
-    with pytest.raises(SystemExit, match="no results block"):
+    with pytest.raises(SystemExit, match="has no block for this table"):
         main(command)
     assert not results.exists()  # nothing written when the README cannot take the table
     (tmp_path / "other.json").write_text('{"task": {}}')
