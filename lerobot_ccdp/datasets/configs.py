@@ -59,6 +59,9 @@ class CheckpointConfig:
     path: Path
     # where the policy runs, e.g. cpu or cuda; null: the checkpoint's, or cpu if absent
     device: str | None = None
+    # the recovery head whose rows to write (pairs for unet, base samples for set_denoiser), for another head
+    # of the same base (lerobot-train's --policy.recovery_head at the recovery stage); null: the checkpoint's
+    recovery_head: str | None = None
 
 
 @dataclass

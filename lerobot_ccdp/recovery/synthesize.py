@@ -387,10 +387,15 @@ def synthesize_recovery_dataset(
     progress: bool = True,
     recipe_source: str = "recipe",
     device: str | None = None,
+    recovery_head: str | None = None,
 ) -> Path:
     """Write the recovery dataset of `recipe` at `out_root` (atomically) and return `out_root`. The pool and
-    the dataset are built on the CPU; the policy's networks run on `device` (see `synthesis_device`)."""
+    the dataset are built on the CPU; the policy's networks run on `device` (see `synthesis_device`). The rows
+    are those `recovery_head` trains on (None: the checkpoint's head), so that another head of the same base
+    (lerobot-train's --policy.recovery_head at the recovery stage) gets its own."""
     started = time.perf_counter()
+    if recovery_head is not None:
+        head_class(recovery_head)  # a wrong name, before minutes of loading and sampling
     # Before minutes of loading and sampling, not after.
     inputs = {"--dataset.root": demo_root}
     if Path(policy_path).is_dir():  # a local checkpoint folder, not a Hub repo id
@@ -401,12 +406,12 @@ def synthesize_recovery_dataset(
     policy, stats = load_checkpoint(policy_path, device)
     config = policy.config
     recipe = recipe.for_checkpoint(config, recipe_source)  # z as the base was trained with
-    head = head_class(config.recovery_head)
+    head = head_class(recovery_head or config.recovery_head)
     if recipe.demo_siblings and head.training_data != "base_samples":
         raise ValueError(
             f"recovery.demo_siblings gives demonstrated rows the siblings that only the set denoiser's rows "
-            f"carry, and {policy_path} has recovery_head={config.recovery_head!r}: remove "
-            "recovery.demo_siblings, or train the base with --policy.recovery_head=set_denoiser."
+            f"carry, and the rows are for recovery_head={head.name!r}: pass --recovery.demo_siblings=false, "
+            "or write the set denoiser's rows (--policy.recovery_head=set_denoiser)."
         )
     if config.failure_feature != "action" and len(policy.model.outcomes) == 0:
         raise ValueError(
@@ -471,6 +476,7 @@ def synthesize_recovery_dataset(
         record = {
             "recovery": asdict(recipe),
             "source": {"repo_id": demo_repo_id, "root": str(demo_root), "policy_path": str(policy_path)},
+            "recovery_head": head.name,
             "result": result,
         }
         (path / RECIPE_COPY).write_text(yaml.safe_dump(record, sort_keys=False))
@@ -561,6 +567,7 @@ def main(args: list[str] | None = None) -> None:
         overwrite=cfg.overwrite,
         recipe_source=source,
         device=cfg.policy.device,
+        recovery_head=cfg.policy.recovery_head,
     )
 
 

@@ -297,6 +297,39 @@ def test_refuses_demo_siblings_for_a_head_without_siblings(reaching_root, tmp_pa
     assert not (tmp_path / "r").exists()
 
 
+def test_a_set_denoiser_base_writes_the_eps_z_heads_pairs_when_asked(reaching_root, tmp_path):
+    """`--policy.recovery_head=unet` on a base whose own head is the set denoiser writes the pairs of eq. (5)
+    that eq. (4)'s eps_z heads train on (the benchmark's `ccdp_eps_z` column, beside the task's own head),
+    not the set denoiser's one-chunk rows, and records the head it wrote for; the recipe's set-denoiser
+    option `demo_siblings` is refused for them with the flag that turns it off."""
+    settings = {**FEATURE_SETTINGS["primitive"], "recovery_head": "set_denoiser", "history_length": 0}
+    checkpoint = untrained_checkpoint(reaching_root, tmp_path / "base", **settings)
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text(yaml.safe_dump({"recovery": {**SMALL, "demo_siblings": True}}))
+    command = [
+        f"--config_path={recipe}",
+        f"--dataset.repo_id={REACHING_REPO_ID}",
+        f"--dataset.root={reaching_root}",
+        f"--policy.path={checkpoint}",
+        "--policy.recovery_head=unet",
+        f"--output.root={tmp_path / 'pairs'}",
+    ]
+    with pytest.raises(ValueError, match=r"recovery_head='unet': pass --recovery.demo_siblings=false"):
+        synthesize.main(command)
+    synthesize.main([*command, "--recovery.demo_siblings=false"])
+    rows = LeRobotDataset("local/pairs", root=tmp_path / "pairs")
+    assert FAILURE_ACTION in rows.features and SIBLING_FEATURES_KEY not in rows.features
+    assert yaml.safe_load((tmp_path / "pairs" / RECIPE_COPY).read_text())["recovery_head"] == "unet"
+    # every row a pair of eq. (5): the recovery's z away from the failure's
+    policy, normalized = normalized_rows(checkpoint, tmp_path / "pairs", chunk_column=ACTION)
+    z_recovery = policy.model.feature.from_chunk(normalized[ACTION], policy.model.outcomes)
+    distance = ((z_recovery - normalized[FAILURE_FEATURE_KEY]) ** 2).sum(dim=-1)
+    assert len(distance) and (distance > policy.config.delta_z - 1e-4).all()
+    with pytest.raises(ValueError, match=r"recovery_head='unett' names no head"):
+        synthesize.main([*command[:-2], "--policy.recovery_head=unett", f"--output.root={tmp_path / 'x'}"])
+    assert not (tmp_path / "x").exists()
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [
