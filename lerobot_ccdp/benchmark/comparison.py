@@ -36,11 +36,15 @@ from lerobot_ccdp.benchmark.paired import (
 from lerobot_ccdp.benchmark.published import CHART_MARK
 from lerobot_ccdp.envs.tasks import task_family
 
+# The paper's own form beside CCDP's shipped head: eq. (4) with the eps_z heads (`recovery_head=unet`), one
+# sample per plan, a head of its own trained from the same base (`lerobot_ccdp.benchmark.pipeline`).
+EPS_Z = "ccdp_eps_z"
 METHOD_LABELS = {
     "dp": "DP",
     "dp_star": "DP*",
     "dp_star_matched": "DP* at CCDP's cost",
     "ccdp": "CCDP",
+    EPS_Z: "CCDP, eq. (4) eps_z heads",
     "oracle": "no-repeat oracle",
 }
 METRIC_LABELS = {

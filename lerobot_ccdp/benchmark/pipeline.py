@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import itertools
 import json
 import os
 import platform
@@ -43,6 +44,7 @@ import gymnasium as gym
 import torch
 
 from lerobot_ccdp.benchmark.comparison import (
+    EPS_Z,
     METHOD_LABELS,
     Episodes,
     MethodMetrics,
@@ -64,16 +66,41 @@ from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 from lerobot_ccdp.envs.tasks import is_lite
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 from lerobot_ccdp.policy.heads import head_class
+from lerobot_ccdp.policy.heads.registry import HEADS
 
-METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp")
+METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp", EPS_Z)
+# `--methods` unless told: the comparison with the task's own head. EPS_Z, the paper's own form beside it,
+# trains a head of its own (hours on a Panda task), so it runs only when asked.
+DEFAULT_METHODS = METHODS[:4]
 # The recovery_mode each method evaluates with. "dp_star_matched" is the compute-matched baseline: DP* with
 # its own settings (how it reads z) but the candidates that fit in CCDP's measured per-plan cost
 # (MATCHED_DP_STAR unless methods.json names its own), so that CCDP - matched DP* shows what composition buys
 # over rejection at equal compute.
-RECOVERY_MODE = {"dp": "dp", "dp_star": "dp_star", "dp_star_matched": "dp_star", "ccdp": "ccdp"}
-# The methods that sample the recovery head; the others sample the base alone and are evaluated on the base's
-# checkpoint while the recovery stage is synthesised and trained beside them.
-HEAD_METHODS = ("ccdp",)
+RECOVERY_MODE = {
+    "dp": "dp",
+    "dp_star": "dp_star",
+    "dp_star_matched": "dp_star",
+    "ccdp": "ccdp",
+    EPS_Z: "ccdp",
+}
+
+
+@dataclass(frozen=True)
+class HeadStages:
+    """A recovery head trained from the task's base: which (None: the task's own, train_base.json's
+    `recovery_head`; a name: that head, `--policy.recovery_head` at synthesis and training) and the suffix of
+    its stages and folders (`synthesize<suffix>`, `train_recovery<suffix>`, `recovery_data<suffix>/`,
+    `recovery<suffix>/`)."""
+
+    head: str | None = None
+    suffix: str = ""
+
+
+# The methods that sample a recovery head, and the head each samples: CCDP the task's own, EPS_Z eq. (4)'s
+# eps_z heads (`unet`), synthesised with the task's recipe and trained with its train_recovery.json from the
+# same base. The other methods sample the base alone and are evaluated on the base's checkpoint while the
+# heads are synthesised and trained beside them.
+HEAD_METHODS = {"ccdp": HeadStages(), EPS_Z: HeadStages("unet", "_eps_z")}
 MATCHED_DP_STAR = {"dp_star_candidates": 2, "dp_star_rounds": 1}
 # Every method's evaluation runs with `--env.render_mode=null`, so its wall time measures the method alone (on
 # the Panda each rendered frame costs about 40 ms, and LeRobot renders 10 envs at every step of the first
@@ -307,6 +334,11 @@ class TaskFiles:
     def eval_dir(self, method: str) -> Path:
         return self.out / "eval" / method
 
+    def recovery_out(self, method: str = "ccdp") -> Path:
+        """The recovery stage's folder of the head `method` samples (the task's own unless HEAD_METHODS
+        names another)."""
+        return self.out / f"recovery{HEAD_METHODS.get(method, HeadStages()).suffix}"
+
     def video_dir(self, method: str) -> Path:
         return self.out / "videos" / method
 
@@ -344,7 +376,9 @@ class TaskRun:
         timings_path = files.out / "timings.json"
         self.timings: dict[str, float] = json.loads(timings_path.read_text()) if timings_path.exists() else {}
 
-    def run(self, methods: list[str]) -> dict[str, Episodes]:
+    def run(self, methods: list[str], evaluate: bool = True) -> dict[str, Episodes]:
+        """Every stage `methods` need, and (`evaluate`) their evaluations: the task's own head always, and
+        the head of each method of another head (HEAD_METHODS)."""
         f = self.files
         demos = self._stage(
             "record",
@@ -387,49 +421,69 @@ class TaskRun:
                 for stage, method, out, videos in stages
             ]
 
-        def recovery_lane() -> None:
-            recovery, recovery_stamp = self._recovery(base, base_stamp)
-            heads = [m for m in methods if m in HEAD_METHODS]
-            run_at_once(self.jobs, evaluations(recovery, recovery_stamp, heads))
+        def head_lane(stages: HeadStages) -> Callable[[], None]:
+            def lane() -> None:
+                recovery, recovery_stamp = self._recovery(base, base_stamp, stages)
+                sampled = [m for m in methods if HEAD_METHODS.get(m) == stages] if evaluate else []
+                run_at_once(self.jobs, evaluations(recovery, recovery_stamp, sampled))
 
-        # The baselines sample the base alone, so they are evaluated on the base's checkpoint (the recovery
-        # checkpoint holds the same weights, frozen in its stage) while the recovery stage is made beside.
-        baselines = evaluations(base, base_stamp, [m for m in methods if m not in HEAD_METHODS])
-        run_at_once(self.jobs, [recovery_lane, *baselines])
-        return self.episodes(methods) if methods else {}
+            return lane
 
-    def _recovery(self, base: Path, base_stamp: str) -> tuple[Path, str]:
-        """Synthesise the recovery rows from `base` (unless the head learns from the demonstrations) and train
-        the recovery stage on them; return its checkpoint and stamp."""
+        # The task's own head always (the checkpoint --train-only leaves for tune_methods), then each other
+        # head a method samples. The baselines sample the base alone, so they are evaluated on the base's
+        # checkpoint (a recovery checkpoint holds the same weights, frozen in its stage) while the heads are
+        # made beside.
+        heads = dict.fromkeys([HeadStages(), *(HEAD_METHODS[m] for m in methods if m in HEAD_METHODS)])
+        baselines = [m for m in methods if m not in HEAD_METHODS] if evaluate else []
+        run_at_once(self.jobs, [*map(head_lane, heads), *evaluations(base, base_stamp, baselines)])
+        return self.episodes(methods) if evaluate and methods else {}
+
+    def _recovery(self, base: Path, base_stamp: str, stages: HeadStages) -> tuple[Path, str]:
+        """Synthesise the rows of the head of `stages` from `base` (unless the head learns from the
+        demonstrations) and train the recovery stage on them; return its checkpoint and stamp."""
         f = self.files
-        if head_class(f.recovery_head()).training_data == "demonstrations":  # nothing to synthesise
+        head = head_class(stages.head or f.recovery_head())
+        # another head than the base config's: named at synthesis and training, and the settings only the
+        # base's head reads returned to their defaults, which that head would refuse
+        other = [] if stages.head is None else [f"--policy.recovery_head={head.name}"]
+        data = f.out / f"recovery_data{stages.suffix}"
+        if head.training_data == "demonstrations":  # nothing to synthesise
             recovery_repo, recovery_root, recovery_upstream = f"local/{self.slug}", f.demos, base_stamp
         else:
-            recovery_repo, recovery_root = f"local/{self.slug}_recovery", f.recovery_data
+            recovery_repo, recovery_root = f"local/{self.slug}_recovery{stages.suffix}", data
+            # the recipe's set-denoiser option, which no other head's rows carry
+            unused = other and head.training_data != "base_samples"
+            set_only = unused and RecoveryRecipe.load(f.recipe).demo_siblings
+            siblings = ["--recovery.demo_siblings=false"] if set_only else []
             recovery_upstream = self._stage(
-                "synthesize",
-                f.recovery_data / "meta" / "info.json",
+                f"synthesize{stages.suffix}",
+                data / "meta" / "info.json",
                 [
                     "lerobot-ccdp-synthesize",
                     f"--config_path={f.recipe}",
                     f"--dataset.repo_id=local/{self.slug}",
                     f"--dataset.root={f.demos}",
                     f"--policy.path={base}",
+                    *other,
+                    *siblings,
                     f"--output.repo_id={recovery_repo}",
-                    f"--output.root={f.recovery_data}",
+                    f"--output.root={data}",
                     *self.synthesis_seed_flags,
                 ],
                 upstream=base_stamp,
-                clear=f.recovery_data,
+                clear=data,
             )
+        if other:
+            other = [*other, *settings_of_other_heads(read_json(f.train_base).get("policy", {}), head.name)]
         return self._train(
-            "train_recovery",
+            f"train_recovery{stages.suffix}",
             f.train_recovery,
-            f.out / "recovery",
+            f.out / f"recovery{stages.suffix}",
             recovery_repo,
             recovery_root,
             f"--policy.path={base}",
             "--policy.training_stage=recovery",
+            *other,
             upstream=recovery_upstream,
         )
 
@@ -551,12 +605,24 @@ class TaskRun:
     def step_times(self) -> dict[str, tuple[float, float]]:
         """(update s, data s) per step from the last log line of each training stage."""
         times = {}
-        for stage in ("train_base", "train_recovery"):
-            log = self.logs / f"{stage}.log"
-            found = STEP_TIMES.findall(log.read_text()) if log.exists() else []
+        for log in sorted(self.logs.glob("train_*.log")):
+            found = STEP_TIMES.findall(log.read_text())
             if found:
-                times[stage] = tuple(float(v) for v in found[-1])
+                times[log.stem] = tuple(float(v) for v in found[-1])
         return times
+
+
+def settings_of_other_heads(policy: dict[str, Any], head: str) -> list[str]:
+    """`--policy.*` flags that return the settings of `policy` (a base config's) that only another head than
+    `head` reads to CCDPConfig's defaults: `head`, trained from that base, refuses them as settings that would
+    do nothing (`refuse_settings_of_other_heads`)."""
+    own, fields = set(head_class(head).own_settings), CCDPConfig.__dataclass_fields__
+    names = dict.fromkeys(name for other in HEADS.values() for name in other.own_settings if name not in own)
+    return [
+        f"--policy.{name}={json.dumps(fields[name].default)}"
+        for name in names
+        if policy.get(name) is not None and policy[name] != fields[name].default
+    ]
 
 
 def stage_threads(jobs: int) -> int:
@@ -678,16 +744,17 @@ def time_breakdown(runs: list[TaskRun]) -> str:
     return "\n".join(lines)
 
 
-def method_forms(runs: list[TaskRun]) -> str:
-    """Which form of each method ran: the seeds, and the settings of the evaluated checkpoint, the recipe's
-    synthesis and the methods' flags."""
+def method_forms(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]]) -> str:
+    """Which form of each method ran: the seeds, and the settings of the evaluated checkpoint (the task's own
+    head's, and that of each other head evaluated, on a row of its own), the recipe's synthesis and the
+    methods' flags."""
     lines = [
         "| task | seeds | z | eq. (4) weights | sampler | synthesis (eq. 5, 7) | recovery steps | DP* |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for r in runs:
-        checkpoint = r.files.out / "recovery" / CHECKPOINT / "config.json"
-        if not checkpoint.is_file():
+    for r, (method, stages) in itertools.product(runs, HEAD_METHODS.items()):
+        checkpoint = r.files.recovery_out(method) / CHECKPOINT / "config.json"
+        if not checkpoint.is_file() or (stages.head and method not in episodes.get(r.files.task, {})):
             continue
         c = json.loads(checkpoint.read_text())
         n = r.n_episodes
@@ -699,8 +766,8 @@ def method_forms(runs: list[TaskRun]) -> str:
             "delta_z": c["delta_z"],
             **r.files.method_settings("dp_star"),
         }
-        # the checkpoint's settings, as CCDP's flags changed them
-        ccdp = {**c, **r.files.method_settings("ccdp")}
+        # the checkpoint's settings, as the method's flags changed them
+        ccdp = {**c, **r.files.method_settings(method)}
         head = head_class(ccdp.get("recovery_head", CCDPConfig.recovery_head))
         pairs_delta_z = c["delta_z"] if recipe.delta_z is None else recipe.delta_z  # eq. (5)'s
         form = head.describe(ccdp)
@@ -712,11 +779,16 @@ def method_forms(runs: list[TaskRun]) -> str:
             ),
             "recovery_pairs": f"delta_x {recipe.delta_x:g}, delta_z {pairs_delta_z:g}, w_s {recipe.w_s:g}",
         }[head.training_data]
+        task = f"{r.files.task}, {METHOD_LABELS[method]}" if stages.head else r.files.task
         lines.append(
-            f"| {r.files.task} | {r.eval_seed}-{r.eval_seed + n - 1} | {z_description(ccdp)} | {form} | "
+            f"| {task} | {r.eval_seed}-{r.eval_seed + n - 1} | {z_description(ccdp)} | {form} | "
             f"{c['noise_scheduler_type']} {c['num_inference_steps']} steps | {synthesis} | {steps} | "
-            f"{dp_star['dp_star_candidates']} candidates, "
-            f"{dp_star['dp_star_rounds']} round(s), delta_z {dp_star['delta_z']:g} |"
+            + (
+                "- |"  # DP* samples the base, whose settings the task's own row gives
+                if stages.head
+                else f"{dp_star['dp_star_candidates']} candidates, "
+                f"{dp_star['dp_star_rounds']} round(s), delta_z {dp_star['delta_z']:g} |"
+            )
         )
     return "\n".join(lines)
 
@@ -763,7 +835,7 @@ def write_report(
         "episode i's plans from the same noise (`--policy.row_noise_streams=true`, common random numbers). "
         "The CCDP row of the composition is eq. (4) as `lerobot_ccdp/policy/composition.py` computes it "
         "with the evaluated checkpoint's weights (`docs/method.md`).",
-        method_forms(runs),
+        method_forms(runs, episodes),
         "## Targets",
         "Judged from paired 95% intervals (same seeds for every method): `docs/evaluation.md`.",
         target_checks(episodes),
@@ -815,7 +887,10 @@ def run_tasks(
     runs, episodes = [], {}
     for f in files:
         run = TaskRun(f, args.eval_seed, args.eval_episodes, args.jobs, args.train_seed)
-        episodes[f.task] = run.episodes(args.methods) if args.report_only else run.run(args.methods)
+        if args.report_only:
+            episodes[f.task] = run.episodes(args.methods)
+        else:
+            episodes[f.task] = run.run(args.methods, evaluate=not args.train_only)
         runs.append(run)
         if episodes[f.task]:
             print(
@@ -856,9 +931,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--methods",
         nargs="+",
-        default=list(METHODS),
+        default=list(DEFAULT_METHODS),
         choices=METHODS,
-        help="recovery modes to evaluate (the no-repeat oracle always runs)",
+        help=f"methods to evaluate (the no-repeat oracle always runs; default {' '.join(DEFAULT_METHODS)}). "
+        f"{EPS_Z}: the paper's eq. (4) with the eps_z heads (recovery_head=unet), one sample per plan, "
+        "synthesised and trained from the same base in stages of its own (synthesize_eps_z, "
+        "train_recovery_eps_z) and evaluated with CCDP's sampling on the same seeds and noise; with "
+        "--train-only, the heads of the methods named are trained",
     )
     parser.add_argument(
         "--out",
@@ -950,12 +1029,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--train-only",
         action="store_true",
-        help="record, train and synthesise, evaluate nothing and write no report (e.g. to tune a "
-        "method's settings on the development seeds: python -m lerobot_ccdp.benchmark.tune_methods)",
+        help="record, train and synthesise (the task's own head, and that of each --methods method of "
+        "another head), evaluate nothing and write no report (e.g. to tune a method's settings on the "
+        "development seeds: python -m lerobot_ccdp.benchmark.tune_methods)",
     )
     args = parser.parse_args(argv)
-    if args.train_only:
-        args.methods = []
     if args.jobs < 1:
         parser.error(f"--jobs {args.jobs}: run at least one evaluation at a time")
     if args.eval_episodes is not None and args.eval_episodes < 1:
@@ -1016,7 +1094,8 @@ def main(argv: list[str] | None = None) -> None:
         with exclusive(args.out):
             runs, episodes = run_tasks(files, args, command)
         if args.train_only:
-            print(f"Trained: {', '.join(str(f.out / 'recovery' / CHECKPOINT) for f in files)}")
+            heads = dict.fromkeys(f.recovery_out(m) for f in files for m in ["ccdp", *args.methods])
+            print(f"Trained: {', '.join(str(head / CHECKPOINT) for head in heads)}")
             return
         report = write_report(runs, episodes, args.out, command, chart=not args.no_chart)
         print(report)

@@ -5,7 +5,7 @@ The pipeline saves each run's episodes as JSON (`save_run`; `--publish` copies i
 e.g. `docs/benchmark_report.json`). This command reads those files and writes one table per run: per task,
 each method's success rate and repeats per attempt after a failure, and CCDP's paired differences of success
 against DP, DP* and DP* at CCDP's cost (`lerobot_ccdp.benchmark.paired`: episode i of both resampled
-together).
+together), and against the paper's eq. (4) with the eps_z heads where a run evaluated it (`ccdp_eps_z`).
 A column carries a method's name only if that method alone produced it: runs published with CCDP's plans
 redrawn through DP*'s outcome lookup carry "CCDP + k redraws (DP*'s lookup)", and one table never mixes the
 two.
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from lerobot_ccdp.benchmark.comparison import METHOD_LABELS, has_preference
+from lerobot_ccdp.benchmark.comparison import EPS_Z, METHOD_LABELS, has_preference
 from lerobot_ccdp.benchmark.episodes import Episodes, Estimate
 from lerobot_ccdp.benchmark.paired import (
     cluster_bootstrap,
@@ -204,10 +204,10 @@ def _cell(e: Episodes) -> str:
 
 def table(run: Run) -> str:
     """Per task: each method's success / repeats per attempt after a failure, and CCDP's paired differences
-    of success against each baseline it ran with."""
+    of success against each baseline it ran with and against eq. (4)'s eps_z heads (EPS_Z) where they ran."""
     name = run.ccdp_column()
-    methods = [m for m in (*BASELINES, "ccdp") if any(m in ms for ms in run.episodes.values())]
-    refs = [m for m in BASELINES if m in methods] if "ccdp" in methods else []
+    methods = [m for m in (*BASELINES, "ccdp", EPS_Z) if any(m in ms for ms in run.episodes.values())]
+    refs = [m for m in (*BASELINES, EPS_Z) if m in methods] if "ccdp" in methods else []
     header = [METHOD_LABELS[m] if m != "ccdp" else name for m in methods]
     header += [f"{name} - {METHOD_LABELS[r]}" for r in refs]
     lines = ["| task | " + " | ".join(header) + " |", "|---|" + "---|" * len(header)]

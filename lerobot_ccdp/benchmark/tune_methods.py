@@ -32,6 +32,12 @@ train_base.json. `--heads NAME ...` evaluates only the heads named (`recovery` i
 another head's grid needs settings the run's own head has no use for; the differences are then against the
 first named head's first setting.
 
+`--method ccdp_eps_z` evaluates the paper's eq. (4) with the eps_z heads, trained from the same base in the
+pipeline's stages of that column (`<out>/<task>/recovery_eps_z`: a run with `--methods ... ccdp_eps_z`, or
+`--train-only --methods ccdp_eps_z`), with CCDP's sampling and `methods.json`'s `ccdp_eps_z` settings (none of
+the set denoiser's, which the eps_z heads refuse); `--write` stores its pick there, and `--against ccdp` pairs
+it with the task's own head on the same seeds.
+
 `--against METHOD` also evaluates METHOD at its `methods.json` settings on the same seeds (into
 `<task>/tune_<METHOD>/frozen_seed<seed>`) and prints a second table: each row's paired success and repeats
 differences against it, and how many test seeds would show success non-inferior to it (interval above
@@ -147,11 +153,12 @@ def run_dir(files: TaskFiles, method: str, checkpoint: str, setting: Setting, se
     return files.out / f"tune_{method}" / f"{prefix}{name}_seed{seed}"
 
 
-def checkpoint_path(files: TaskFiles, checkpoints: dict[str, str], name: str) -> Path:
-    """The recovery checkpoint `name` of one task: the run's own, or a `--checkpoint` path with `{slug}`
-    filled."""
+def checkpoint_path(files: TaskFiles, checkpoints: dict[str, str], name: str, method: str) -> Path:
+    """The recovery checkpoint `name` of one task for `method`: the run's own (the head `method` samples:
+    `<task>/recovery_eps_z` for ccdp_eps_z, `<task>/recovery` for the others), or a `--checkpoint` path with
+    `{slug}` filled."""
     return (
-        files.out / "recovery" / CHECKPOINT
+        files.recovery_out(method) / CHECKPOINT
         if name == OWN
         else Path(checkpoints[name].format(slug=files.out.name))
     )
@@ -344,13 +351,21 @@ def main(argv: list[str] | None = None) -> None:
         t: TaskFiles.locate(t, CONFIGS, RECIPES, args.baseline_run, label_free=args.label_free)
         for t in (args.tasks if args.baseline_run else ())
     }
-    paths = {t: {name: checkpoint_path(f, checkpoints, name) for name in heads} for t, f in files.items()}
-    missing = [str(path) for by_name in paths.values() for path in by_name.values() if not path.is_dir()]
+    paths = {
+        t: {name: checkpoint_path(f, checkpoints, name, args.method) for name in heads}
+        for t, f in files.items()
+    }
+    # --against's method on the run's own head it samples
+    reference_paths = {
+        t: checkpoint_path(f, checkpoints, OWN, args.against) for t, f in files.items() if args.against
+    }
+    everything = [*(p for by_name in paths.values() for p in by_name.values()), *reference_paths.values()]
+    missing = [str(path) for path in everything if not path.is_dir()]
     if missing:
         raise SystemExit(
             f"No recovery checkpoint at {missing}; run `make benchmark` or "
-            "`python -m lerobot_ccdp.benchmark.pipeline --train-only` first, and check the --checkpoint "
-            "paths."
+            "`python -m lerobot_ccdp.benchmark.pipeline --train-only` first (with `--methods ccdp_eps_z` for "
+            "the eps_z heads of that method), and check the --checkpoint paths."
         )
     for task, f in files.items():
         config = f.eval_config()
@@ -386,7 +401,7 @@ def main(argv: list[str] | None = None) -> None:
         episodes = {}
         if args.against:
             if not args.report_only:
-                evaluate(files[task], args.against, paths[task][OWN], OWN, (), args.seed, args.episodes)
+                evaluate(files[task], args.against, reference_paths[task], OWN, (), args.seed, args.episodes)
             reference, _ = measured(files[task], args.against, OWN, (), args.seed, args.episodes)
             folder = run_dir(files[task], args.against, OWN, (), args.seed)
             found[task][folder], names[task][folder] = reference, f"{args.against} (methods.json)"

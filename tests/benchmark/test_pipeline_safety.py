@@ -4,6 +4,7 @@ spelled, for its lock and its stage stamps. The stages are faked (each makes the
 so these run in seconds; tests/benchmark/test_pipeline.py runs the real ones."""
 
 import fcntl
+import json
 import os
 import re
 import shutil
@@ -528,3 +529,86 @@ def test_a_training_seed_reaches_both_trainings_and_the_synthesis_and_reruns_the
         ("lerobot-ccdp-synthesize", ["--recovery.seed=2"]),
         ("lerobot-train", ["--seed=2"]),
     ]
+
+
+def flag(command: list[str], name: str) -> str:
+    """The value of `name`=... in `command`."""
+    return next(arg.split("=", 1)[1] for arg in command if arg.startswith(f"{name}="))
+
+
+def test_the_eps_z_column_trains_its_own_heads_from_the_same_base_and_evaluates_them_as_ccdp(
+    root, stages, monkeypatch, capsys
+):
+    """`ccdp_eps_z` (issue 114's fifth column, eq. (4) with the eps_z heads): on a task whose own head is the
+    set denoiser, a synthesis and a recovery stage of its own from the same base with
+    `--policy.recovery_head=unet` (the recipe's siblings and the base config's set-denoiser settings, which
+    the eps_z heads refuse, off), into folders of its own, and an evaluation that differs from CCDP's only in
+    the checkpoint and the output folder (same seeds, noise streams and sampling). Each stage resumes on its
+    own; `--train-only` trains the heads of the methods named."""
+    monkeypatch.setattr(TaskRun, "episodes", lambda self, methods: {})
+    configs, recipe = root / "settings" / "configs" / SLUG, root / "settings" / "recipes" / f"{SLUG}.yaml"
+    base_config = json.loads((configs / "train_base.json").read_text())
+    base_config["policy"].update(recovery_head="set_denoiser", stratum_weights=True)
+    (configs / "train_base.json").write_text(json.dumps(base_config))
+    recipe.write_text(recipe.read_text().replace("recovery:\n", "recovery:\n  demo_siblings: true\n"))
+    claim_output_folder(root / "out", CREATED_BY)  # as main does, for its --train-only run below
+    files = TaskFiles.locate(TASK, Path("settings/configs"), Path("settings/recipes"), root / "out")
+    TaskRun(files).run(["dp", "ccdp", "ccdp_eps_z"])
+    by_output = {Path(flag(c, OUTPUTS[Path(c[0]).name][0])): c for c in stages.commands}
+    out, base = files.out, str(files.out / "base" / CHECKPOINT)
+    synthesis, eps_z_synthesis = by_output[out / "recovery_data"], by_output[out / "recovery_data_eps_z"]
+    assert flag(eps_z_synthesis, "--policy.path") == flag(synthesis, "--policy.path") == base
+    assert [a for a in eps_z_synthesis if a not in synthesis] == [
+        "--policy.recovery_head=unet",
+        "--recovery.demo_siblings=false",
+        f"--output.repo_id=local/{SLUG}_recovery_eps_z",
+        f"--output.root={out / 'recovery_data_eps_z'}",
+    ]
+    training, eps_z_training = by_output[out / "recovery"], by_output[out / "recovery_eps_z"]
+    assert flag(eps_z_training, "--policy.path") == flag(training, "--policy.path") == base
+    assert (
+        flag(eps_z_training, "--config_path") == flag(training, "--config_path") == str(files.train_recovery)
+    )
+    assert "--policy.training_stage=recovery" in eps_z_training
+    assert [a for a in eps_z_training if a not in training] == [
+        f"--dataset.repo_id=local/{SLUG}_recovery_eps_z",
+        f"--dataset.root={out / 'recovery_data_eps_z'}",
+        f"--output_dir={out / 'recovery_eps_z'}",
+        "--policy.recovery_head=unet",
+        "--policy.stratum_weights=false",
+    ]
+    ccdp, eps_z = by_output[out / "eval" / "ccdp"], by_output[out / "eval" / "ccdp_eps_z"]
+    assert flag(eps_z, "--policy.path") == str(out / "recovery_eps_z" / CHECKPOINT)
+    assert flag(ccdp, "--policy.path") == str(out / "recovery" / CHECKPOINT)
+    assert [(a, b) for a, b in zip(eps_z, ccdp, strict=True) if a != b] == [
+        (
+            f"--policy.path={out / 'recovery_eps_z' / CHECKPOINT}",
+            f"--policy.path={out / 'recovery' / CHECKPOINT}",
+        ),
+        (f"--output_dir={out / 'eval' / 'ccdp_eps_z'}", f"--output_dir={out / 'eval' / 'ccdp'}"),
+    ]
+    assert {"synthesize_eps_z", "train_recovery_eps_z", "eval_ccdp_eps_z"} <= set(
+        json.loads((out / "stamps.json").read_text())
+    )
+    # resumed: nothing again; the eps_z heads gone, their training alone again (from the same inputs, so the
+    # evaluation stands); the column's own methods.json setting, its evaluation alone again
+    stages.commands.clear()
+    TaskRun(files).run(["dp", "ccdp", "ccdp_eps_z"])
+    assert not stages.commands
+    shutil.rmtree(out / "recovery_eps_z")
+    TaskRun(files).run(["dp", "ccdp", "ccdp_eps_z"])
+    (configs / "methods.json").write_text(json.dumps({"ccdp_eps_z": {"w_z": 3}}))
+    TaskRun(files).run(["dp", "ccdp", "ccdp_eps_z"])
+    assert [Path(flag(c, "--output_dir")) for c in stages.commands] == [
+        out / "recovery_eps_z",
+        out / "eval" / "ccdp_eps_z",
+    ]
+    assert "--policy.w_z=3" in stages.commands[-1]
+    # --train-only trains the eps_z heads where --methods names them, and names both heads
+    shutil.rmtree(out / "recovery_eps_z")
+    stages.commands.clear()
+    capsys.readouterr()
+    run(root / "out", "--methods", "ccdp", "ccdp_eps_z")
+    assert [Path(flag(c, "--output_dir")) for c in stages.commands] == [out / "recovery_eps_z"]
+    heads = (out / "recovery" / CHECKPOINT, out / "recovery_eps_z" / CHECKPOINT)
+    assert f"Trained: {heads[0]}, {heads[1]}" in capsys.readouterr().out

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lerobot_ccdp.benchmark.comparison import METHOD_LABELS
 from lerobot_ccdp.benchmark.episodes import Episodes
 from lerobot_ccdp.benchmark.paired import paired_difference, success_rate
 from lerobot_ccdp.benchmark.pipeline import TASK_GROUPS
@@ -69,6 +70,36 @@ def test_the_table_names_the_hybrid_and_pairs_episodes_by_seed(tmp_path):
         run.episodes["ObjectPacking-v0"]["ccdp"], run.episodes["ObjectPacking-v0"]["dp"], success_rate
     )
     assert lines[2] == f"| ObjectPacking | 0.50 / 0.00 | 0.75 / 0.00 | {gap} |"
+
+
+def test_the_eps_z_column_stands_beside_ccdp_with_its_paired_difference(tmp_path):
+    """A run with eq. (4)'s eps_z heads (`ccdp_eps_z`) shows them as a column of their own after CCDP, CCDP's
+    differences against the baselines unchanged and one more against them, paired by seed; a task that did not
+    run them shows "-"."""
+    eps_z = _episodes([True, False, False, False], [1, 2, 2, 2])
+    episodes = {
+        "ButtonSearch-v0": {
+            "dp": _episodes([True, False, False, True], [1, 2, 2, 0]),
+            "ccdp": _episodes([True, True, False, True], [1, 1, 2, 0]),
+            "ccdp_eps_z": eps_z,
+        },
+        "DoorOpening-v0": {
+            "dp": _episodes([True, False, False, True], [1, 2, 2, 0]),
+            "ccdp": _episodes([True, True, True, True], [1, 1, 1, 0]),
+        },
+    }
+    labels = {task: {m: METHOD_LABELS[m] for m in ms} for task, ms in episodes.items()}
+    save_run(tmp_path / "run.json", episodes, labels, "python -m lerobot_ccdp.benchmark.pipeline", 3000)
+    run = Run.load(tmp_path / "run.json")
+    lines = table(run).splitlines()
+    label = "CCDP, eq. (4) eps_z heads"
+    assert lines[0] == f"| task | DP | CCDP | {label} | CCDP - DP | CCDP - {label} |"
+    buttons = episodes["ButtonSearch-v0"]
+    to_dp = paired_difference(buttons["ccdp"], buttons["dp"], success_rate)
+    to_eps_z = paired_difference(buttons["ccdp"], eps_z, success_rate)
+    assert lines[2] == f"| ButtonSearch | 0.50 / 0.00 | 0.75 / 0.00 | 0.25 / 0.00 | {to_dp} | {to_eps_z} |"
+    door = lines[3]
+    assert door.startswith("| DoorOpening | 0.50 / 0.00 | 1.00 / 0.00 | - | ") and door.endswith(" | - |")
 
 
 def test_the_seeds_are_named_per_task_where_a_round_sized_its_tasks_differently(tmp_path):

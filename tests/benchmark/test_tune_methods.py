@@ -3,6 +3,7 @@ is better: a higher mean that the development seeds cannot tell from noise is a 
 honest comparison)."""
 
 import dataclasses
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -150,3 +151,48 @@ def test_a_baseline_run_pairs_each_row_and_the_reference_method_by_seed(tmp_path
     assert dp_star_row[5].startswith("0.05") and dp_star_row[7].startswith("0.05 [")
     with pytest.raises(SystemExit, match="is --out itself"):
         tune.main([*args, "--baseline-run", str(run)])
+
+
+def test_the_eps_z_column_is_tuned_on_its_own_heads_against_ccdp_on_the_tasks(tmp_path, capsys, monkeypatch):
+    """`--method ccdp_eps_z` evaluates the eps_z heads a pipeline run trained for that column
+    (`<task>/recovery_eps_z`) with CCDP's sampling, and `--against ccdp` the task's own head
+    (`<task>/recovery`), on the same seeds; a run without the eps_z heads is named with the pipeline flag
+    that trains them."""
+    out, task = tmp_path / "run", "DoorOpening-lite-v0"
+    claim_output_folder(out, tune.CREATED_BY)
+    files = tune.TaskFiles.locate(task, REPO / "configs", REPO / "datasets_recipes", out)
+    (files.out / "recovery" / tune.CHECKPOINT).mkdir(parents=True)
+    args = ["--out", str(out), "--tasks", task, "--method", "ccdp_eps_z", "--grid", "w_z=1,3"]
+    with pytest.raises(SystemExit, match=r"recovery_eps_z/.*--methods ccdp_eps_z"):
+        tune.main([*args, "--against", "ccdp"])
+    (files.out / "recovery_eps_z" / tune.CHECKPOINT).mkdir(parents=True)
+    commands = []
+
+    def lerobot_eval(command: list[str], **_) -> subprocess.CompletedProcess:
+        """lerobot-eval faked: its command kept, and its output folder given the episodes of 60 wins."""
+        commands.append(command)
+        write_eval_info(Path(flag(command, "--output_dir")), episodes(60))
+        return subprocess.CompletedProcess(command, 0, "", "")
+
+    monkeypatch.setattr(tune.subprocess, "run", lerobot_eval)
+    tune.main([*args, "--against", "ccdp"])
+    evaluated = {Path(flag(c, "--output_dir")).parent.name: c for c in commands}
+    assert [Path(flag(c, "--output_dir")).name for c in commands] == [
+        "frozen_seed1000",  # --against's, then the grid's
+        "w_z1_seed1000",
+        "w_z3_seed1000",
+    ]
+    eps_z, ccdp = evaluated["tune_ccdp_eps_z"], evaluated["tune_ccdp"]
+    assert flag(eps_z, "--policy.path") == str(files.out / "recovery_eps_z" / tune.CHECKPOINT)
+    assert flag(ccdp, "--policy.path") == str(files.out / "recovery" / tune.CHECKPOINT)
+    for command in (eps_z, ccdp):
+        assert (
+            flag(command, "--policy.recovery_mode") == "ccdp" and "--policy.row_noise_streams=true" in command
+        )
+        assert flag(command, "--seed") == "1000"
+    assert "pick for ccdp_eps_z: w_z 1" in capsys.readouterr().out
+
+
+def flag(command: list[str], name: str) -> str:
+    """The value of `name`=... in `command`."""
+    return next(arg.split("=", 1)[1] for arg in command if arg.startswith(f"{name}="))
