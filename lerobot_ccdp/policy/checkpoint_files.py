@@ -454,6 +454,8 @@ def _named_on_command_line(value: str) -> bool:
 
 # The set denoiser's guard (`heads.set_denoiser.FailureSetDenoiser.guard`) and its `guard_trained` flag.
 GUARD_PREFIX = "model.recovery.guard"
+# Whether the recovery stage has trained the checkpoint's head (`CCDPModel.recovery_trained`).
+RECOVERY_TRAINED = "model.recovery_trained"
 
 
 def refuse_unfit_weights(state: dict, recovery_trained: bool, path: str | Path, **hub: Any) -> None:
@@ -522,18 +524,26 @@ def refuse_unfit_outcome_table(state: dict, config: CCDPConfig, path: str | Path
         )
 
 
-def refuse_unloadable_weights(state: dict, file: str | Path) -> None:
+def refuse_unloadable_weights(state: dict, file: str | Path) -> list[str]:
     """Before the weights in `file` are copied into the policy's `state`: refuse tensors whose shape differs
     (torch lists size mismatches without the cause) and floating weights saved as integers (torch copies
-    the truncated values without a word, and the policy acts on them)."""
-    wrong = []
+    the truncated values without a word, and the policy acts on them). Returns the saved tensors to leave
+    out: those of an untrained recovery head whose shapes differ from the head the config builds (a base
+    checkpoint starting the recovery stage of another head, `--policy.recovery_head`, which then starts from
+    its own initialisation, as `refuse_unfit_weights` allows)."""
+    wrong, other_head = [], []
     with safe_open(file, framework="pt") as saved:
-        for key in sorted(set(saved.keys()) & set(state)):
+        keys = set(saved.keys())
+        untrained = RECOVERY_TRAINED in keys and not bool(saved.get_tensor(RECOVERY_TRAINED))
+        for key in sorted(keys & set(state)):
             tensor = saved.get_slice(key)
             shape, dtype = tuple(tensor.get_shape()), tensor.get_dtype()
             # the outcome table's buffers are empty until loaded, then take the saved shapes
             if shape != tuple(state[key].shape) and state[key].numel():
-                wrong.append(f"{key} has shape {shape}, the config makes {tuple(state[key].shape)}")
+                if untrained and key.startswith("model.recovery."):
+                    other_head.append(key)
+                else:
+                    wrong.append(f"{key} has shape {shape}, the config makes {tuple(state[key].shape)}")
             elif state[key].is_floating_point() and not dtype.startswith(("F", "BF")):
                 wrong.append(f"{key} holds {dtype}, not floats")
     if wrong:
@@ -543,6 +553,7 @@ def refuse_unloadable_weights(state: dict, file: str | Path) -> None:
             "output_features, down_dims, kernel_size, ...), restore the values lerobot-train saved; "
             "otherwise the weights file was altered: train again, or copy or download the checkpoint again."
         )
+    return other_head
 
 
 def refuse_non_finite_weights(state: dict, path: str | Path) -> None:

@@ -15,6 +15,7 @@ import torch.nn.functional as F  # noqa: N812
 from huggingface_hub import ModelCard
 from lerobot.policies.diffusion.modeling_diffusion import _make_noise_scheduler
 from lerobot.policies.pretrained import PreTrainedPolicy
+from safetensors.torch import load_file
 from torch import Tensor, nn
 
 from lerobot_ccdp.compat.threads import leave_a_core
@@ -94,9 +95,15 @@ class CCDPPolicy(PreTrainedPolicy):
 
     @classmethod
     def _load_as_safetensor(cls, model: "CCDPPolicy", model_file: str, map_location: str, strict: bool):
-        """LeRobot's load, after `refuse_unloadable_weights` (shapes and dtypes named, not truncated)."""
-        refuse_unloadable_weights(model.state_dict(), model_file)
-        return super()._load_as_safetensor(model, model_file, map_location, strict)
+        """LeRobot's load, after `refuse_unloadable_weights` (shapes and dtypes named, not truncated). The
+        untrained recovery head of a base checkpoint that starts another head's recovery stage
+        (`--policy.recovery_head`) is left out where its shapes differ, as torch would refuse it."""
+        other_head = refuse_unloadable_weights(model.state_dict(), model_file)
+        if not other_head:
+            return super()._load_as_safetensor(model, model_file, map_location, strict)
+        saved = load_file(model_file, device=str(map_location))
+        model.load_state_dict({k: v for k, v in saved.items() if k not in other_head}, strict=False)
+        return model
 
     def generate_model_card(
         self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None

@@ -81,6 +81,34 @@ def test_weights_that_do_not_fit_are_refused_with_the_fix(untrained_primitive_ch
         CCDPPolicy.from_pretrained(old)
 
 
+def test_a_set_denoiser_base_starts_the_eps_z_heads_recovery_stage_and_a_trained_head_still_must_fit(
+    reaching_root, tmp_path
+):
+    """`lerobot-train --policy.path=<set-denoiser base> --policy.training_stage=recovery
+    --policy.recovery_head=unet` (the benchmark's eq. (4) column beside the task's own head) loads the base's
+    networks and outcome table, and the eps_z heads at their own initialisation: the base's untrained set
+    denoiser has tensors of the same names and other shapes, which torch refused. A trained head of another
+    shape is still refused with the fix."""
+    settings = {"failure_feature": "primitive", "num_primitives": 4, "history_length": 0}
+    base = untrained_checkpoint(reaching_root, tmp_path / "base", recovery_head="set_denoiser", **settings)
+    config = PreTrainedConfig.from_pretrained(
+        base, cli_overrides=["--recovery_head=unet", "--training_stage=recovery"]
+    )
+    config.pretrained_path = base  # what --policy.path sets
+    policy = make_policy(config, ds_meta=LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root))
+    saved, loaded = load_file(base / "model.safetensors"), policy.state_dict()
+    assert policy.config.recovery_head == "unet" and not bool(policy.model.recovery_trained)
+    shared = [k for k in saved if not k.startswith("model.recovery.")]
+    assert all(torch.equal(loaded[k], saved[k]) for k in shared) and OUTCOME_TABLE[0] in shared
+    film = "model.recovery.unet.down_modules.0.0.cond_encoder.1.weight"  # conditioned on z, not on F
+    assert loaded[film].shape != saved[film].shape
+    trained = shutil.copytree(base, tmp_path / "trained")
+    save_file({**saved, "model.recovery_trained": torch.tensor(True)}, trained / "model.safetensors")
+    config.pretrained_path = trained
+    with pytest.raises(ValueError, match=rf"{film} has shape .*, the config makes"):
+        make_policy(config, ds_meta=LeRobotDatasetMetadata(REACHING_REPO_ID, root=reaching_root))
+
+
 # ----- a checkpoint saved before settings were removed from CCDPConfig (issue 112) -------------------------
 
 # What every config.json saved before the removal holds: each removed field at the value the policy now fixes.
