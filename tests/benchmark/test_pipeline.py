@@ -551,6 +551,60 @@ def test_the_classifier_head_trains_on_the_demos_without_synthesis(tmp_path):
     assert "failures by classifier guidance, w_z 2 |" in report
 
 
+@pytest.mark.slow  # about 3 minutes on 2 busy cores: a pipeline with two heads
+def test_the_eps_z_column_beside_a_set_denoiser_trains_from_the_same_base_and_reports_as_its_own(tmp_path):
+    """`--methods dp ccdp ccdp_eps_z` on a task whose head is the set denoiser (the Panda tasks' form, with
+    a set-denoiser setting and the recipe's siblings): eq. (4)'s eps_z heads get pairs and a recovery stage
+    of their own from the same base through the real CLIs, are evaluated on the same seeds, and the report,
+    the published run file and the results table name their column."""
+    configs, recipes = _shrunk_settings(tmp_path / "settings", SLUG, n_episodes=2)
+    train_base = configs / SLUG / "train_base.json"
+    _shrink_json(
+        train_base, train_base, {"policy": {"recovery_head": "set_denoiser", "stratum_weights": True}}
+    )
+    recipe = yaml.safe_load((recipes / f"{SLUG}.yaml").read_text())
+    recipe["recovery"]["demo_siblings"] = True
+    (recipes / f"{SLUG}.yaml").write_text(yaml.safe_dump(recipe))
+    out = tmp_path / "out"
+    methods = ["dp", "ccdp", "ccdp_eps_z"]
+    _run_pipeline(
+        configs, recipes, out, "--no-chart", "--publish", str(out / "docs" / "b.md"), methods=methods
+    )
+    task_out = out / SLUG
+
+    base = CCDPPolicy.from_pretrained(task_out / "base" / CHECKPOINT)
+    own = CCDPPolicy.from_pretrained(task_out / "recovery" / CHECKPOINT)
+    eps_z = CCDPPolicy.from_pretrained(task_out / "recovery_eps_z" / CHECKPOINT)
+    assert own.config.recovery_head == "set_denoiser" and own.config.stratum_weights
+    assert eps_z.config.recovery_head == "unet" and not eps_z.config.stratum_weights
+    assert bool(eps_z.model.recovery_trained)
+    for name, weight in base.model.base.state_dict().items():  # the same base, frozen
+        assert torch.equal(weight, eps_z.model.base.state_dict()[name]), name
+    pairs = LeRobotDataset(f"local/{SLUG}_recovery_eps_z", root=task_out / "recovery_data_eps_z")
+    assert "failure_action" in pairs.features  # eq. (5)'s pairs, not the set denoiser's rows
+    made = yaml.safe_load(
+        (task_out / "recovery_data_eps_z" / "meta" / "ccdp_recovery_recipe.yaml").read_text()
+    )
+    assert made["recovery_head"] == "unet" and made["source"]["policy_path"] == str(
+        task_out / "base" / CHECKPOINT
+    )
+    assert len(Episodes.from_eval_info(task_out / "eval" / "ccdp_eps_z" / "eval_info.json")) == 2
+    assert {"synthesize_eps_z", "train_recovery_eps_z", "eval_ccdp_eps_z"} <= set(
+        json.loads((task_out / "timings.json").read_text())
+    )
+    report = (out / "report.md").read_text()
+    label = "CCDP, eq. (4) eps_z heads"
+    assert f"| {TASK} | {label} | 2 |" in report
+    forms = report.split("## What ran")[1].split("## Targets")[0]
+    assert f"| {TASK}, {label} | {EVAL_SEED}-{EVAL_SEED + 1} | primitive | " in forms
+    assert Run.load(out / "docs" / "b.json").labels[TASK] == {
+        "dp": "DP",
+        "ccdp": "CCDP",
+        "ccdp_eps_z": label,
+        "oracle": "no-repeat oracle",
+    }
+
+
 def test_the_report_names_where_a_label_free_failure_was_read_and_where_options_end():
     settings = {
         "failure_feature": "final_state",
