@@ -54,10 +54,13 @@ quickstart: install
 # The paper's comparison: the five tasks with contact physics on the Franka Panda, DP / DP* / CCDP and the no-repeat
 # oracle; outputs in outputs/benchmark, each task's report in docs/benchmark/<task>.md as soon as the task is done
 # (a round takes hours: `make benchmark TASKS="Bartender-v0"` runs the tasks a stopped round has left).
+# METHODS="dp dp_star dp_star_matched ccdp ccdp_eps_z" adds the paper's eq. (4) with the eps_z heads, trained from
+# the same bases (docs/benchmarks.md); empty: the pipeline's default methods.
 TASKS ?= all
+METHODS ?=
 benchmark: install
 	$(PY) -m lerobot_ccdp.benchmark.pipeline --tasks $(TASKS) --out outputs/benchmark --publish-each docs/benchmark \
-		--jobs $(JOBS)
+		--jobs $(JOBS) $(if $(METHODS),--methods $(METHODS))
 
 # The same comparison on the geometric versions of the five tasks (`<Task>-lite-v0`, docs/tasks.md).
 benchmark-lite: install
@@ -72,7 +75,7 @@ benchmark-pixels: install
 # configs/<task>_label_free/ and datasets_recipes/<task>_label_free.yaml.
 benchmark-label-free: install
 	$(PY) -m lerobot_ccdp.benchmark.pipeline --label-free --tasks $(TASKS) --out outputs/label_free \
-		--publish-each docs/benchmark_label_free --jobs $(JOBS)
+		--publish-each docs/benchmark_label_free --jobs $(JOBS) $(if $(METHODS),--methods $(METHODS))
 
 # docs/results.md and the README's results table, from the per-episode run files the benchmarks publish beside
 # each task's report (lerobot_ccdp/benchmark/results.py), one table per run in the order of `--tasks all` (read
