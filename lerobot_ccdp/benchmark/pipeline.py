@@ -5,6 +5,8 @@ Per task: record demos (lerobot-ccdp-record), train the base stage (lerobot-trai
 dataset (lerobot-ccdp-synthesize), train the recovery stage (lerobot-train), evaluate every method on the same
 seeds (lerobot-eval --policy.recovery_mode=...), run the no-repeat oracle on those seeds, and report the
 metrics with 95% intervals (`lerobot_ccdp.benchmark.comparison`) as markdown, JSON and a bar chart.
+`--methods ... ccdp_eps_z` adds the paper's own form, eq. (4) with the eps_z heads, synthesised and trained
+from the same base in stages of its own beside the task's head (`HEAD_METHODS`, docs/benchmarks.md).
 
 Settings live in files a user can run by hand: `configs/<task>/{train_base,train_recovery,eval}.json` and
 `datasets_recipes/<task>.yaml`; `--obs-type pixels_agent_pos` runs the camera variant from
