@@ -394,7 +394,7 @@ def synthesize_recovery_dataset(
     are those `recovery_head` trains on (None: the checkpoint's head), so that another head of the same base
     (lerobot-train's --policy.recovery_head at the recovery stage) gets its own."""
     started = time.perf_counter()
-    if recovery_head is not None:
+    if recovery_head:  # None or empty: the checkpoint's head, checked when it loads
         head_class(recovery_head)  # a wrong name, before minutes of loading and sampling
     # Before minutes of loading and sampling, not after.
     inputs = {"--dataset.root": demo_root}
