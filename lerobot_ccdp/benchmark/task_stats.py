@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> None:
         rec = recording_seconds(task, args.record_episodes)
         m = oracle_metrics(task, args.episodes)
         print(
-            f"| {task} | {sps:,.0f} | {rec:.1f} | {m['success']:.3f} | {m['attempts']:.2f} "
+            f"| {task} | {sps:,.0f} | {rec:.2f} | {m['success']:.3f} | {m['attempts']:.2f} "
             f"| {m['failures']:.2f} | {m['repeated']:.3f} | {m['preference']:.3f} |",
             flush=True,
         )
