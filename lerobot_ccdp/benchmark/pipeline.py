@@ -44,6 +44,8 @@ from typing import Any
 
 import gymnasium as gym
 import torch
+from lerobot.configs.types import FeatureType
+from lerobot.envs.utils import env_to_policy_features
 
 from lerobot_ccdp.benchmark.comparison import (
     EPS_Z,
@@ -67,7 +69,7 @@ from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.envs.scripted import NoRepeatOracle, run_episode
 from lerobot_ccdp.envs.tasks import is_lite
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
-from lerobot_ccdp.policy.heads import head_class
+from lerobot_ccdp.policy.heads import head_class, head_of
 from lerobot_ccdp.policy.heads.registry import HEADS
 
 METHODS = ("dp", "dp_star", "dp_star_matched", "ccdp", EPS_Z)
@@ -233,7 +235,6 @@ class TaskFiles:
         files.method_settings(METHODS[0])  # names unknown methods of methods.json
         RecordRecipe.load(files.recipe)
         RecoveryRecipe.load(files.recipe)
-        files.recovery_head()  # the base config parses
         config = files.eval_config()
         numbers = {  # name: (value, least)
             "eval.n_episodes": (config.get("eval", {}).get("n_episodes"), 1),
@@ -250,6 +251,7 @@ class TaskFiles:
             raise ValueError(
                 f"{files.eval} evaluates env.obs_type={env.get('obs_type', 'state')!r}, not {obs_type!r}"
             )
+        files.recovery_head()  # the base config parses, and fits the env's inputs
         return files
 
     def eval_config(self) -> dict[str, Any]:
@@ -264,8 +266,19 @@ class TaskFiles:
 
     def recovery_head(self) -> str:
         """The recovery head the base config builds (part of the checkpoint's architecture, so chosen there):
-        the classifier head trains on the demonstrations, the others on a synthesised recovery dataset."""
-        return read_json(self.train_base).get("policy", {}).get("recovery_head", "unet")
+        the one train_base.json names, or the default lerobot-train names for the inputs of the task's env as
+        eval.json sets it up (`heads.head_of`: the set denoiser without cameras). The classifier head trains
+        on the demonstrations, the others on a synthesised recovery dataset."""
+        policy = {k: v for k, v in read_json(self.train_base).get("policy", {}).items() if k != "type"}
+        env = CCDPEnvConfig(**{k: v for k, v in self.eval_config()["env"].items() if k != "type"})
+        features = env_to_policy_features(env)
+        config = CCDPConfig(
+            **policy,
+            input_features={k: f for k, f in features.items() if f.type is not FeatureType.ACTION},
+            output_features={k: f for k, f in features.items() if f.type is FeatureType.ACTION},
+            device="cpu",
+        )
+        return head_of(config).name
 
     def method_settings(self, method: str) -> dict[str, Any]:
         """Policy fields with which `method` is evaluated, from the optional `methods.json` beside the eval
@@ -770,7 +783,7 @@ def method_forms(runs: list[TaskRun], episodes: dict[str, dict[str, Episodes]]) 
         }
         # the checkpoint's settings, as the method's flags changed them
         ccdp = {**c, **r.files.method_settings(method)}
-        head = head_class(ccdp.get("recovery_head", CCDPConfig.recovery_head))
+        head = head_class(ccdp["recovery_head"])  # named in every checkpoint (`heads.name_default_head`)
         pairs_delta_z = c["delta_z"] if recipe.delta_z is None else recipe.delta_z  # eq. (5)'s
         form = head.describe(ccdp)
         synthesis = {

@@ -213,7 +213,14 @@ def prepare_member(
         else ["--policy.failure_feature=final_state"]
     )
     dataset = [f"--dataset.repo_id={repo}", f"--dataset.root={data}"]
-    head = ["--policy.recovery_head=set_denoiser", "--policy.history_length=0"] if set_denoiser else []
+    # Without --set-denoiser, the base of the classifier forms as measured: named `unet` (the default for
+    # these state inputs is the set denoiser), as its untrained head is drawn from the seeded generator
+    # before training.
+    head = (
+        ["--policy.recovery_head=set_denoiser", "--policy.history_length=0"]
+        if set_denoiser
+        else ["--policy.recovery_head=unet"]
+    )
     base, base_stamp = train(
         "base",
         root / "base",

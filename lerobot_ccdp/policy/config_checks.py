@@ -336,9 +336,9 @@ def memory_estimate(config: CCDPConfig) -> dict[str, int]:
     )
     step = config.diffusion_step_embed_dim
     base_condition = step + config.n_obs_steps * frame + config.history_length * (frame + action) + 2
-    from lerobot_ccdp.policy.heads import head_class  # they import the config
+    from lerobot_ccdp.policy.heads import head_of  # they import the config
 
-    head = head_class(config.recovery_head)
+    head = head_of(config)
     recovery_condition = head.unet_condition(step, base_condition, _failure_feature_size(config))
 
     def unet(condition: int) -> int:
@@ -375,10 +375,10 @@ def _physical_memory() -> int | None:
 
 def _check_head(config: CCDPConfig) -> None:
     """The recovery head's own checks, and no setting of another head (`heads/registry.py`)."""
-    from lerobot_ccdp.policy.heads import head_class, refuse_settings_of_other_heads  # they import the config
+    from lerobot_ccdp.policy.heads import head_of, refuse_settings_of_other_heads  # they import the config
 
     refuse_settings_of_other_heads(config)
-    head_class(config.recovery_head).check_config(config)
+    head_of(config).check_config(config)
 
 
 def _check_choices(config: CCDPConfig) -> None:

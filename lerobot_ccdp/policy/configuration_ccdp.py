@@ -20,6 +20,8 @@ FailureLabelAt = Literal["latest_chunk", "attempt_end"]
 FailureSegments = Literal["labels", "drops", "pauses"]
 TrainingStage = Literal["base", "recovery"]
 RecoveryHead = Literal["unet", "classifier", "set_denoiser"]
+# `recovery_head`'s values: a head, or "auto", the default head for the inputs (`heads.head_of`).
+RecoveryHeadSetting = Literal["auto", RecoveryHead]
 # Each Literal's values; `choices` also gives draccus a decoder for it (compat/literal_choices.py), which
 # every field of these types needs. `config_checks` reads the allowed values from the fields' types.
 RECOVERY_MODES = choices(RecoveryMode)
@@ -29,6 +31,7 @@ FAILURE_LABELS_AT = choices(FailureLabelAt)
 FAILURE_SEGMENTS = choices(FailureSegments)
 TRAINING_STAGES = choices(TrainingStage)
 RECOVERY_HEADS = choices(RecoveryHead)
+RECOVERY_HEAD_SETTINGS = choices(RecoveryHeadSetting)
 # Column holding the failure feature z in recovery datasets, and the policy input it becomes.
 FAILURE_FEATURE_KEY = "observation.failure_feature"
 # Set-denoiser datasets: the outcomes of every chunk sampled at a row's state (the policy's normalised z; no
@@ -81,7 +84,10 @@ class CCDPConfig(PreTrainedConfig):
         recovery_head: The recovery model: "unet" (eps_z(z), one term per failure, on a synthesised recovery
             dataset), "set_denoiser" (eps_{s,F}: one term for the whole failure set, trained on the base's own
             samples at option starts and along the demonstrations) or "classifier" (a noisy-chunk classifier
-            of "repeats a failure", trained on the demonstrations, whose gradient guides eps_s).
+            of "repeats a failure", trained on the demonstrations, whose gradient guides eps_s). "auto" (the
+            default): "set_denoiser", the head the benchmark measured, where it runs (state inputs and
+            n_obs_steps 1), else "unet" (cameras, or n_obs_steps > 1). It is named when the features are known
+            (`validate_features`), so a checkpoint's config.json holds the head, never "auto".
         training_stage: What lerobot-train trains: "base" (the diffusion UNet on demonstrations) or "recovery"
             (the recovery head, from a base checkpoint given by --policy.path).
         failure_feature: What z describes: "final_state" (where the option ends), "primitive" (a one-hot label
@@ -182,7 +188,7 @@ class CCDPConfig(PreTrainedConfig):
     failure_guard_weight: float = 1.0
     history_length: int = 0
     recovery_mode: RecoveryMode = "ccdp"
-    recovery_head: RecoveryHead = "unet"
+    recovery_head: RecoveryHeadSetting = "auto"
     training_stage: TrainingStage = "base"
     failure_feature: FailureFeatureKind = "final_state"
     failure_state_dims: list[int] = field(default_factory=list)
@@ -222,9 +228,13 @@ class CCDPConfig(PreTrainedConfig):
             self.failure_signal_file = signal
 
     def validate_features(self) -> None:
-        """Check the settings again (`CCDPPolicy.__init__` calls this: a config edited after it was made, or
-        passed to `from_pretrained(path, config=...)`, gets the same checks as `CCDPConfig()` and the CLI),
-        then the dataset/env features against what the policy needs, and declare the z input."""
+        """Name the default recovery head for these features (`heads.name_default_head`), check the settings
+        again (`CCDPPolicy.__init__` calls this: a config edited after it was made, or passed to
+        `from_pretrained(path, config=...)`, gets the same checks as `CCDPConfig()` and the CLI), then the
+        dataset/env features against what the policy needs, and declare the z input."""
+        from lerobot_ccdp.policy.heads import name_default_head  # the heads import this module
+
+        name_default_head(self)
         check_settings(self)
         check_features(self)
         if len(self.action_feature.shape) == 2:
@@ -273,9 +283,9 @@ class CCDPConfig(PreTrainedConfig):
     def recovery_head_learns_from_demonstrations(self) -> bool:
         """Whether the recovery head trains on the demonstrations themselves (no synthesised recovery
         dataset)."""
-        from lerobot_ccdp.policy.heads import head_class  # the heads import this module
+        from lerobot_ccdp.policy.heads import head_of  # the heads import this module
 
-        return head_class(self.recovery_head).training_data == "demonstrations"
+        return head_of(self).training_data == "demonstrations"
 
     @property
     def drop_n_last_frames(self) -> int:

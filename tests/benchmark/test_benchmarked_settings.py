@@ -13,10 +13,12 @@ from pathlib import Path
 
 import pytest
 from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType
+from lerobot.envs.utils import env_to_policy_features
 
 from lerobot_ccdp.benchmark.pipeline import LABEL_FREE as LABEL_FREE_SUFFIX
 from lerobot_ccdp.benchmark.pipeline import OBS_VARIANTS, RECOVERY_MODE, TaskFiles, task_slug
-from lerobot_ccdp.envs import TASKS
+from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.policy.composition import CompositionWeights
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 
@@ -69,9 +71,11 @@ def _settings_folders() -> dict[str, tuple[str, str, bool]]:
     return folders
 
 
-def _evaluated(train_base: Path, flags: list[str], tmp_path: Path) -> CCDPConfig:
-    """The config lerobot-eval evaluates: the checkpoint's config.json with the command's --policy.* flags."""
-    policy = {k: v for k, v in json.loads(train_base.read_text())["policy"].items() if k != "type"}
+def _evaluated(files: TaskFiles, flags: list[str], tmp_path: Path) -> CCDPConfig:
+    """The config lerobot-eval evaluates: the checkpoint's config.json, with the recovery head lerobot-train
+    names there for the task's inputs, and the command's --policy.* flags."""
+    policy = {k: v for k, v in json.loads(files.train_base.read_text())["policy"].items() if k != "type"}
+    policy["recovery_head"] = files.recovery_head()
     tmp_path.mkdir(exist_ok=True)
     CCDPConfig(**policy, device="cpu")._save_pretrained(tmp_path)
     overrides = [
@@ -110,9 +114,13 @@ def test_the_pipeline_evaluates_what_the_benchmark_did(slug, method, tmp_path):
     files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path / "out", obs_type, label_free)
     assert files.out.name == slug
     command = files.eval_command(Path("ckpt"), method, 0, tmp_path / "eval", files.method_flags(method))
-    config = _evaluated(files.train_base, command, tmp_path / "ckpt")
+    config = _evaluated(files, command, tmp_path / "ckpt")
     assert config.recovery_mode == RECOVERY_MODE[method] and config.row_noise_streams
     assert _effective(config, method) == BENCHMARKED[slug][method]
+
+
+def _task_of(slug: str) -> str:
+    return _settings_folders()[slug][0]
 
 
 def _readme_evaluate_flags() -> list[str]:
@@ -127,15 +135,23 @@ def test_the_readmes_evaluate_command_evaluates_the_benchmarked_methods(method, 
     """README's Evaluate, with `--policy.recovery_mode` set to the mode, on a checkpoint trained with the
     task's configs: the CCDP and DP* of the results table, common random numbers on."""
     flags = [f for f in _readme_evaluate_flags() if not f.startswith("--policy.recovery_mode")]
-    train_base = CONFIGS / README_TASK / "train_base.json"
-    config = _evaluated(train_base, [*flags, f"--policy.recovery_mode={method}"], tmp_path)
+    files = TaskFiles.locate(_task_of(README_TASK), CONFIGS, RECIPES, tmp_path / "out")
+    config = _evaluated(files, [*flags, f"--policy.recovery_mode={method}"], tmp_path / "ckpt")
     assert config.row_noise_streams
     assert _effective(config, method) == BENCHMARKED[README_TASK][method]
 
 
 def test_the_policys_defaults_are_the_benchmarks():
-    """What the shipped labelled set-denoiser configs evaluate is CCDPConfig's own default."""
-    config = CCDPConfig(recovery_head="set_denoiser", device="cpu")
+    """What the shipped labelled set-denoiser configs evaluate is CCDPConfig's own default, its head
+    included: the one it names for the door's state inputs, as lerobot-train's make_policy gives them."""
+    features = env_to_policy_features(CCDPEnvConfig(task=_task_of(README_TASK)))
+    config = CCDPConfig(
+        input_features={k: f for k, f in features.items() if f.type is not FeatureType.ACTION},
+        output_features={k: f for k, f in features.items() if f.type is FeatureType.ACTION},
+        device="cpu",
+    )
+    config.validate_features()
+    assert config.recovery_head == "set_denoiser"
     assert _effective(config, "ccdp") == BENCHMARKED["door_opening"]["ccdp"]
     assert _effective(config, "dp_star") == BENCHMARKED["door_opening"]["dp_star"]
     assert config.row_noise_streams

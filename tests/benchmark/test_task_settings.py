@@ -1,9 +1,9 @@
 """The shipped settings files as the pipeline finds them: every task has its state settings, and each camera
 variant (`configs/<task>_pixels/`, `datasets_recipes/<task>_pixels.yaml`) is its state twin with only the
-camera fields changed (and the recovery head's, where the state task uses the set denoiser, which refuses
-cameras), so a setting tuned on the state task cannot silently drift from its pixel copy; each
-label-free variant (`configs/<task>_label_free/`) likewise differs from its labelled twin only in how z is
-defined and read."""
+camera fields changed (and the recovery head's, where the state task's default is the set denoiser, which
+refuses cameras, so that the camera variant's default is the eps_z heads), so a setting tuned on the state
+task cannot silently drift from its pixel copy; each label-free variant (`configs/<task>_label_free/`)
+likewise differs from its labelled twin only in how z is defined and read."""
 
 import json
 from pathlib import Path
@@ -18,7 +18,7 @@ from lerobot_ccdp.policy.configuration_ccdp import FAILURE_STATES_AT, CCDPConfig
 REPO = Path(__file__).resolve().parents[2]
 CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
 # Fields where a camera variant's eps_z head may differ from its state twin's set denoiser.
-EPS_Z_HEAD_FIELDS = ("policy.recovery_head", "policy.w_z")
+EPS_Z_HEAD_FIELDS = ("policy.w_z",)
 PIXEL_TASKS = [t for t in TASKS if (CONFIGS / f"{task_slug(t)}_pixels").is_dir()]
 LABEL_FREE_TASKS = [t for t in TASKS if (CONFIGS / f"{task_slug(t)}_label_free").is_dir()]
 
@@ -62,12 +62,14 @@ def test_a_camera_variant_is_its_state_twin_with_only_the_camera_fields_changed(
     assert base["output_dir"] == f"outputs/{slug}/train_base"
     assert base["policy"]["history_length"] == 0  # the camera encoder sees the current frames only
     state_base = json.loads(state.train_base.read_text())
+    # the head as lerobot-train names it for each variant's inputs, compared below
     camera_fields = ("dataset", "output_dir", "policy.history_length", "policy.vision_backbone_stages")
+    camera_fields += ("policy.recovery_head",)
     # The failure-set denoiser refuses cameras (its synthesised rows carry no images), so where the state
-    # task uses it, the camera variant keeps the eps_z head and that head's own settings.
-    head = state_base["policy"].get("recovery_head", CCDPConfig.recovery_head) == "set_denoiser"
+    # task's head is it, the camera variant's is the eps_z heads, with that head's own settings.
+    head = state.recovery_head() == "set_denoiser"
+    assert pixels.recovery_head() == ("unet" if head else state.recovery_head())
     if head:
-        assert base["policy"].get("recovery_head", CCDPConfig.recovery_head) == "unet"
         camera_fields += EPS_Z_HEAD_FIELDS
     assert _without(base, *camera_fields) == _without(state_base, *camera_fields)
 

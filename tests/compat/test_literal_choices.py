@@ -37,7 +37,8 @@ def test_a_literal_field_parses_from_the_command_line_and_back_from_a_saved_chec
 
 def test_a_value_outside_the_choices_is_refused_naming_them():
     with pytest.raises(
-        draccus.utils.DecodingError, match=r"'mlp' is not one of \['unet', 'classifier', 'set_denoiser'\]"
+        draccus.utils.DecodingError,
+        match=r"'mlp' is not one of \['auto', 'unet', 'classifier', 'set_denoiser'\]",
     ):
         draccus.parse(Command, args=["--policy.type=ccdp", "--policy.recovery_head=mlp"])
 
@@ -48,3 +49,8 @@ def test_choices_gives_draccus_a_decoder_for_a_new_literal_type():
     assert draccus.decode(mode, "right") == "right"
     with pytest.raises(Exception, match=r"'up' is not one of \['left', 'right'\]"):
         draccus.decode(mode, "up")
+
+
+def test_the_head_left_out_is_auto_for_the_features_to_name():
+    parsed = draccus.parse(Command, args=["--policy.type=ccdp", "--policy.device=cpu"]).policy
+    assert parsed.recovery_head == "auto"

@@ -1,18 +1,24 @@
-"""A recovery head is one module under policy/heads/: `recovery_head` names a registered head, the model asks
-the head for its loss and its estimate and never compares the name itself, and a head's own settings are
-refused with another head."""
+"""A recovery head is one module under policy/heads/: `recovery_head` names a registered head, or none, and
+then the policy names the default for its inputs (the set denoiser where it runs, else `unet`) in the
+checkpoint it saves; the model asks the head for its loss and its estimate and never compares the name
+itself, and a head's own settings are refused with another head."""
 
 import ast
+import json
 from pathlib import Path
 
 import pytest
 import torch
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.policies.factory import make_policy as lerobot_make_policy
 from torch import Tensor, nn
 
 import lerobot_ccdp
+from lerobot_ccdp.envs import CCDPEnvConfig
 from lerobot_ccdp.policy.configuration_ccdp import RECOVERY_HEADS, CCDPConfig
 from lerobot_ccdp.policy.heads import HEADS, RecoveryHead
 from lerobot_ccdp.policy.heads.registry import Estimate
+from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 from fixtures.policy_factory import make_policy
 
@@ -89,3 +95,50 @@ def test_a_setting_of_another_head_is_refused_naming_the_head_that_reads_it(head
         ValueError, match=f"`{field}` .* of the 'set_denoiser' head.*recovery_head=set_denoiser"
     ):
         CCDPConfig(recovery_head=head, device="cpu", **setting)
+
+
+def made_by_lerobot(obs_type: str = "state", **settings) -> CCDPPolicy:
+    """A fresh policy from LeRobot's `make_policy`, which sets the config's features from a ccdp env's, as
+    lerobot-eval does (lerobot-train sets them from a dataset's the same way) before the policy validates
+    them."""
+    env = CCDPEnvConfig(
+        task="DoorOpening-lite-v0", obs_type=obs_type, observation_width=48, observation_height=48
+    )
+    return lerobot_make_policy(CCDPConfig(device="cpu", **settings), env_cfg=env)
+
+
+@pytest.mark.parametrize(
+    ("obs_type", "n_obs_steps", "head"),
+    [("state", 1, "set_denoiser"), ("pixels_agent_pos", 1, "unet"), ("state", 2, "unet")],
+    ids=["state", "cameras", "two_observation_steps"],
+)
+def test_the_default_head_is_the_set_denoiser_where_it_runs_and_unet_elsewhere(obs_type, n_obs_steps, head):
+    assert CCDPConfig(device="cpu").recovery_head == "auto"  # named once the features are known
+    policy = made_by_lerobot(obs_type, n_obs_steps=n_obs_steps)
+    assert policy.config.recovery_head == head and policy.model.head.name == head
+
+
+@pytest.mark.parametrize("head", ["unet", "classifier"])
+def test_a_named_head_wins_over_the_default(head):
+    assert made_by_lerobot(recovery_head=head).model.head.name == head
+
+
+def test_a_named_set_denoiser_with_cameras_is_refused_with_the_fix():
+    with pytest.raises(
+        ValueError, match="no camera images yet: use --policy.recovery_head=unet with cameras"
+    ):
+        made_by_lerobot("pixels_agent_pos", recovery_head="set_denoiser")
+
+
+def test_a_setting_of_the_set_denoiser_with_cameras_names_the_head_the_default_chose():
+    with pytest.raises(ValueError, match="`failure_guard_steps` .* the 'unet' head reads none"):
+        made_by_lerobot("pixels_agent_pos", failure_guard_steps=2)
+
+
+def test_a_checkpoint_holds_the_default_head_it_was_built_with(tmp_path):
+    """What lerobot-ccdp-synthesize, the recovery stage and lerobot-eval read: config.json names the head."""
+    made_by_lerobot().save_pretrained(tmp_path)
+    assert json.loads((tmp_path / "config.json").read_text())["recovery_head"] == "set_denoiser"
+    assert PreTrainedConfig.from_pretrained(tmp_path).recovery_head == "set_denoiser"
+    loaded = CCDPPolicy.from_pretrained(tmp_path)
+    assert loaded.config.recovery_head == loaded.model.head.name == "set_denoiser"

@@ -43,7 +43,11 @@ def member_checkpoint(seed: int, tmp: Path) -> tuple[Path, LeRobotDataset]:
         if task.labelled
         else {"failure_feature": "final_state"}
     )
-    base = train_stage(CCDPConfig(device="cpu", **z), repo, data, tmp / "base", BASE_STEPS, 64)
+    # the base as measured: its head named `unet` (its untrained weights drawn from the seeded generator
+    # before training), not the set denoiser its state inputs default to
+    base = train_stage(
+        CCDPConfig(device="cpu", recovery_head="unet", **z), repo, data, tmp / "base", BASE_STEPS, 64
+    )
     head_config = PreTrainedConfig.from_pretrained(base)
     head_config.pretrained_path = str(base)
     head_config.training_stage, head_config.recovery_head = "recovery", "classifier"

@@ -6,8 +6,18 @@ from lerobot_ccdp.policy.heads.registry import (
     HEADS,
     RecoveryHead,
     head_class,
+    head_of,
     make_head,
+    name_default_head,
     refuse_settings_of_other_heads,
 )
 
-__all__ = ["HEADS", "RecoveryHead", "head_class", "make_head", "refuse_settings_of_other_heads"]
+__all__ = [
+    "HEADS",
+    "RecoveryHead",
+    "head_class",
+    "head_of",
+    "make_head",
+    "name_default_head",
+    "refuse_settings_of_other_heads",
+]

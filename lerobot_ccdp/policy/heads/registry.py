@@ -1,11 +1,12 @@
 """What a recovery head is, and the table that names them (`recovery_head`).
 
-A head is one module under `policy/heads/`: its network (built into `model.recovery`, so its weights sit
-under `model.recovery.*` in a checkpoint), the data it trains on, its training loss, its noise estimate at
-sampling time when a row has failures, and the settings only it reads. `CCDPModel` holds the base loss and the
-reverse loop and asks its head (`model.head`) for the rest; nothing outside this folder compares
-`recovery_head` with a name. The head's methods reach the network through `model.recovery`, so a test may put
-another network there.
+A head is one module under `policy/heads/`: its network (built into `model.recovery`, so its weights sit under
+`model.recovery.*` in a checkpoint), the data it trains on, its training loss, its noise estimate at sampling
+time when a row has failures, and the settings only it reads. `CCDPModel` holds the base loss and the reverse
+loop and asks its head (`model.head`) for the rest; nothing outside this folder compares `recovery_head` with
+a name. A config that names no head ("auto") gets the default for its inputs (`head_of`), named in the config
+once its features are known (`name_default_head`, at `CCDPConfig.validate_features`). The head's methods reach
+the network through `model.recovery`, so a test may put another network there.
 """
 
 from __future__ import annotations
@@ -91,15 +92,41 @@ def head_class(name: str) -> type[RecoveryHead]:
     return HEADS[name]
 
 
+# `recovery_head="auto"` (the default) names no head: it gets the set denoiser, which every benchmark table
+# measured, where it runs (its `check_config`: state inputs, one observation frame), else the paper's eps_z
+# heads, which run with every input (cameras, several observation frames).
+AUTO, DEFAULT_HEAD, FALLBACK_HEAD = "auto", "set_denoiser", "unet"
+
+
+def head_of(config: CCDPConfig) -> type[RecoveryHead]:
+    """The head `config.recovery_head` names, or for "auto" the default for the inputs the config knows so
+    far; `name_default_head` fixes it once they are all known."""
+    if config.recovery_head != AUTO:
+        return head_class(config.recovery_head)
+    try:
+        HEADS[DEFAULT_HEAD].check_config(config)
+    except ValueError:
+        return HEADS[FALLBACK_HEAD]
+    return HEADS[DEFAULT_HEAD]
+
+
+def name_default_head(config: CCDPConfig) -> None:
+    """Name the default head in a config that says "auto", once its input features are known (LeRobot sets
+    them from the dataset or env before `validate_features`), so that the checkpoint's config.json, and
+    every stage that loads it (synthesis, the recovery stage, lerobot-eval), holds the head it was built
+    with."""
+    config.recovery_head = head_of(config).name
+
+
 def make_head(config: CCDPConfig) -> RecoveryHead:
-    """The head `config.recovery_head` names."""
-    return head_class(config.recovery_head)()
+    """The head the config names (`head_of`)."""
+    return head_of(config)()
 
 
 def refuse_settings_of_other_heads(config: CCDPConfig) -> None:
     """A field only another head reads, set away from its default, would do nothing: refused with the fix.
     None sets nothing (a config.json saved when `w_z_steps` defaulted to None holds it for every head)."""
-    own = head_class(config.recovery_head)
+    own = head_of(config)
     for owner in HEADS.values():
         for field in set(owner.own_settings) - set(own.own_settings):
             value, default = getattr(config, field), type(config).__dataclass_fields__[field].default
