@@ -22,28 +22,19 @@ CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
 PANDA = [t for t in TASKS if "lite" not in t]
 
 # Method settings the folders still set, as `file: {field: value}` (methods.json as `method.field`). The
-# recovery head is the set denoiser in every folder while CCDPConfig's default is the paper's `unet`.
-SET_DENOISER = {"train_base": {"recovery_head": "set_denoiser"}}
+# recovery head is none of them: CCDPConfig's default names the set denoiser for these state inputs.
 OPEN_DEPARTURES = {
-    **{task_slug(t): SET_DENOISER for t in PANDA if "Bartender" not in t},
     "bartender": {
-        "train_base": {"recovery_head": "set_denoiser", "failure_label_at": "attempt_end"},
+        "train_base": {"failure_label_at": "attempt_end"},
         "methods": {"ccdp.w_z": 1, "ccdp.failure_guard_steps": 8, "ccdp.failure_guard_weight": 8},
     },
     **{
-        f"{task_slug(t)}_label_free": {
-            "train_base": {"recovery_head": "set_denoiser", "failure_state_at": "demonstrated_end"}
-        }
+        f"{task_slug(t)}_label_free": {"train_base": {"failure_state_at": "demonstrated_end"}}
         for t in PANDA
         if "Bartender" not in t
     },
     "bartender_label_free": {
-        "train_base": {
-            "recovery_head": "set_denoiser",
-            "z_fourier_octaves": 4,
-            "stratum_weights": True,
-            "state_failure_sets": 0.5,
-        },
+        "train_base": {"z_fourier_octaves": 4, "stratum_weights": True, "state_failure_sets": 0.5},
         "methods": {
             "dp_star.delta_z": 0.05,
             "ccdp.delta_z": 0.05,
@@ -64,7 +55,15 @@ OPEN_DEPARTURES["button_search_label_free"] = {
 def test_a_task_folder_sets_no_method_setting_but_the_open_departures(task, label_free, tmp_path):
     files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path, label_free=label_free)
     slug = task_slug(task) + ("_label_free" if label_free else "")
-    assert method_settings(files) == OPEN_DEPARTURES[slug]
+    assert method_settings(files) == OPEN_DEPARTURES.get(slug, {})
+
+
+@pytest.mark.parametrize("label_free", [False, True], ids=["labelled", "label_free"])
+@pytest.mark.parametrize("task", PANDA)
+def test_a_task_folder_gets_the_benchmarked_head_by_default(task, label_free, tmp_path):
+    """The set denoiser every table measured, as lerobot-train names it for the task's state inputs."""
+    files = TaskFiles.locate(task, CONFIGS, RECIPES, tmp_path, label_free=label_free)
+    assert files.recovery_head() == "set_denoiser"
 
 
 def test_a_method_setting_in_a_task_folder_is_found(tmp_path):
@@ -86,7 +85,7 @@ def test_a_method_setting_in_a_task_folder_is_found(tmp_path):
     (tmp_path / "recipes" / "door_opening.yaml").write_text(yaml.safe_dump(recipe))
     changed = TaskFiles.locate("DoorOpening-v0", tmp_path / "configs", tmp_path / "recipes", tmp_path / "out")
     assert method_settings(changed) == {
-        "train_base": {"recovery_head": "set_denoiser", "w_z": 2.0},
+        "train_base": {"w_z": 2.0},
         "methods": {"dp_star.dp_star_candidates": 64},
         "recipe": {"sigma": 0.05},
     }
