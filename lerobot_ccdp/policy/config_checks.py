@@ -109,7 +109,10 @@ def check_settings(config: CCDPConfig) -> None:
             "failure_feature='primitive' needs `num_primitives` >= 2 (the number of distinct labels in "
             f"the dataset column {config.primitive_key!r}); got {config.num_primitives}."
         )
-    if config.failure_guard_weight != 1 and not config.failure_guard_steps:
+    guard_weight_set = config.failure_guard_weight not in (1.0, type(config).failure_guard_weight)
+    if guard_weight_set and not config.failure_guard_steps:
+        # The default weight and the neutral 1 (what a config saved before the guard's defaults holds) set
+        # nothing without guarded steps; any other weight is a setting that would do nothing.
         raise ValueError(
             f"`failure_guard_weight` ({config.failure_guard_weight}) weighs the guard's gradient at its "
             "guarded steps, and `failure_guard_steps` is 0: set --policy.failure_guard_steps or remove "

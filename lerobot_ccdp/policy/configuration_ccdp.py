@@ -54,9 +54,10 @@ class CCDPConfig(PreTrainedConfig):
     low-dimensional tasks on a 2-core CPU (a 1.1 M-parameter UNet, 10 DDPM steps). The reverse step is DDPM's
     stochastic one, eq. (3) of the paper (docs/method.md, "Reverse sampler").
 
-    The defaults of the sampling settings (`w_z`, `w_z_steps`, `dp_star_*`, `row_noise_streams`) are those
-    of the benchmark's set-denoiser configs, so `lerobot-eval` on a checkpoint evaluates the CCDP and DP* that
-    docs/results.md reports. Eq. (4)'s state weight is 1 (the base's own eps_s: `CompositionWeights`).
+    The defaults of the sampling settings (`w_z`, `w_z_steps`, the guard's `failure_guard_*`, `dp_star_*`,
+    `row_noise_streams`) are those of the benchmark's set-denoiser configs, so `lerobot-eval` on a checkpoint
+    evaluates the CCDP and DP* that docs/results.md reports. Eq. (4)'s state weight is 1 (the base's own
+    eps_s: `CompositionWeights`).
 
     Args:
         w_h: Weight of the history term eps_h - eps_a in eq. (4); needs `history_length` > 0. Every weight
@@ -184,8 +185,8 @@ class CCDPConfig(PreTrainedConfig):
     w_h: float = 0.0
     w_z: float = 5.0
     w_z_steps: int | None = 3
-    failure_guard_steps: int = 0
-    failure_guard_weight: float = 1.0
+    failure_guard_steps: int = 4
+    failure_guard_weight: float = 8.0
     history_length: int = 0
     recovery_mode: RecoveryMode = "ccdp"
     recovery_head: RecoveryHeadSetting = "auto"

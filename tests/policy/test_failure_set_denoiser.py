@@ -2,11 +2,13 @@
 outside their drawn failure set, costs one network call per reverse step for a row with failures, and refuses
 the settings it cannot serve."""
 
+import json
+
 import pytest
 import torch
 from torch import Tensor
 
-from lerobot_ccdp.policy.configuration_ccdp import SIBLING_COUNT_KEY, SIBLING_FEATURES_KEY
+from lerobot_ccdp.policy.configuration_ccdp import SIBLING_COUNT_KEY, SIBLING_FEATURES_KEY, CCDPConfig
 from lerobot_ccdp.policy.failure_buffer import draw_failure_sets, draw_state_failure_sets, stratum_weights
 
 from fixtures.policy_factory import make_policy
@@ -159,7 +161,7 @@ def test_a_plan_after_failures_calls_only_the_set_denoiser_once_per_step():
     cost what DP costs, one call per reverse step (here with 4 failures), while rows without failures keep
     using the base."""
     torch.manual_seed(0)
-    policy = make_policy(**SETTINGS, w_z=1.0)
+    policy = make_policy(**SETTINGS, w_z=1.0, failure_guard_steps=0)
     policy.model.recovery_trained.fill_(True)
     base_rows, head_rows = count_calls(policy.model.base), count_calls(policy.model.recovery)
     with torch.inference_mode():
@@ -187,7 +189,7 @@ def test_w_z_guides_only_its_window_of_steps_and_the_set_denoiser_alone_serves_t
     """w_z = 2 on the noisiest reverse steps of the 10 (the first 3, the first 8, every one): there
     eps_s + 2 (eps_{s,F} - eps_s), a base call for the failed rows; elsewhere eps_{s,F} alone. The plan equals
     the one sampled step by step by hand."""
-    policy = make_policy(**SETTINGS, w_z=2.0, **window)
+    policy = make_policy(**SETTINGS, w_z=2.0, failure_guard_steps=0, **window)
     policy.model.recovery_trained.fill_(True)
     model = policy.model
     state, history = torch.zeros(2, 2), torch.zeros(2, 0)
@@ -247,8 +249,8 @@ def test_the_guard_guides_only_the_last_steps_by_its_classifier_gradient(weight)
 
 
 def test_a_set_denoiser_saved_before_its_guard_loads_and_refuses_only_the_guard(reaching_root, tmp_path):
-    """A trained set-denoiser checkpoint without the guard's weights (saved before the guard existed) loads
-    and samples as before; asking it for guarded steps names the fix."""
+    """A trained set-denoiser checkpoint without the guard's weights or fields (saved before the guard
+    existed) loads; the guarded steps it now gets by default name the fix, and without them it samples."""
     from lerobot.configs.policies import PreTrainedConfig
     from safetensors.torch import load_file, save_file
 
@@ -261,20 +263,30 @@ def test_a_set_denoiser_saved_before_its_guard_loads_and_refuses_only_the_guard(
     weights["model.recovery_trained"] = torch.ones((), dtype=torch.bool)
     without_guard = {k: v for k, v in weights.items() if not k.startswith("model.recovery.guard")}
     save_file(without_guard, checkpoint / "model.safetensors")
-    policy = CCDPPolicy.from_pretrained(checkpoint)
-    assert bool(policy.model.recovery_trained) and not bool(policy.model.recovery.guard_trained)
+    saved = json.loads((checkpoint / "config.json").read_text())
+    old = {k: v for k, v in saved.items() if not k.startswith("failure_guard_")}
+    (checkpoint / "config.json").write_text(json.dumps(old))
     batch = {"observation.state": torch.zeros(1, 2)}
-    with torch.inference_mode():
-        policy.select_action(batch)
-        policy.report_failure(z=torch.eye(4)[[0]])
-        policy.predict_action_chunk(batch)
-    config = PreTrainedConfig.from_pretrained(checkpoint)
-    config.failure_guard_steps = 2
-    guarded = CCDPPolicy.from_pretrained(checkpoint, config=config)
+    guarded = CCDPPolicy.from_pretrained(checkpoint)
+    assert bool(guarded.model.recovery_trained) and not bool(guarded.model.recovery.guard_trained)
     with torch.inference_mode(), pytest.raises(ValueError, match="--policy.failure_guard_steps=0"):
         guarded.select_action(batch)
         guarded.report_failure(z=torch.eye(4)[[0]])
         guarded.predict_action_chunk(batch)
+    config = PreTrainedConfig.from_pretrained(checkpoint, cli_overrides=["--failure_guard_steps=0"])
+    policy = CCDPPolicy.from_pretrained(checkpoint, config=config)
+    with torch.inference_mode():
+        policy.select_action(batch)
+        policy.report_failure(z=torch.eye(4)[[0]])
+        assert torch.isfinite(policy.predict_action_chunk(batch)).all()
+
+
+@pytest.mark.parametrize("weight", [1.0, CCDPConfig.failure_guard_weight])
+def test_no_guard_at_the_default_or_the_neutral_weight_is_accepted(weight):
+    """The guard off at the default weight (a user's --policy.failure_guard_steps=0) or at 1 (a config.json
+    saved before the guard was on by default) sets no weight that would do nothing."""
+    policy = make_policy(**SETTINGS, failure_guard_steps=0, failure_guard_weight=weight)
+    assert (policy.config.failure_guard_steps, policy.config.failure_guard_weight) == (0, weight)
 
 
 def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
@@ -289,7 +301,7 @@ def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
     with pytest.raises(ValueError, match="exceeds the 10 reverse steps"):
         make_policy(**SETTINGS, failure_guard_steps=11)
     with pytest.raises(ValueError, match="--policy.failure_guard_steps or remove"):
-        make_policy(**SETTINGS, failure_guard_weight=2.0)
+        make_policy(**SETTINGS, failure_guard_steps=0, failure_guard_weight=2.0)
     with pytest.raises(ValueError, match="`failure_guard_weight` must be >= 0"):
         make_policy(**SETTINGS, failure_guard_steps=2, failure_guard_weight=-1.0)
 

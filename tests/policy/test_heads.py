@@ -87,6 +87,17 @@ def test_the_model_hands_a_rows_failures_and_the_recovery_loss_to_its_head():
     assert (loss.item(), info, head.losses) == (7.0, {"counted": True}, 1)
 
 
+@pytest.mark.parametrize(
+    "setting", [{"failure_guard_steps": 0}, {"w_z_steps": None}, {"stratum_weights": False}]
+)
+@pytest.mark.parametrize("head", ["unet", "classifier"])
+def test_a_setting_of_another_head_turned_off_sets_nothing(head, setting):
+    """A config.json saved when the set denoiser's guard or window defaulted to off holds that for every head:
+    it loads."""
+    config = CCDPConfig(recovery_head=head, device="cpu", **setting)
+    assert getattr(config, *setting) == next(iter(setting.values()))
+
+
 @pytest.mark.parametrize("setting", [{"failure_guard_steps": 2}, {"w_z_steps": 5}, {"stratum_weights": True}])
 @pytest.mark.parametrize("head", ["unet", "classifier"])
 def test_a_setting_of_another_head_is_refused_naming_the_head_that_reads_it(head, setting):

@@ -228,6 +228,8 @@ def test_composed_sampling_of_exact_mixtures_avoids_failed_modes_and_keeps_the_p
 def test_network_calls_per_step_do_not_grow_with_failures(mode, head):
     policy = make_policy(recovery_mode=mode, w_h=0.5, history_length=2, **head)
     policy.model.recovery_trained.fill_(True)
+    if head.get("recovery_head") == "set_denoiser":
+        policy.model.recovery.guard_trained.fill_(True)  # its default guarded steps
     calls = {"base": 0, "recovery": 0}
     policy.model.base.register_forward_hook(lambda *_: calls.__setitem__("base", calls["base"] + 1))
     policy.model.recovery.register_forward_hook(

@@ -125,12 +125,13 @@ def make_head(config: CCDPConfig) -> RecoveryHead:
 
 def refuse_settings_of_other_heads(config: CCDPConfig) -> None:
     """A field only another head reads, set away from its default, would do nothing: refused with the fix.
-    None sets nothing (a config.json saved when `w_z_steps` defaulted to None holds it for every head)."""
+    A value that turns the setting off (None, 0, False) sets nothing: a config.json saved when `w_z_steps`
+    defaulted to None, or the guard to 0 steps, holds it for every head."""
     own = head_of(config)
     for owner in HEADS.values():
         for field in set(owner.own_settings) - set(own.own_settings):
             value, default = getattr(config, field), type(config).__dataclass_fields__[field].default
-            if value is not None and value != default:
+            if value and value != default:
                 raise ValueError(
                     f"`{field}` ({value}) is a setting of the {owner.name!r} head; the {own.name!r} head "
                     f"reads none. Remove --policy.{field} or use --policy.recovery_head={owner.name}."
