@@ -22,12 +22,10 @@ CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
 PANDA = [t for t in TASKS if "lite" not in t]
 
 # Method settings the folders still set, as `file: {field: value}` (methods.json as `method.field`). The
-# recovery head is none of them: CCDPConfig's default names the set denoiser for these state inputs.
+# recovery head and the guard are none of them: CCDPConfig's defaults name the set denoiser for these state
+# inputs, and its guard on the last 4 reverse steps at weight 8.
 OPEN_DEPARTURES = {
-    "bartender": {
-        "train_base": {"failure_label_at": "attempt_end"},
-        "methods": {"ccdp.w_z": 1, "ccdp.failure_guard_steps": 8, "ccdp.failure_guard_weight": 8},
-    },
+    "bartender": {"train_base": {"failure_label_at": "attempt_end"}},
     **{
         f"{task_slug(t)}_label_free": {"train_base": {"failure_state_at": "demonstrated_end"}}
         for t in PANDA
@@ -39,8 +37,6 @@ OPEN_DEPARTURES = {
             "dp_star.delta_z": 0.05,
             "ccdp.delta_z": 0.05,
             "ccdp.w_z": 1,
-            "ccdp.failure_guard_steps": 4,
-            "ccdp.failure_guard_weight": 8,
         },
         "recipe": {"chunks_per_state": 128, "demo_siblings": True},
     },
