@@ -1,13 +1,13 @@
 """The CCDP and DP* each task's benchmark evaluates, and that the policy's defaults are them.
 
 BENCHMARKED holds, per settings folder, the form the pipeline evaluates: the one configuration (issue 114)
-for the set-denoiser folders, chosen on the development seeds 1000-1099 (docs/benchmarks.md, "The one configuration"):
-the window (`w_z` 5 on the 3 noisiest steps) and the guard on the last 4 at weight 8, with what each folder
-still departs in (tests/benchmark/test_one_configuration.py). The test rounds before it evaluated the forms
-docs/results.md names per round (no guard on the door, buttons, box and packing; `w_z` 1 and the guard on 8
-steps on the labelled Bartender). Each test builds the evaluated config as
-lerobot-eval does: the checkpoint's config.json (train_base.json's policy on the policy's defaults) with the
-command's --policy.* flags on top (`PreTrainedConfig.from_pretrained(path, cli_overrides=...)`).
+for the set-denoiser folders, chosen on the development seeds 1000-1099 (docs/benchmarks.md, "The one
+configuration"): the window (`w_z` 5 on the 3 noisiest steps) and the guard on the last 4 at weight 8, with
+what each folder still departs in (tests/benchmark/test_one_configuration.py). The test rounds before it
+evaluated the forms docs/results.md names per round (no guard on the door, buttons, box and packing; `w_z` 1
+and the guard on 8 steps on the labelled Bartender). Each test builds the evaluated config as lerobot-eval
+does: the checkpoint's config.json (train_base.json's policy on the policy's defaults) with the command's
+--policy.* flags on top (`PreTrainedConfig.from_pretrained(path, cli_overrides=...)`).
 """
 
 import json
