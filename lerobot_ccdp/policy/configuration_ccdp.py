@@ -71,9 +71,10 @@ class CCDPConfig(PreTrainedConfig):
             classifier heads apply `w_z` at every step.
         failure_guard_steps: Set denoiser: in the last `failure_guard_steps` reverse steps, guide eps_{s,F}
             away from F with its guard, a failure-set classifier trained beside it on the same rows (0: no
-            guard). Near zero noise P(a_0 outside F | a_t) is nearly 0 or 1, so the guard moves only the
-            samples the set denoiser let onto a failed option and leaves the proportions of the others. Each
-            guarded step costs one classifier forward and backward.
+            guard; as many as the reverse steps or more: every step, as for `w_z_steps`). Near zero noise
+            P(a_0 outside F | a_t) is nearly 0 or 1, so the guard moves only the samples the set denoiser let
+            onto a failed option and leaves the proportions of the others. Each guarded step costs one
+            classifier forward and backward.
         failure_guard_weight: Set denoiser: the weight of the guard's gradient at its guarded steps (1: the
             classifier-guidance estimate of p(a_t | s) P(a_0 outside F | a_t, s); above 1 pushes harder at
             no extra cost, for what one weight leaves on a failed option).

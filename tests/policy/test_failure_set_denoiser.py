@@ -248,6 +248,22 @@ def test_the_guard_guides_only_the_last_steps_by_its_classifier_gradient(weight)
     torch.testing.assert_close(plan, sample)
 
 
+@pytest.mark.parametrize("guard_steps, reverse_steps", [(4, 2), (11, 10)])
+def test_a_guard_longer_than_the_reverse_steps_guards_every_step(guard_steps, reverse_steps):
+    """The default guard (4 steps) on a short sampler, or more steps than there are, guards them all, as
+    `w_z_steps` does, rather than wrapping around to the last one."""
+    policy = make_policy(
+        **SETTINGS, failure_guard_steps=guard_steps, num_inference_steps=reverse_steps, w_z_steps=None
+    )
+    policy.model.recovery_trained.fill_(True)
+    policy.model.recovery.guard_trained.fill_(True)
+    guard_rows = count_calls(policy.model.recovery.guard)
+    z, z_mask = torch.eye(3)[torch.tensor([[0], [1]])], torch.ones(2, 1, dtype=torch.bool)
+    with torch.inference_mode():
+        policy.model.denoise(torch.randn(2, 16, 2), torch.zeros(2, 2), torch.zeros(2, 0), z, z_mask)
+    assert guard_rows == [2] * reverse_steps
+
+
 def test_a_set_denoiser_saved_before_its_guard_loads_and_refuses_only_the_guard(reaching_root, tmp_path):
     """A trained set-denoiser checkpoint without the guard's weights or fields (saved before the guard
     existed) loads; the guarded steps it now gets by default name the fix, and without them it samples."""
@@ -298,8 +314,6 @@ def test_settings_the_set_denoiser_cannot_serve_are_refused_with_the_fix():
         make_policy(**SETTINGS, w_z=2.0, w_z_steps=0)
     with pytest.raises(ValueError, match="--policy.recovery_head=set_denoiser"):
         make_policy(**{**SETTINGS, "recovery_head": "classifier"}, failure_guard_steps=2)
-    with pytest.raises(ValueError, match="exceeds the 10 reverse steps"):
-        make_policy(**SETTINGS, failure_guard_steps=11)
     with pytest.raises(ValueError, match="--policy.failure_guard_steps or remove"):
         make_policy(**SETTINGS, failure_guard_steps=0, failure_guard_weight=2.0)
     with pytest.raises(ValueError, match="`failure_guard_weight` must be >= 0"):

@@ -76,6 +76,7 @@ def planned_shares(head: str, failed: list[int]) -> Tensor:
         history_length=0,
         horizon=16,
         n_action_steps=8,
+        failure_guard_steps=0,  # the exact networks have no guard
     )
     alphas, horizon = policy.model.noise_scheduler.alphas_cumprod, policy.config.horizon
     policy.model.base = ExactBase(alphas, horizon)

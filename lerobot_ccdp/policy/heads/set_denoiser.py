@@ -185,7 +185,7 @@ class SetDenoiserHead(RecoveryHead):
         guided by the head's guard in the last `failure_guard_steps` steps (`guide_away_from_failures` at
         `failure_guard_weight`), and eq. (4) without failure terms for the other rows."""
         cfg = model.config
-        guarded = set(timesteps[len(timesteps) - cfg.failure_guard_steps :])
+        guarded = set(timesteps[max(len(timesteps) - cfg.failure_guard_steps, 0) :])
         if guarded and not bool(model.recovery.guard_trained):
             raise ValueError(
                 f"--policy.failure_guard_steps={cfg.failure_guard_steps} follows the set denoiser's "
