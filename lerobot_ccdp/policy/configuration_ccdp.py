@@ -55,9 +55,10 @@ class CCDPConfig(PreTrainedConfig):
     stochastic one, eq. (3) of the paper (docs/method.md, "Reverse sampler").
 
     The defaults of the sampling settings (`w_z`, `w_z_steps`, the guard's `failure_guard_*`, `dp_star_*`,
-    `row_noise_streams`) are those of the benchmark's set-denoiser configs, so `lerobot-eval` on a checkpoint
-    evaluates the CCDP and DP* that docs/results.md reports. Eq. (4)'s state weight is 1 (the base's own
-    eps_s: `CompositionWeights`).
+    `row_noise_streams`) are the benchmark's one configuration for every task, chosen on its development seeds
+    (docs/benchmarks.md, "The one configuration"), so `lerobot-eval` on a checkpoint evaluates the CCDP and
+    DP* the pipeline does; docs/results.md's rounds name the forms they measured. Eq. (4)'s state weight is 1
+    (the base's own eps_s: `CompositionWeights`).
 
     Args:
         w_h: Weight of the history term eps_h - eps_a in eq. (4); needs `history_length` > 0. Every weight
