@@ -142,8 +142,13 @@ def test_a_named_set_denoiser_with_cameras_is_refused_with_the_fix():
 
 
 def test_a_setting_of_the_set_denoiser_with_cameras_names_the_head_the_default_chose():
-    with pytest.raises(ValueError, match="`failure_guard_steps` .* the 'unet' head reads none"):
+    """The fix is to remove the flag: the set denoiser that reads it cannot serve cameras, so the message
+    says why rather than suggesting it."""
+    with pytest.raises(ValueError, match="`failure_guard_steps` .* the 'unet' head reads none") as refused:
         made_by_lerobot("pixels_agent_pos", failure_guard_steps=2)
+    message = str(refused.value)
+    assert "Remove --policy.failure_guard_steps (the 'set_denoiser' head cannot serve" in message
+    assert "use --policy.recovery_head=set_denoiser" not in message
 
 
 def test_a_checkpoint_holds_the_default_head_it_was_built_with(tmp_path):

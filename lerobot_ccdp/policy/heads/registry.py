@@ -134,5 +134,15 @@ def refuse_settings_of_other_heads(config: CCDPConfig) -> None:
             if value and value != default:
                 raise ValueError(
                     f"`{field}` ({value}) is a setting of the {owner.name!r} head; the {own.name!r} head "
-                    f"reads none. Remove --policy.{field} or use --policy.recovery_head={owner.name}."
+                    f"reads none. Remove --policy.{field}{_or_use(owner, config)}."
                 )
+
+
+def _or_use(owner: type[RecoveryHead], config: CCDPConfig) -> str:
+    """The other fix, naming the head that reads the setting, where that head can serve this config (the set
+    denoiser cannot with cameras: suggesting it would only lead to its own refusal)."""
+    try:
+        owner.check_config(config)
+    except ValueError as reason:
+        return f" (the {owner.name!r} head cannot serve this config: {reason})"
+    return f" or use --policy.recovery_head={owner.name}"
