@@ -819,10 +819,10 @@ def z_description(settings: dict[str, Any]) -> str:
     if settings["failure_feature"] != "final_state":
         return settings["failure_feature"]
     dims = settings.get("failure_state_dims") or "all"
-    at = settings.get("failure_state_at", CCDPConfig.failure_state_at)
+    at = settings.get("failure_state_at", "attempt_end")  # a checkpoint older than the field read it there
     segments = settings.get("failure_segments", CCDPConfig.failure_segments)
     ends = "" if segments == "labels" else f", demonstrated options end at {segments}"
-    octaves = settings.get("z_fourier_octaves", CCDPConfig.z_fourier_octaves)
+    octaves = settings.get("z_fourier_octaves") or 0  # config.json holds the number (`validate_features`)
     ends += f", {octaves} Fourier octaves" if octaves else ""
     return f"final_state: state dims {dims}, a failure's read at {at}{ends}"
 

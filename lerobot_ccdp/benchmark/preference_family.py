@@ -59,6 +59,7 @@ from lerobot_ccdp.benchmark.reaching2d import ReachingTask
 from lerobot_ccdp.benchmark.reaching_preferences import Method, measure
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
+from lerobot_ccdp.policy.configuration_ccdp import FOURIER_OCTAVES_OF_A_POINT
 
 logger = logging.getLogger(__name__)
 CREATED_BY = "lerobot_ccdp.benchmark.preference_family"
@@ -192,7 +193,7 @@ def prepare_member(
     classifier: bool,
     set_denoiser: bool,
     set_states: int,
-    z_fourier_octaves: int = 0,
+    z_fourier_octaves: int = FOURIER_OCTAVES_OF_A_POINT,
     stratum_weights: bool = False,
 ) -> dict[str, Path]:
     """Record member `seed`, train its base and, from it, the classifier head (with `classifier`) and the
@@ -268,13 +269,13 @@ def train_set_denoiser(
     steps: int,
     states: int,
     book: StampBook,
-    z_fourier_octaves: int = 0,
+    z_fourier_octaves: int = FOURIER_OCTAVES_OF_A_POINT,
     stratum_weights: bool = False,
 ) -> Path:
     """lerobot-ccdp-synthesize the set denoiser's rows from `base` (SET_RECIPE at `states` states), then
     lerobot-train it on them, its rows weighted per (state, failure set) with `stratum_weights`; a
-    `final_state` member's head reads its z in `z_fourier_octaves` Fourier octaves (the Panda's label-free
-    configs' setting; a one-hot label needs none)."""
+    `final_state` member's head reads its z in `z_fourier_octaves` Fourier octaves (CCDPConfig's default
+    for a point z; a one-hot label needs none)."""
     z = (
         {"failure_feature": "primitive", "num_primitives": len(task.goals)}
         if task.labelled
@@ -557,9 +558,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--z-fourier-octaves",
         type=int,
-        default=0,
+        default=FOURIER_OCTAVES_OF_A_POINT,
         help="set denoiser: Fourier octaves of a `final_state` member's z in the head's set embedding "
-        "(--policy.z_fourier_octaves of its recovery stage; labelled members keep their one-hot z)",
+        "(--policy.z_fourier_octaves of its recovery stage; default: CCDPConfig's for a point z; labelled "
+        "members keep their one-hot z)",
     )
     parser.add_argument(
         "--stratum-weights",

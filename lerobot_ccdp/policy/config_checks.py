@@ -89,7 +89,7 @@ def check_settings(config: CCDPConfig) -> None:
                 "scheduler's clipping range, so every action sits on its bound (the shipped configs and "
                 f"benchmarks use at most 16). Set --policy.{name} to {MAX_WEIGHT:g} or less."
             )
-    if config.z_fourier_octaves > MAX_FOURIER_OCTAVES:
+    if (config.z_fourier_octaves or 0) > MAX_FOURIER_OCTAVES:
         raise ValueError(
             f"`z_fourier_octaves` must be <= {MAX_FOURIER_OCTAVES}; got {config.z_fourier_octaves}. Beyond, "
             "sin(2^k pi z) of a float32 z is rounding noise, and from 128 octaves features are NaN (the "

@@ -40,6 +40,9 @@ SIBLING_FEATURES_KEY = "observation.failure_feature_siblings"
 SIBLING_COUNT_KEY = "observation.failure_feature_sibling_count"
 # Observation key an env uses to flag a failed attempt (DESIGN section 5).
 FAILURE_FLAG_KEY = "observation.failure"
+# Fourier octaves of a point z (`final_state`) by default: the label-free buttons and Bartender gained 0.09 of
+# success with 4, the door, box, packing and the 2-D family tied (docs/benchmarks.md, "Label-free z").
+FOURIER_OCTAVES_OF_A_POINT = 4
 
 
 @PreTrainedConfig.register_subclass("ccdp")
@@ -98,9 +101,11 @@ class CCDPConfig(PreTrainedConfig):
         failure_state_dims: final_state: which dims of the state frame form z: `observation.state`'s dims
             first, then `observation.environment_state`'s (index robot_dim + i for its dim i). Empty: every
             dim of `observation.state`.
-        failure_state_at: final_state: where a failure's z is read: "attempt_end" (the state where the failed
-            attempt stopped) or "demonstrated_end" (where the demonstrated chunk nearest the failed one ends,
-            i.e. where the attempt was heading; needs the outcome table, as `primitive` does).
+        failure_state_at: final_state: where a failure's z is read: "demonstrated_end" (the default: where
+            the demonstrated chunk nearest the failed one ends, i.e. where the attempt was heading, a z the
+            head trained on; needs the outcome table, as `primitive` does, and a planned chunk) or
+            "attempt_end" (the state where the failed attempt stopped). The default names a failure as
+            `failure_label_at`'s default does a label: by the demonstrated chunk nearest the one executing.
         failure_segments: final_state: where a demonstrated option ends: "labels" (runs of one `primitive_key`
             label, the whole episode without that column), "drops" (the gripper, the action's last dim, lets
             go and the hand opens) or "pauses" (the action holds still for two frames).
@@ -116,8 +121,10 @@ class CCDPConfig(PreTrainedConfig):
         z_fourier_octaves: Set denoiser and classifier: each failure's z enters the set embedding as z with
             sin and cos of 2^k pi z for k < z_fourier_octaves (0: z alone), so that a point z (`final_state`)
             whose options lie a few tenths apart in normalised units is told apart as easily as a one-hot
-            label. Part of the head's architecture: set with the base (train_base.json, as the label-free
-            configs do) or at the recovery stage beside --policy.path.
+            label. None (the default): by what z is, named with the features (`validate_features`, so
+            config.json holds a number): `FOURIER_OCTAVES_OF_A_POINT` for `final_state`, 0 for a one-hot
+            `primitive` or an `action` chunk. Part of the head's architecture: set with the base or at the
+            recovery stage beside --policy.path.
         delta_z: Squared distance in z under which an outcome repeats a failure (DP*'s rejection, the set
             denoiser's training sets, and eq. (5)'s recovery pairs unless the recipe gives its own).
         stratum_weights: Set denoiser, recovery stage: weigh each kept row by 1 / (1 - p_s(F)), p_s(F) the
@@ -195,13 +202,13 @@ class CCDPConfig(PreTrainedConfig):
     training_stage: TrainingStage = "base"
     failure_feature: FailureFeatureKind = "final_state"
     failure_state_dims: list[int] = field(default_factory=list)
-    failure_state_at: FailureStateAt = "attempt_end"
+    failure_state_at: FailureStateAt = "demonstrated_end"
     failure_segments: FailureSegments = "labels"
     primitive_key: str = "primitive"
     failure_label_at: FailureLabelAt = "latest_chunk"
     num_primitives: int = 0
     failure_signal_file: str | None = None
-    z_fourier_octaves: int = 0
+    z_fourier_octaves: int | None = None
     delta_z: float = 0.1
     stratum_weights: bool = False
     state_failure_sets: float = 0.0
@@ -238,6 +245,7 @@ class CCDPConfig(PreTrainedConfig):
         from lerobot_ccdp.policy.heads import name_default_head  # the heads import this module
 
         name_default_head(self)
+        self.z_fourier_octaves = z_fourier_octaves_of(self)
         check_settings(self)
         check_features(self)
         if len(self.action_feature.shape) == 2:
@@ -324,3 +332,11 @@ class CCDPConfig(PreTrainedConfig):
 
     def get_scheduler_preset(self) -> DiffuserSchedulerConfig:
         return DiffuserSchedulerConfig(name=self.scheduler_name, num_warmup_steps=self.scheduler_warmup_steps)
+
+
+def z_fourier_octaves_of(config: CCDPConfig) -> int:
+    """`z_fourier_octaves`, or where it is None the default for what z is: a point (`final_state`) gets
+    `FOURIER_OCTAVES_OF_A_POINT`, a one-hot label or a whole chunk none."""
+    if config.z_fourier_octaves is not None:
+        return config.z_fourier_octaves
+    return FOURIER_OCTAVES_OF_A_POINT if config.failure_feature == "final_state" else 0

@@ -5,7 +5,8 @@ for the set-denoiser folders, chosen on the development seeds 1000-1099 (docs/be
 configuration"): the window (`w_z` 5 on the 3 noisiest steps) and the guard on the last 4 at weight 8, with
 what each folder still departs in (tests/benchmark/test_one_configuration.py). The test rounds before it
 evaluated the forms docs/results.md names per round (no guard on the door, buttons, box and packing; `w_z` 1
-and the guard on 8 steps on the labelled Bartender). Each test builds the evaluated config as lerobot-eval
+and the guard on 8 steps on the labelled Bartender; z in no Fourier octaves on the label-free door, box and
+packing). Each test builds the evaluated config as lerobot-eval
 does: the checkpoint's config.json (train_base.json's policy on the policy's defaults) with the command's
 --policy.* flags on top (`PreTrainedConfig.from_pretrained(path, cli_overrides=...)`).
 """
@@ -23,7 +24,7 @@ from lerobot_ccdp.benchmark.pipeline import LABEL_FREE as LABEL_FREE_SUFFIX
 from lerobot_ccdp.benchmark.pipeline import OBS_VARIANTS, RECOVERY_MODE, TaskFiles, task_slug
 from lerobot_ccdp.envs import TASKS, CCDPEnvConfig
 from lerobot_ccdp.policy.composition import CompositionWeights
-from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig, z_fourier_octaves_of
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
@@ -34,16 +35,18 @@ EVERY = {w: (w,) * STEPS for w in (1, 3)}
 GUARD, NO_GUARD = (4, 8.0), (0, 1.0)
 
 
-def _setting(w_z, guard=GUARD, delta_z=0.1, state_at="attempt_end", label_at="latest_chunk", dp_star=32):
+def _setting(
+    w_z, guard=GUARD, delta_z=0.1, state_at="demonstrated_end", label_at="latest_chunk", octaves=0, dp_star=32
+):
     return {
-        "ccdp": (w_z, guard, delta_z, state_at, label_at),
-        "dp_star": (dp_star, 4, delta_z, state_at, label_at),
+        "ccdp": (w_z, guard, delta_z, state_at, label_at, octaves),
+        "dp_star": (dp_star, 4, delta_z, state_at, label_at, octaves),
     }
 
 
 LABELLED = {slug: _setting(EARLY_5) for slug in ("door_opening", "button_search", "object_manipulation")}
 LABEL_FREE = {
-    f"{slug}_label_free": _setting(EARLY_5, state_at="demonstrated_end")
+    f"{slug}_label_free": _setting(EARLY_5, octaves=4)
     for slug in ("door_opening", "button_search", "object_manipulation", "object_packing")
 }
 LITE = {
@@ -55,7 +58,7 @@ BENCHMARKED = {
     "object_packing": _setting(EARLY_5),
     "bartender": _setting(EARLY_5, label_at="attempt_end"),
     **LABEL_FREE,
-    "bartender_label_free": _setting(EVERY[1], delta_z=0.05),
+    "bartender_label_free": _setting(EVERY[1], delta_z=0.05, state_at="attempt_end", octaves=4),
     **LITE,
     **{f"{slug}_pixels": s for slug, s in PIXELS.items()},
     **{f"{slug}_lite_pixels": s for slug, s in PIXELS.items()},
@@ -92,9 +95,9 @@ def _evaluated(files: TaskFiles, flags: list[str], tmp_path: Path) -> CCDPConfig
 
 
 def _effective(config: CCDPConfig, method: str) -> tuple:
-    """What a mode samples with: CCDP's w_z at each reverse step, its guard, and the failure lookup; DP*'s
-    candidates and rounds, and the same lookup."""
-    lookup = (config.delta_z, config.failure_state_at, config.failure_label_at)
+    """What a mode samples with: CCDP's w_z at each reverse step, its guard, and the failure lookup (with the
+    Fourier octaves the head reads a z in); DP*'s candidates and rounds, and the same lookup."""
+    lookup = (config.delta_z, config.failure_state_at, config.failure_label_at, z_fourier_octaves_of(config))
     if method == "dp_star":
         return (config.dp_star_candidates, config.dp_star_rounds, *lookup)
     if config.recovery_head == "set_denoiser":
@@ -147,8 +150,9 @@ def test_the_readmes_evaluate_command_evaluates_the_benchmarked_methods(method, 
 
 
 def test_the_policys_defaults_are_the_benchmarks():
-    """What the shipped labelled set-denoiser configs evaluate is CCDPConfig's own default, its head
-    included: the one it names for the door's state inputs, as lerobot-train's make_policy gives them."""
+    """What the shipped set-denoiser configs evaluate is CCDPConfig's own default, its head included: the one
+    it names for the door's state inputs, as lerobot-train's make_policy gives them. The label-free door is
+    the folder whose z is the default's (`final_state`, read at the demonstrated end, in 4 octaves)."""
     features = env_to_policy_features(CCDPEnvConfig(task=_task_of(README_TASK)))
     config = CCDPConfig(
         input_features={k: f for k, f in features.items() if f.type is not FeatureType.ACTION},
@@ -157,6 +161,6 @@ def test_the_policys_defaults_are_the_benchmarks():
     )
     config.validate_features()
     assert config.recovery_head == "set_denoiser"
-    assert _effective(config, "ccdp") == BENCHMARKED["door_opening"]["ccdp"]
-    assert _effective(config, "dp_star") == BENCHMARKED["door_opening"]["dp_star"]
+    assert _effective(config, "ccdp") == BENCHMARKED["door_opening_label_free"]["ccdp"]
+    assert _effective(config, "dp_star") == BENCHMARKED["door_opening_label_free"]["dp_star"]
     assert config.row_noise_streams

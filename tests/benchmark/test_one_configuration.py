@@ -22,17 +22,14 @@ CONFIGS, RECIPES = REPO / "configs", REPO / "datasets_recipes"
 PANDA = [t for t in TASKS if "lite" not in t]
 
 # Method settings the folders still set, as `file: {field: value}` (methods.json as `method.field`). The
-# recovery head and the guard are none of them: CCDPConfig's defaults name the set denoiser for these state
-# inputs, and its guard on the last 4 reverse steps at weight 8.
+# recovery head, the guard, where a label-free failure's z is read and its Fourier octaves are none of them:
+# CCDPConfig's defaults name the set denoiser for these state inputs, its guard on the last 4 reverse steps at
+# weight 8, a failure's z at the end of the demonstrated chunk nearest the one executing (`demonstrated_end`),
+# and 4 octaves for a point z.
 OPEN_DEPARTURES = {
     "bartender": {"train_base": {"failure_label_at": "attempt_end"}},
-    **{
-        f"{task_slug(t)}_label_free": {"train_base": {"failure_state_at": "demonstrated_end"}}
-        for t in PANDA
-        if "Bartender" not in t
-    },
     "bartender_label_free": {
-        "train_base": {"z_fourier_octaves": 4, "stratum_weights": True, "state_failure_sets": 0.5},
+        "train_base": {"failure_state_at": "attempt_end", "stratum_weights": True, "state_failure_sets": 0.5},
         "methods": {
             "dp_star.delta_z": 0.05,
             "ccdp.delta_z": 0.05,
@@ -40,9 +37,6 @@ OPEN_DEPARTURES = {
         },
         "recipe": {"chunks_per_state": 128, "demo_siblings": True},
     },
-}
-OPEN_DEPARTURES["button_search_label_free"] = {
-    "train_base": {**OPEN_DEPARTURES["button_search_label_free"]["train_base"], "z_fourier_octaves": 4}
 }
 
 

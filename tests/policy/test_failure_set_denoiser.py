@@ -328,6 +328,28 @@ def test_fourier_octaves_feed_the_set_embedding_z_with_its_sines_and_cosines():
     torch.testing.assert_close(features, expected[None])
 
 
+@pytest.mark.parametrize(
+    ("z", "given", "octaves"),
+    [
+        ("final_state", None, 4),
+        ("primitive", None, 0),
+        ("action", None, 0),
+        ("final_state", 0, 0),
+        ("primitive", 2, 2),
+    ],
+)
+def test_the_octaves_default_to_what_z_is_and_the_saved_config_holds_the_number(z, given, octaves, tmp_path):
+    """A point z (`final_state`) is read in FOURIER_OCTAVES_OF_A_POINT octaves unless set, a label or a chunk
+    in none; the policy names the number, so config.json (every later stage's config) holds it."""
+    settings = {**SETTINGS, "failure_feature": z, "z_fourier_octaves": given}
+    policy = make_policy(**settings, failure_state_dims=[0] if z == "final_state" else [])
+    assert policy.config.z_fourier_octaves == octaves
+    first = policy.model.recovery.set_embedding[1 if octaves else 0]
+    assert first.in_features == policy.config.failure_feature_dim * (1 + 2 * octaves)
+    policy.config._save_pretrained(tmp_path)
+    assert json.loads((tmp_path / "config.json").read_text())["z_fourier_octaves"] == octaves
+
+
 def test_a_base_checkpoint_starts_a_recovery_stage_with_fourier_octaves(reaching_root, tmp_path):
     """The octaves are chosen at the recovery stage (`--policy.z_fourier_octaves` beside `--policy.path`): the
     base's untrained set embedding has other keys, so it loads as missing and unexpected keys, not as a size

@@ -278,7 +278,10 @@ def test_failure_flag_replans_only_the_failed_row_and_reset_forgets():
 
 
 def test_failure_feature_of_a_flagged_failure_is_the_state_before_it():
-    policy = make_policy(failure_feature="final_state", failure_state_dims=[1])
+    """With `failure_state_at="attempt_end"` a failure's z is the state where the attempt stopped."""
+    policy = make_policy(
+        failure_feature="final_state", failure_state_dims=[1], failure_state_at="attempt_end"
+    )
     before = torch.tensor([[0.1, 0.7], [0.2, -0.4]])
     policy.select_action({"observation.state": before})
     policy.select_action(

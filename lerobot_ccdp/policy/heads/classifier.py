@@ -14,7 +14,7 @@ from torch import Tensor, nn
 
 from lerobot_ccdp.policy.base_denoiser import P_DROP_STATE
 from lerobot_ccdp.policy.composition import CompositionWeights, guide_away_from_failures, log_no_repeat
-from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig, z_fourier_octaves_of
 from lerobot_ccdp.policy.failure_buffer import distinct_failures, draw_failure_sets
 from lerobot_ccdp.policy.heads.registry import Estimate, RecoveryHead, register_head
 
@@ -191,9 +191,10 @@ def set_embedding(config: CCDPConfig, width: int) -> nn.Module:
     heads. With octaves the Linear layers sit at other indices than without, so a base checkpoint's untrained
     head of the other kind loads as missing and unexpected keys, never as a size mismatch."""
     dim = config.failure_feature_dim
-    if not config.z_fourier_octaves:
+    octaves = z_fourier_octaves_of(config)
+    if not octaves:
         return nn.Sequential(nn.Linear(dim, width), nn.Mish(), nn.Linear(width, width))
-    features = FourierFeatures(config.z_fourier_octaves)
+    features = FourierFeatures(octaves)
     return nn.Sequential(
         features, nn.Linear(dim * (1 + 2 * features.octaves), width), nn.Mish(), nn.Linear(width, width)
     )
