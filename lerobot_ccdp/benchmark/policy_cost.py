@@ -1,13 +1,16 @@
 """CCDP versus LeRobot's stock DiffusionPolicy: planning latency and training speed, side by side.
 
     HF_HUB_OFFLINE=1 python -m lerobot_ccdp.benchmark.policy_cost [--repeats 50] [--train-steps 30]
-        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head unet|classifier|set_denoiser]
-        [--plan-batch 1] [--horizon 16] [--w-z 1] [--w-z-steps K] [--guard-steps K]
+        [--cli-steps 60 | --no-cli] [--threads 2] [--recovery-head auto|unet|classifier|set_denoiser]
+        [--plan-batch 1] [--horizon 32] [--w-z 5] [--w-z-steps 3] [--guard-steps 4]
         [--out outputs/policy_cost.json]
 
 Both policies get the same UNet and sampling settings (down_dims (32, 64, 128), diffusion_step_embed_dim 32,
-kernel 5, 8 groups, n_obs_steps 1, horizon 16, n_action_steps 8, DDIM with 10 inference steps) and the same
-inputs: a 2-D robot state plus a small environment state (stock diffusion needs an image or an env state).
+kernel 5, 8 groups, n_obs_steps 1, n_action_steps 8, DDIM with 10 inference steps; planning with --horizon,
+the Panda tasks' 32, training with 16) and the same inputs: a 2-D robot state plus a small environment state
+(stock diffusion needs an image or an env state). CCDP samples with CCDPConfig's defaults unless the flags
+say otherwise: the set denoiser (`auto` for these state inputs), `w_z` 5 on the first 3 reverse steps and the
+guard on the last 4, the one configuration of docs/benchmarks.md.
 
 (a) Planning latency: one call that samples a chunk for --plan-batch rows (`predict_action_chunk`, no grad;
     lerobot-eval plans for its eval batch, a robot for 1 row), median over --repeats calls after warm-up. The
@@ -53,7 +56,7 @@ from lerobot.utils.utils import init_logging
 
 from lerobot_ccdp.benchmark.results import command_line
 from lerobot_ccdp.benchmark.work_folder import add_work_arguments, claim_work
-from lerobot_ccdp.policy.configuration_ccdp import RECOVERY_HEADS, CCDPConfig
+from lerobot_ccdp.policy.configuration_ccdp import RECOVERY_HEAD_SETTINGS, CCDPConfig
 from lerobot_ccdp.policy.modeling_ccdp import CCDPPolicy
 
 logger = logging.getLogger(__name__)
@@ -166,7 +169,7 @@ def planning_latency(env_dim: int, repeats: int, warmup: int, args: argparse.Nam
     def with_failures(policy: CCDPPolicy, n: int) -> CCDPPolicy:
         policy.load_state_dict(state_dict)
         policy.model.recovery_trained.fill_(True)
-        if args.guard_steps:
+        if hasattr(policy.model.recovery, "guard_trained"):  # the set denoiser's
             policy.model.recovery.guard_trained.fill_(True)
         policy.eval().reset()
         policy.select_action(dict(obs))
@@ -445,16 +448,25 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument(
         "--plan-batch", type=int, default=1, help="rows planned per call (lerobot-eval: its batch)"
     )
-    parser.add_argument("--horizon", type=int, default=16, help="chunk length (the Panda tasks: 32)")
-    parser.add_argument("--w-z", type=float, default=1.0, help="CCDP's failure weight")
+    # The sampling defaults are CCDPConfig's, the one configuration every task is benchmarked with.
+    parser.add_argument("--horizon", type=int, default=32, help="planning: chunk length (the Panda tasks')")
+    parser.add_argument("--w-z", type=float, default=CCDPConfig.w_z, help="CCDP's failure weight")
     parser.add_argument(
-        "--w-z-steps", type=int, default=None, help="set denoiser: steps that use --w-z (default: all)"
+        "--w-z-steps", type=int, default=CCDPConfig.w_z_steps, help="set denoiser: steps that use --w-z"
     )
     parser.add_argument(
-        "--guard-steps", type=int, default=0, help="set denoiser: last steps its guard guides (default: none)"
+        "--guard-steps",
+        type=int,
+        default=CCDPConfig.failure_guard_steps,
+        help="set denoiser: last steps its guard guides (0: none)",
     )
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--recovery-head", choices=RECOVERY_HEADS, default="unet", help="recovery head")
+    parser.add_argument(
+        "--recovery-head",
+        choices=RECOVERY_HEAD_SETTINGS,
+        default=CCDPConfig.recovery_head,
+        help="recovery head (auto: the set denoiser for these state inputs)",
+    )
     parser.add_argument("--cli-steps", type=int, default=60, help="lerobot-train steps per policy type")
     parser.add_argument("--cli-log-freq", type=int, default=20)
     parser.add_argument("--no-cli", action="store_true", help="skip the lerobot-train runs")
