@@ -15,8 +15,8 @@ from lerobot_ccdp.policy.config_checks import check_features, check_settings
 
 RecoveryMode = Literal["ccdp", "dp", "dp_star"]
 FailureFeatureKind = Literal["final_state", "action", "primitive"]
-FailureStateAt = Literal["attempt_end", "demonstrated_end", "rest_of_chunk"]
-FailureLabelAt = Literal["latest_chunk", "attempt_end", "rest_of_chunk"]
+FailureStateAt = Literal["attempt_end", "demonstrated_end"]
+FailureLabelAt = Literal["latest_chunk", "attempt_end"]
 FailureSegments = Literal["labels", "drops", "pauses"]
 TrainingStage = Literal["base", "recovery"]
 RecoveryHead = Literal["unet", "classifier", "set_denoiser"]
@@ -104,11 +104,8 @@ class CCDPConfig(PreTrainedConfig):
         failure_state_at: final_state: where a failure's z is read: "demonstrated_end" (the default: where
             the demonstrated chunk nearest the failed one ends, i.e. where the attempt was heading, a z the
             head trained on; needs the outcome table, as `primitive` does, and a planned chunk) or
-            "attempt_end" (the state where the failed attempt stopped), or "rest_of_chunk" (where the
-            demonstrated chunk ends whose beginning is nearest what the executing chunk had left to do when
-            the failure was flagged: the option under way then, where a chunk runs from one option into the
-            next). The default names a failure as `failure_label_at`'s default does a label: by the
-            demonstrated chunk nearest the one executing.
+            "attempt_end" (the state where the failed attempt stopped). The default names a failure as
+            `failure_label_at`'s default does a label: by the demonstrated chunk nearest the one executing.
         failure_segments: final_state: where a demonstrated option ends: "labels" (runs of one `primitive_key`
             label, the whole episode without that column), "drops" (the gripper, the action's last dim, lets
             go and the hand opens) or "pauses" (the action holds still for two frames).
@@ -116,9 +113,7 @@ class CCDPConfig(PreTrainedConfig):
         failure_label_at: primitive: which label names a failure: "latest_chunk" (that of the demonstrated
             chunk nearest the chunk executing when the failure was flagged) or "attempt_end" (that of the
             demonstrated option whose end, in `failure_state_dims`, is nearest the state
-            where the attempt stopped: right where a chunk that finished one option fails the next one) or
-            "rest_of_chunk" (that of the demonstrated chunk whose beginning is nearest what the executing
-            chunk had left to do when the failure was flagged: the option under way then, read from the plan).
+            where the attempt stopped: right where a chunk that finished one option fails the next one).
         num_primitives: primitive: how many labels exist.
         failure_signal_file: A file whose appearance or touch reports a failure of every row, for loops such
             as lerobot-record that pass no failure signal (policy/failure_signal.py). A setting of the machine

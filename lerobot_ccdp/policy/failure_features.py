@@ -46,12 +46,7 @@ class FailureFeature:
         return self.one_hot(outcomes.primitives[nearest])
 
     def of_failure(
-        self,
-        frame_at_failure: Tensor,
-        attempt_chunk: Tensor,
-        latest_chunk: Tensor,
-        executed: Tensor,
-        outcomes: OutcomeIndex,
+        self, frame_at_failure: Tensor, attempt_chunk: Tensor, latest_chunk: Tensor, outcomes: OutcomeIndex
     ) -> Tensor:
         """z_f of failed attempts: the state where the attempt ended (`final_state` at "attempt_end") or the
         final state of the demonstration it was following ("demonstrated_end"), the attempt's first chunk, the
@@ -61,23 +56,12 @@ class FailureFeature:
         every option shares (ButtonSearch: 0.99 vs 0.75 of failures given their true option, under DP*).
         With `failure_label_at="attempt_end"` the label is that of the demonstrated option ending nearest the
         state where the attempt stopped: a chunk that finished one option and failed the next (the Bartender's
-        pour into the next cup) is named for the option it failed, not the one it began with. At
-        "rest_of_chunk" (either z) the outcome is that of the demonstrated chunk nearest what the latest chunk
-        had left after its `executed` (B,) steps: the option under way when the failure was flagged, read from
-        the plan rather than from where the attempt stopped."""
+        pour into the next cup) is named for the option it failed, not the one it began with."""
         if self.kind == "primitive" and self.reads_failure_frame:
             return self.one_hot(outcomes.primitives[outcomes.nearest_end(self.from_frame(frame_at_failure))])
         if self.reads_failure_frame:
             return self.from_frame(frame_at_failure)
-        if self.kind == "action":
-            return self.from_chunk(attempt_chunk, outcomes)
-        at = self.config.failure_label_at if self.kind == "primitive" else self.config.failure_state_at
-        if at != "rest_of_chunk":
-            return self.from_chunk(latest_chunk, outcomes)
-        nearest = outcomes.nearest_to_rest(latest_chunk, executed)
-        if self.kind == "final_state":
-            return outcomes.final_states[nearest]
-        return self.one_hot(outcomes.primitives[nearest])
+        return self.from_chunk(attempt_chunk if self.kind == "action" else latest_chunk, outcomes)
 
     @property
     def reads_failure_frame(self) -> bool:

@@ -32,21 +32,6 @@ class OutcomeIndex(nn.Module):
         """Index of the nearest demonstrated chunk for each chunk in (B, horizon, action_dim)."""
         return self._distances(chunk).argmin(dim=1)
 
-    def nearest_to_rest(self, chunk: Tensor, executed: Tensor) -> Tensor:
-        """Index of the demonstrated chunk whose first steps are nearest what each chunk (B, horizon,
-        action_dim) had left after its first `executed` (B,) steps: the option under way at that step, where
-        a chunk runs from one option into the next."""
-        self._require_rows()
-        horizon = chunk.shape[1]
-        demos = self.chunks.view(len(self), horizon, -1)
-        left = executed.clamp(0, horizon - 1)
-        index = torch.empty(chunk.shape[0], dtype=torch.long, device=chunk.device)
-        for k in left.unique().tolist():
-            rows = left == k
-            rest = chunk[rows, k:].flatten(start_dim=1)
-            index[rows] = torch.cdist(rest, demos[:, : horizon - k].flatten(start_dim=1)).argmin(dim=1)
-        return index
-
     def nearest_end(self, state: Tensor) -> Tensor:
         """Index of the demonstrated frame whose option ends nearest each state (B, z_dim) (same dims as the
         table's final states)."""

@@ -64,11 +64,6 @@ class RolloutMemory:
         """Restart `rows` (bool, (B,)) at their next frame, as after a failed attempt."""
         self.restart_pending |= rows
 
-    def executed(self) -> Tensor:
-        """Steps of each row's latest chunk executed so far (B,): its plan starts at the chunk's step
-        n_obs_steps - 1, as `set_plan` is given."""
-        return self.plan_pos + self.n_obs - 1
-
     def needs_plan(self) -> Tensor:
         return self.plan_pos >= self.plan.shape[1]
 
@@ -141,9 +136,7 @@ class Rollout:
                     unplanned.nonzero().flatten().tolist(),
                 )
                 rows = failed & memory.attempt_planned
-            z = feature.of_failure(
-                memory.last_frame, memory.attempt_chunk, memory.latest_chunk, memory.executed(), outcomes
-            )
+            z = feature.of_failure(memory.last_frame, memory.attempt_chunk, memory.latest_chunk, outcomes)
         else:
             z_full = torch.zeros(memory.batch_size, self.config.failure_feature_dim, device=z.device)
             z_full[rows] = z.reshape(-1, self.config.failure_feature_dim).to(z_full.dtype)

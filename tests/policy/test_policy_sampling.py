@@ -371,46 +371,6 @@ def test_attempt_end_label_names_the_option_ending_where_the_attempt_stopped(mon
     assert labels == {"latest_chunk": 0, "attempt_end": 1}
 
 
-@pytest.mark.parametrize("feature", ["primitive", "final_state"])
-def test_rest_of_chunk_names_the_option_under_way_when_the_failure_was_flagged(monkeypatch, feature):
-    """A chunk that finishes option 0 in its first half and runs into option 1 fails after 10 executed steps:
-    at "rest_of_chunk" the failure is named by the demonstrated chunk nearest what it had left (option 1,
-    whose demonstration ends at 0.6), under the latest chunk's lookup by the one it began as (option 0)."""
-    half = HORIZON // 2
-    demos = torch.stack(
-        [
-            torch.full((HORIZON, ACTION_DIM), -1.0),  # option 0 throughout
-            torch.full((HORIZON, ACTION_DIM), 1.0),  # option 1 throughout
-        ]
-    )
-    crossing = torch.cat([torch.full((half + 4, ACTION_DIM), -1.0), torch.full((half - 4, ACTION_DIM), 1.0)])
-    named = {}
-    for at in ("latest_chunk", "rest_of_chunk"):
-        where = {"failure_label_at": at} if feature == "primitive" else {"failure_state_at": at}
-        if feature == "final_state" and at == "latest_chunk":
-            where = {"failure_state_at": "demonstrated_end"}
-        policy = make_policy(
-            failure_feature=feature,
-            primitive_key="primitive",
-            num_primitives=2,
-            failure_state_dims=[1],
-            n_action_steps=12,
-            **where,
-        )
-        policy.model.outcomes.fill(demos, torch.tensor([[-0.8], [0.6]]), torch.tensor([0, 1]))
-        monkeypatch.setattr(policy, "_sample", lambda rows, noise, chunk=crossing[None]: chunk)
-        obs = {"observation.state": torch.zeros(1, 2)}
-        for _ in range(10):  # plans the crossing chunk and executes 10 of its steps
-            policy.select_action(obs)
-        assert int(policy._rollout.memory.executed()[0]) == 10
-        policy.select_action({**obs, "observation.failure": torch.tensor([[1.0]])})
-        z, mask = policy._rollout.failures.padded()
-        assert mask.all()
-        named[at] = int(z[0, 0].argmax()) if feature == "primitive" else round(float(z[0, 0, 0]), 3)
-    under_way = {"primitive": (0, 1), "final_state": (-0.8, 0.6)}[feature]
-    assert (named["latest_chunk"], named["rest_of_chunk"]) == under_way
-
-
 def test_untrained_recovery_head_falls_back_to_dp_with_a_warning(caplog):
     policy = make_policy()
     obs = {"observation.state": torch.zeros(1, 2)}
