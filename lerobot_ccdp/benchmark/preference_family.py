@@ -24,16 +24,17 @@ are the round of its guard (docs/benchmarks.md).
 With --set-denoiser the base is trained with `--policy.recovery_head=set_denoiser` (the classifier, unless
 --no-classifier, trains from it with its head named on the command line), lerobot-ccdp-synthesize writes its
 rows (SET_RECIPE: chunks the base samples at demonstrated states, half of them the episodes' first),
-lerobot-train trains the failure-set denoiser on them for --head-steps, and "CCDP set denoiser" (w_z = 1, one
-sample per plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1
-round) on the same base and seeds; each --w-z other than 1 adds the set denoiser at that failure weight on the
---w-z-steps reverse steps from each --w-z-from on (0 the noisiest step; 0 steps: to the last), and each
---guard-steps other than 0 the same forms with the head's guard on that many last steps (at each
---guard-weight). --set-states
-sets the rows' states (SET_RECIPE's 512), --stratum-weights weighs the head's rows per (state, failure set)
-(`--policy.stratum_weights`), and --no-baselines leaves out DP and DP* (most of a member's
-measurement time) for a sweep of head settings. --z-fourier-octaves gives a `final_state` member's head its z
-in Fourier features (the Panda's label-free setting; measured on the family and not kept: docs/benchmarks.md).
+lerobot-train trains the failure-set denoiser on them for --head-steps, and the set denoiser (one sample per
+plan) is measured beside DP, DP* and "DP* at CCDP's cost" (`dp_star_matched`'s 2 candidates, 1 round) on the
+same base and seeds, at every combination of --w-z, --w-z-steps (the noisiest reverse steps that use a weight
+other than 1; 0: every step), --guard-steps (the head's guard on that many last steps; 0: none) and
+--guard-weight. Their defaults are CCDPConfig's, the one configuration the Panda tasks are benchmarked with
+(`w_z` 5 on the first 3 steps, the guard on the last 4 at weight 8): the family measures what a user gets
+unless told otherwise (the family's earlier rounds named `--w-z 1 --guard-weight 1`). --set-states sets the
+rows' states (SET_RECIPE's 512), --stratum-weights weighs the head's rows per (state, failure set)
+(`--policy.stratum_weights`), and --no-baselines leaves out DP and DP* (most of a member's measurement time)
+for a sweep of head settings. --z-fourier-octaves sets a `final_state` member's Fourier octaves of z (default:
+CCDPConfig's for a point z).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ import shutil
 import subprocess
 import sys
 import time
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +61,7 @@ from lerobot_ccdp.benchmark.reaching2d import ReachingTask
 from lerobot_ccdp.benchmark.reaching_preferences import Method, measure
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
-from lerobot_ccdp.policy.configuration_ccdp import FOURIER_OCTAVES_OF_A_POINT
+from lerobot_ccdp.policy.configuration_ccdp import FOURIER_OCTAVES_OF_A_POINT, CCDPConfig
 
 logger = logging.getLogger(__name__)
 CREATED_BY = "lerobot_ccdp.benchmark.preference_family"
@@ -77,33 +79,36 @@ MATCHED = {"DP* at CCDP's cost": Method("dp_star", MATCHED_DP_STAR)}
 # w_s = 1.
 SET_RECIPE = {"n_states": 512, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0, "demo_frames": 4096}
 
+# CCDPConfig's sampling defaults, the one configuration every Panda task is benchmarked with (issue 114).
+_POLICY = {f.name: f.default for f in fields(CCDPConfig)}
+
 # The sampling settings measured in every combination on the same checkpoints (no retraining): flag, type,
-# default, help.
+# default (the policy's, so the family measures what a user gets), help.
 SAMPLING_GRIDS = (
     (
         "--w-z",
         float,
-        1.0,
+        _POLICY["w_z"],
         "classifier guidance weights, or the set denoiser's failure weights, to measure",
     ),
     (
         "--w-z-steps",
         int,
-        0,
+        _POLICY["w_z_steps"] or 0,
         "set denoiser: how many of the noisiest reverse steps use each --w-z other than 1, 1 elsewhere "
         "(0: every step)",
     ),
     (
         "--guard-steps",
         int,
-        0,
+        _POLICY["failure_guard_steps"],
         "set denoiser: each form also with its guard on the last this many reverse steps "
         "(--policy.failure_guard_steps; 0: no guard)",
     ),
     (
         "--guard-weight",
         float,
-        1.0,
+        _POLICY["failure_guard_weight"],
         "set denoiser: each guarded form at each of these guard weights (--policy.failure_guard_weight)",
     ),
 )
@@ -541,7 +546,8 @@ def panel_grid(results: dict[int, dict], path: Path, ccdp: str) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line; its sampling defaults are the policy's (SAMPLING_GRIDS)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--members", type=int, nargs="+", default=list(range(12)))
     parser.add_argument("--out", type=Path, default=Path("outputs/preferences"))
@@ -612,7 +618,11 @@ def main(argv: list[str] | None = None) -> None:
         help="take over an --out made by an earlier version of this tool (benchmarks/bench_preferences.py, "
         "or before ownership markers)",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
     init_logging()
     try:
         claim_output_folder(args.out, CREATED_BY, adopt=args.adopt)

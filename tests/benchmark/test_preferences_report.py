@@ -4,12 +4,14 @@ and the panel grid draws the members that kept their chunks; the header describe
 measured with."""
 
 import json
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lerobot_ccdp.benchmark import preference_family as bench
+from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 
 NAMES = ("DP", "CCDP set denoiser")
 # What `measured_settings` kept for members measured before the Fourier octaves were recorded.
@@ -147,3 +149,27 @@ def test_report_only_merges_members_run_side_by_side_into_one_report(tmp_path: P
         (out / "preferences.md").read_text().startswith("Failed share / preference error; members [100, 101]")
     )
     assert (out / "preferences.png").stat().st_size > 0  # member 100 kept its chunks
+
+
+def test_the_family_measures_the_policy_s_defaults_unless_told_otherwise():
+    """Issue 114, item 7: the family's set denoiser is measured at CCDPConfig's sampling settings, the one
+    configuration of the Panda tasks, so a change of the policy's defaults moves the family with it."""
+    policy = {f.name: f.default for f in fields(CCDPConfig)}
+    forms = bench.methods("set_denoiser", False, bench.build_parser().parse_args([]), None)
+    ccdp = [m for m in forms.values() if m.mode == "ccdp"]
+    assert len(ccdp) == 1
+    assert ccdp[0].fields == {
+        "w_z": policy["w_z"],
+        "w_z_steps": policy["w_z_steps"],
+        "failure_guard_steps": policy["failure_guard_steps"],
+        "failure_guard_weight": policy["failure_guard_weight"],
+    }
+    earlier = bench.build_parser().parse_args(["--w-z", "1", "--guard-weight", "1"])
+    (form,) = [m for m in bench.methods("set_denoiser", False, earlier, None).values() if m.mode == "ccdp"]
+    guard = policy["failure_guard_steps"]
+    assert form.fields == {
+        "w_z": 1.0,
+        "w_z_steps": None,
+        "failure_guard_steps": guard,
+        "failure_guard_weight": 1.0,
+    }
