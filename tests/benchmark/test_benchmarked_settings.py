@@ -1,14 +1,15 @@
 """The CCDP and DP* each task's benchmark evaluates, and that the policy's defaults are them.
 
-BENCHMARKED holds, per settings folder, the form the pipeline evaluates: the one configuration (issue 114)
-for the set-denoiser folders, chosen on the development seeds 1000-1099 (docs/benchmarks.md, "The one
-configuration"): the window (`w_z` 5 on the 3 noisiest steps) and the guard on the last 4 at weight 8, with
-what each folder still departs in (tests/benchmark/test_one_configuration.py). The test rounds before it
-evaluated the forms docs/results.md names per round (no guard on the door, buttons, box and packing; `w_z` 1
-and the guard on 8 steps on the labelled Bartender; z in no Fourier octaves on the label-free door, box and
-packing). Each test builds the evaluated config as lerobot-eval
-does: the checkpoint's config.json (train_base.json's policy on the policy's defaults) with the command's
---policy.* flags on top (`PreTrainedConfig.from_pretrained(path, cli_overrides=...)`).
+BENCHMARKED holds, per settings folder, the form the pipeline evaluates: the one configuration (issue 114) for
+the set-denoiser folders, chosen on the development seeds 1000-1099 (docs/benchmarks.md, "The one
+configuration"): the window (`w_z` 5 on the 3 noisiest steps) and the guard on the last 4 at weight 8, the
+same for every Panda folder (tests/benchmark/test_one_configuration.py). The test rounds before it evaluated
+the forms docs/results.md names per round (no guard on the door, buttons, box and packing; `w_z` 1 and the
+guard on 8 steps on the labelled Bartender, a failure's label at the attempt's end there; `w_z` 1, `delta_z`
+0.05 and z at the attempt's end on the label-free Bartender; z in no Fourier octaves on the label-free door,
+box and packing). Each test builds the evaluated config as lerobot-eval does: the checkpoint's config.json
+(train_base.json's policy on the policy's defaults) with the command's --policy.* flags on top
+(`PreTrainedConfig.from_pretrained(path, cli_overrides=...)`).
 """
 
 import json
@@ -44,21 +45,14 @@ def _setting(
     }
 
 
-LABELLED = {slug: _setting(EARLY_5) for slug in ("door_opening", "button_search", "object_manipulation")}
-LABEL_FREE = {
-    f"{slug}_label_free": _setting(EARLY_5, octaves=4)
-    for slug in ("door_opening", "button_search", "object_manipulation", "object_packing")
-}
-LITE = {
-    f"{slug}_lite": _setting(EVERY[3], guard=NO_GUARD) for slug in (*LABELLED, "object_packing", "bartender")
-}
+PANDA = ("door_opening", "button_search", "object_manipulation", "object_packing", "bartender")
+LABELLED = {slug: _setting(EARLY_5) for slug in PANDA}
+LABEL_FREE = {f"{slug}_label_free": _setting(EARLY_5, octaves=4) for slug in PANDA}
+LITE = {f"{slug}_lite": _setting(EVERY[3], guard=NO_GUARD) for slug in PANDA}
 PIXELS = {slug: _setting(EVERY[3], guard=NO_GUARD, dp_star=16) for slug in ("door_opening", "button_search")}
 BENCHMARKED = {
     **LABELLED,
-    "object_packing": _setting(EARLY_5),
-    "bartender": _setting(EARLY_5, label_at="attempt_end"),
     **LABEL_FREE,
-    "bartender_label_free": _setting(EVERY[1], delta_z=0.05, state_at="attempt_end", octaves=4),
     **LITE,
     **{f"{slug}_pixels": s for slug, s in PIXELS.items()},
     **{f"{slug}_lite_pixels": s for slug, s in PIXELS.items()},
