@@ -36,10 +36,10 @@ TRAINING_FIELDS = {"dataset", "policy", "output_dir", "seed", "steps", "batch_si
 TRAINING_FIELDS |= {"log_freq", "save_freq", "wandb"}
 # The base's length, one rule for every task (issue 114): the fewest whole 800-step intervals that give at
 # least 19 epochs over the demonstrated frames at the training file's batch size. It is the length the door,
-# box, buttons and packing were benchmarked with (19-29 epochs at batch 64). The Bartenders do not fit it
-# yet: at its 1600 steps both lost 0.16-0.19 of success on the development seeds (docs/benchmarks.md, "The
-# one configuration"), so they keep 2400 and 7200 steps, listed as open in
-# tests/benchmark/test_one_configuration.py.
+# box, buttons and packing were benchmarked with (19-29 epochs at batch 64). The Bartender does not fit it
+# yet: at its 1600 steps both of its folders lost 0.16-0.19 of success on the development seeds, and at 7200
+# (86 epochs) both did best (docs/benchmarks.md, "The Bartenders at the one configuration"), listed as open
+# in tests/benchmark/test_one_configuration.py.
 BASE_EPOCHS, BASE_STEP_UNIT = 19, 800
 BEGIN = (
     "<!-- settings:begin (written by python -m lerobot_ccdp.benchmark.task_settings --write; do not edit) -->"
