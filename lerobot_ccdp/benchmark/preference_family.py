@@ -46,7 +46,6 @@ import shutil
 import subprocess
 import sys
 import time
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +59,7 @@ from lerobot_ccdp.benchmark.pipeline import MATCHED_DP_STAR
 from lerobot_ccdp.benchmark.reaching2d import ReachingTask
 from lerobot_ccdp.benchmark.reaching_preferences import Method, measure
 from lerobot_ccdp.benchmark.stage_stamps import StampBook, stamp
+from lerobot_ccdp.benchmark.task_settings import defaults
 from lerobot_ccdp.datasets.ownership import NotOwned, claim_output_folder
 from lerobot_ccdp.policy.configuration_ccdp import FOURIER_OCTAVES_OF_A_POINT, CCDPConfig
 
@@ -80,7 +80,7 @@ MATCHED = {"DP* at CCDP's cost": Method("dp_star", MATCHED_DP_STAR)}
 SET_RECIPE = {"n_states": 512, "chunks_per_state": 16, "sigma": 0.02, "w_s": 1.0, "demo_frames": 4096}
 
 # CCDPConfig's sampling defaults, the one configuration every Panda task is benchmarked with (issue 114).
-_POLICY = {f.name: f.default for f in fields(CCDPConfig)}
+_POLICY = defaults(CCDPConfig)
 
 # The sampling settings measured in every combination on the same checkpoints (no retraining): flag, type,
 # default (the policy's, so the family measures what a user gets), help.

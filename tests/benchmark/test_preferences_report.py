@@ -4,13 +4,13 @@ and the panel grid draws the members that kept their chunks; the header describe
 measured with."""
 
 import json
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lerobot_ccdp.benchmark import preference_family as bench
+from lerobot_ccdp.benchmark.task_settings import defaults
 from lerobot_ccdp.policy.configuration_ccdp import CCDPConfig
 
 NAMES = ("DP", "CCDP set denoiser")
@@ -154,7 +154,7 @@ def test_report_only_merges_members_run_side_by_side_into_one_report(tmp_path: P
 def test_the_family_measures_the_policy_s_defaults_unless_told_otherwise():
     """Issue 114, item 7: the family's set denoiser is measured at CCDPConfig's sampling settings, the one
     configuration of the Panda tasks, so a change of the policy's defaults moves the family with it."""
-    policy = {f.name: f.default for f in fields(CCDPConfig)}
+    policy = defaults(CCDPConfig)
     forms = bench.methods("set_denoiser", False, bench.build_parser().parse_args([]), None)
     ccdp = [m for m in forms.values() if m.mode == "ccdp"]
     assert len(ccdp) == 1
